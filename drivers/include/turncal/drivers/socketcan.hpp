@@ -1,0 +1,115 @@
+// SocketCAN raw socket, wrapped once (style.md, 8): RAII, errno turned into
+// Result at this layer, non-blocking so it fits an event loop.
+//
+// * receive(): batched (recvmmsg), kernel receive timestamps (SO_TIMESTAMPNS,
+//   CLOCK_REALTIME), drops counted from SO_RXQ_OVFL, error frames turned into
+//   BusEvents.
+// * send(): never blocks; when the kernel queue is full (EAGAIN, ENOBUFS) the
+//   frame waits in a bounded queue, and what overflows it is counted.
+// * An interface that goes down is reported (InterfaceDown) and works again
+//   when it comes up; one that is removed (InterfaceGone) is re-opened by
+//   try_recover() once it exists again, without restarting the process.
+#pragma once
+
+#include <cstdint>
+#include <deque>
+#include <string>
+#include <vector>
+
+#include "turncal/can/bus_event.hpp"
+#include "turncal/can/frame.hpp"
+#include "turncal/result.hpp"
+
+namespace turncal::socketcan {
+
+struct Filter {
+  std::uint32_t id = 0;
+  bool extended = false;
+  std::uint32_t mask = 0;  ///< 0: exact match on id and frame format
+};
+
+struct Options {
+  std::string interface;
+  bool fd = false;               ///< also receive and send CAN FD frames
+  std::vector<Filter> filters;   ///< empty: every frame
+  bool error_frames = true;      ///< receive error frames (as BusEvents)
+  bool receive_own = false;      ///< see our own sent frames
+  std::size_t tx_queue_limit = 256;  ///< frames waiting for the kernel queue
+  int rcvbuf_bytes = 0;          ///< SO_RCVBUF; 0: kernel default
+};
+
+struct Stats {
+  std::uint64_t rx_frames = 0;
+  std::uint64_t rx_dropped = 0;    ///< lost in the kernel (socket queue overflow)
+  std::uint64_t rx_error_frames = 0;
+  std::uint64_t tx_frames = 0;     ///< handed to the kernel
+  std::uint64_t tx_queued = 0;     ///< had to wait in the send queue
+  std::uint64_t tx_overflow = 0;   ///< dropped because the send queue was full
+  std::uint64_t tx_failed = 0;     ///< dropped because the interface was down or gone
+  std::uint64_t recoveries = 0;    ///< times the socket was re-opened
+};
+
+/// Frames and events of one receive call.
+struct RxBatch {
+  std::vector<can::TimedFrame> frames;
+  std::vector<can::BusEvent> events;
+  void clear() {
+    frames.clear();
+    events.clear();
+  }
+};
+
+enum class LinkState : std::uint8_t { Up, Down, Gone };
+
+class Socket {
+ public:
+  static Result<Socket> open(Options options);
+  Socket(Socket&& other) noexcept;
+  Socket& operator=(Socket&& other) noexcept;
+  Socket(const Socket&) = delete;
+  Socket& operator=(const Socket&) = delete;
+  ~Socket();
+
+  /// Descriptor to poll for input (and for output while tx_pending()); -1
+  /// while the interface is gone. It changes when the socket is re-opened.
+  [[nodiscard]] int fd() const { return fd_; }
+  [[nodiscard]] const std::string& interface() const { return opt_.interface; }
+  [[nodiscard]] LinkState link() const { return link_; }
+  [[nodiscard]] const Stats& stats() const { return stats_; }
+  [[nodiscard]] bool tx_pending() const { return !txq_.empty(); }
+
+  /// Reads up to `max_batches` x 64 frames without blocking, appending to
+  /// `out`. Returns the number of frames read; link changes come as events.
+  Result<std::size_t> receive(RxBatch& out, std::size_t max_batches = 4);
+  /// Sends without blocking; queues when the kernel is full. An error only
+  /// for a frame the socket cannot carry (FD frame on a classic socket).
+  Status send(const can::Frame& frame);
+  /// Retries queued frames; returns how many are still waiting.
+  std::size_t flush();
+  /// While the link is Down or Gone: checks the interface and re-opens the
+  /// socket when it is usable again (an InterfaceBack event is appended).
+  /// Returns true when the link is Up.
+  bool try_recover(RxBatch& out);
+
+ private:
+  explicit Socket(Options options) : opt_(std::move(options)) {}
+  Status open_socket();
+  void close_socket();
+  enum class TxResult { Sent, Busy, Failed };
+  TxResult write_frame(const can::Frame& frame);
+  void link_event(RxBatch& out, can::BusEventKind kind);
+
+  Options opt_;
+  int fd_ = -1;
+  LinkState link_ = LinkState::Up;
+  unsigned ifindex_ = 0;
+  std::uint32_t last_ovfl_ = 0;
+  std::deque<can::Frame> txq_;
+  Stats stats_;
+};
+
+/// CLOCK_REALTIME now, ns since the Unix epoch (the clock of the kernel
+/// receive timestamps).
+std::int64_t realtime_ns();
+
+}  // namespace turncal::socketcan

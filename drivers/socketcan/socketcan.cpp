@@ -1,0 +1,313 @@
+#include "turncal/drivers/socketcan.hpp"
+
+#include <fcntl.h>
+#include <linux/can.h>
+#include <linux/can/error.h>
+#include <linux/can/raw.h>
+#include <net/if.h>
+#include <sys/ioctl.h>
+#include <sys/socket.h>
+#include <sys/uio.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <array>
+#include <cerrno>
+#include <cstring>
+
+namespace turncal::socketcan {
+namespace {
+
+constexpr std::size_t kBatch = 64;
+constexpr std::size_t kCmsgSpace = CMSG_SPACE(sizeof(struct timespec)) + CMSG_SPACE(sizeof(std::uint32_t));
+
+Error sys_error(const std::string& iface, const char* what, int err) {
+  return make_error(iface + ": " + what + ": " + std::strerror(err));
+}
+
+void to_kernel(const can::Frame& f, canfd_frame& k) {
+  std::memset(&k, 0, sizeof k);
+  if (f.error) {
+    k.can_id = (f.id & CAN_ERR_MASK) | CAN_ERR_FLAG;
+  } else if (f.extended) {
+    k.can_id = (f.id & CAN_EFF_MASK) | CAN_EFF_FLAG;
+  } else {
+    k.can_id = f.id & CAN_SFF_MASK;
+  }
+  if (f.remote) k.can_id |= CAN_RTR_FLAG;
+  k.len = f.len;
+  if (f.fd) k.flags = static_cast<__u8>((f.brs ? CANFD_BRS : 0) | (f.esi ? CANFD_ESI : 0));
+  std::memcpy(k.data, f.data.data(), f.len);
+}
+
+void from_kernel(const canfd_frame& k, bool fd, can::Frame& f) {
+  f = can::Frame{};
+  f.error = (k.can_id & CAN_ERR_FLAG) != 0;
+  f.extended = !f.error && (k.can_id & CAN_EFF_FLAG) != 0;
+  f.remote = (k.can_id & CAN_RTR_FLAG) != 0;
+  f.id = f.error ? (k.can_id & CAN_ERR_MASK) : f.extended ? (k.can_id & CAN_EFF_MASK) : (k.can_id & CAN_SFF_MASK);
+  f.fd = fd;
+  f.brs = fd && (k.flags & CANFD_BRS) != 0;
+  f.esi = fd && (k.flags & CANFD_ESI) != 0;
+  const std::size_t max = fd ? CANFD_MAX_DLEN : CAN_MAX_DLEN;
+  f.len = static_cast<std::uint8_t>(k.len > max ? max : k.len);
+  if (!f.remote) std::memcpy(f.data.data(), k.data, f.len);
+}
+
+bool interface_up(int fd, const std::string& name) {
+  ifreq ifr{};
+  std::strncpy(ifr.ifr_name, name.c_str(), IFNAMSIZ - 1);
+  return ::ioctl(fd, SIOCGIFFLAGS, &ifr) == 0 && (ifr.ifr_flags & IFF_UP) != 0;
+}
+
+}  // namespace
+
+std::int64_t realtime_ns() {
+  timespec ts{};
+  ::clock_gettime(CLOCK_REALTIME, &ts);
+  return static_cast<std::int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
+}
+
+Socket::Socket(Socket&& o) noexcept
+    : opt_(std::move(o.opt_)),
+      fd_(std::exchange(o.fd_, -1)),
+      link_(o.link_),
+      ifindex_(o.ifindex_),
+      last_ovfl_(o.last_ovfl_),
+      txq_(std::move(o.txq_)),
+      stats_(o.stats_) {}
+
+Socket& Socket::operator=(Socket&& o) noexcept {
+  if (this != &o) {
+    close_socket();
+    opt_ = std::move(o.opt_);
+    fd_ = std::exchange(o.fd_, -1);
+    link_ = o.link_;
+    ifindex_ = o.ifindex_;
+    last_ovfl_ = o.last_ovfl_;
+    txq_ = std::move(o.txq_);
+    stats_ = o.stats_;
+  }
+  return *this;
+}
+
+Socket::~Socket() { close_socket(); }
+
+void Socket::close_socket() {
+  if (fd_ >= 0) ::close(fd_);
+  fd_ = -1;
+}
+
+Result<Socket> Socket::open(Options options) {
+  if (options.interface.empty() || options.interface.size() >= IFNAMSIZ)
+    return make_error("'" + options.interface + "' is not an interface name");
+  Socket s(std::move(options));
+  TURNCAL_TRY(s.open_socket());
+  return s;
+}
+
+Status Socket::open_socket() {
+  const std::string& name = opt_.interface;
+  const unsigned index = ::if_nametoindex(name.c_str());
+  if (index == 0) return sys_error(name, "no such CAN interface", errno);
+  const int fd = ::socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_RAW);
+  if (fd < 0) return sys_error(name, "socket(PF_CAN)", errno);
+  auto fail = [&](const char* what) {
+    const int err = errno;
+    ::close(fd);
+    return sys_error(name, what, err);
+  };
+  const int one = 1;
+  if (opt_.fd && ::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_FD_FRAMES, &one, sizeof one) != 0)
+    return fail("CAN_RAW_FD_FRAMES");
+  if (opt_.receive_own && ::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_RECV_OWN_MSGS, &one, sizeof one) != 0)
+    return fail("CAN_RAW_RECV_OWN_MSGS");
+  if (!opt_.filters.empty()) {
+    std::vector<can_filter> filters;
+    for (const Filter& f : opt_.filters) {
+      can_filter k{};
+      k.can_id = f.extended ? ((f.id & CAN_EFF_MASK) | CAN_EFF_FLAG) : (f.id & CAN_SFF_MASK);
+      k.can_mask = f.mask != 0 ? (f.mask | CAN_EFF_FLAG | CAN_RTR_FLAG)
+                               : ((f.extended ? CAN_EFF_MASK : CAN_SFF_MASK) | CAN_EFF_FLAG | CAN_RTR_FLAG);
+      filters.push_back(k);
+    }
+    if (::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_FILTER, filters.data(),
+                     static_cast<socklen_t>(filters.size() * sizeof(can_filter))) != 0)
+      return fail("CAN_RAW_FILTER");
+  }
+  if (opt_.error_frames) {
+    const can_err_mask_t mask = CAN_ERR_MASK;
+    if (::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_ERR_FILTER, &mask, sizeof mask) != 0)
+      return fail("CAN_RAW_ERR_FILTER");
+  }
+  if (::setsockopt(fd, SOL_SOCKET, SO_TIMESTAMPNS, &one, sizeof one) != 0) return fail("SO_TIMESTAMPNS");
+  if (::setsockopt(fd, SOL_SOCKET, SO_RXQ_OVFL, &one, sizeof one) != 0) return fail("SO_RXQ_OVFL");
+  if (opt_.rcvbuf_bytes > 0 &&
+      ::setsockopt(fd, SOL_SOCKET, SO_RCVBUF, &opt_.rcvbuf_bytes, sizeof opt_.rcvbuf_bytes) != 0)
+    return fail("SO_RCVBUF");
+  sockaddr_can addr{};
+  addr.can_family = AF_CAN;
+  addr.can_ifindex = static_cast<int>(index);
+  if (::bind(fd, reinterpret_cast<sockaddr*>(&addr), sizeof addr) != 0) return fail("bind");
+  fd_ = fd;
+  ifindex_ = index;
+  last_ovfl_ = 0;
+  link_ = LinkState::Up;
+  return Status{Ok{}};
+}
+
+void Socket::link_event(RxBatch& out, can::BusEventKind kind) {
+  out.events.push_back(can::BusEvent{realtime_ns(), kind, 0});
+}
+
+Result<std::size_t> Socket::receive(RxBatch& out, std::size_t max_batches) {
+  if (fd_ < 0) return std::size_t{0};
+  std::array<canfd_frame, kBatch> frames;
+  std::array<iovec, kBatch> iov;
+  std::array<mmsghdr, kBatch> msgs;
+  alignas(cmsghdr) std::array<std::array<char, kCmsgSpace>, kBatch> ctrl;
+  std::size_t total = 0;
+  for (std::size_t batch = 0; batch < max_batches; ++batch) {
+    for (std::size_t i = 0; i < kBatch; ++i) {
+      iov[i] = iovec{&frames[i], sizeof(canfd_frame)};
+      std::memset(&msgs[i], 0, sizeof(mmsghdr));
+      msgs[i].msg_hdr.msg_iov = &iov[i];
+      msgs[i].msg_hdr.msg_iovlen = 1;
+      msgs[i].msg_hdr.msg_control = ctrl[i].data();
+      msgs[i].msg_hdr.msg_controllen = kCmsgSpace;
+    }
+    const int n = ::recvmmsg(fd_, msgs.data(), kBatch, MSG_DONTWAIT, nullptr);
+    if (n < 0) {
+      const int err = errno;
+      if (err == EAGAIN || err == EWOULDBLOCK || err == EINTR) break;
+      if (err == ENETDOWN) {  // raw_notifier: NETDEV_DOWN; the binding stays
+        if (link_ == LinkState::Up) link_event(out, can::BusEventKind::InterfaceDown);
+        link_ = LinkState::Down;
+        continue;  // the error is reported once; frames may follow
+      }
+      if (err == ENODEV) {  // NETDEV_UNREGISTER: the socket is unbound for good
+        link_event(out, can::BusEventKind::InterfaceGone);
+        link_ = LinkState::Gone;
+        close_socket();
+        break;
+      }
+      return sys_error(opt_.interface, "recvmmsg", err);
+    }
+    if (link_ == LinkState::Down && n > 0) {
+      link_ = LinkState::Up;
+      link_event(out, can::BusEventKind::InterfaceBack);
+    }
+    for (int i = 0; i < n; ++i) {
+      const mmsghdr& m = msgs[static_cast<std::size_t>(i)];
+      const auto len = m.msg_len;
+      if (len != CAN_MTU && len != CANFD_MTU) continue;  // not a CAN frame: ignored
+      can::TimedFrame tf;
+      from_kernel(frames[static_cast<std::size_t>(i)], len == CANFD_MTU, tf.frame);
+      for (cmsghdr* c = CMSG_FIRSTHDR(&m.msg_hdr); c != nullptr;
+           c = CMSG_NXTHDR(const_cast<msghdr*>(&m.msg_hdr), c)) {
+        if (c->cmsg_level != SOL_SOCKET) continue;
+        if (c->cmsg_type == SCM_TIMESTAMPNS) {
+          timespec ts{};
+          std::memcpy(&ts, CMSG_DATA(c), sizeof ts);
+          tf.time_ns = static_cast<std::int64_t>(ts.tv_sec) * 1'000'000'000 + ts.tv_nsec;
+        } else if (c->cmsg_type == SO_RXQ_OVFL) {
+          std::uint32_t drops = 0;
+          std::memcpy(&drops, CMSG_DATA(c), sizeof drops);
+          stats_.rx_dropped += drops - last_ovfl_;  // cumulative counter, wraps
+          last_ovfl_ = drops;
+        }
+      }
+      if (tf.time_ns == 0) tf.time_ns = realtime_ns();
+      if (tf.frame.error) {
+        ++stats_.rx_error_frames;
+        for (const auto& e : can::decode_error_frame(tf)) out.events.push_back(e);
+        continue;
+      }
+      ++stats_.rx_frames;
+      out.frames.push_back(tf);
+      ++total;
+    }
+    if (static_cast<std::size_t>(n) < kBatch) break;
+  }
+  return total;
+}
+
+Socket::TxResult Socket::write_frame(const can::Frame& f) {
+  canfd_frame k;
+  to_kernel(f, k);
+  const std::size_t size = f.fd ? CANFD_MTU : CAN_MTU;
+  for (;;) {
+    const ssize_t n = ::write(fd_, &k, size);
+    if (n == static_cast<ssize_t>(size)) return TxResult::Sent;
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == ENOBUFS)) return TxResult::Busy;
+    return TxResult::Failed;
+  }
+}
+
+Status Socket::send(const can::Frame& f) {
+  if (f.fd && !opt_.fd) return make_error(opt_.interface + ": CAN FD frame on a socket opened for classic CAN");
+  if (f.len > (f.fd ? can::kMaxFdLen : can::kMaxClassicLen))
+    return make_error(opt_.interface + ": frame payload too long");
+  if (fd_ < 0) {
+    ++stats_.tx_failed;
+    return Status{Ok{}};
+  }
+  if (txq_.empty()) {
+    switch (write_frame(f)) {
+      case TxResult::Sent:
+        ++stats_.tx_frames;
+        return Status{Ok{}};
+      case TxResult::Failed:
+        ++stats_.tx_failed;
+        return Status{Ok{}};
+      case TxResult::Busy:
+        break;
+    }
+  }
+  if (txq_.size() >= opt_.tx_queue_limit) {
+    ++stats_.tx_overflow;
+    return Status{Ok{}};
+  }
+  txq_.push_back(f);
+  ++stats_.tx_queued;
+  return Status{Ok{}};
+}
+
+std::size_t Socket::flush() {
+  while (!txq_.empty() && fd_ >= 0) {
+    const TxResult r = write_frame(txq_.front());
+    if (r == TxResult::Busy) break;
+    if (r == TxResult::Sent) ++stats_.tx_frames;
+    else ++stats_.tx_failed;
+    txq_.pop_front();
+  }
+  return txq_.size();
+}
+
+bool Socket::try_recover(RxBatch& out) {
+  if (link_ == LinkState::Up) return true;
+  if (link_ == LinkState::Down) {
+    // Still bound: the link is back when the same interface is up again.
+    const unsigned index = ::if_nametoindex(opt_.interface.c_str());
+    if (index == ifindex_ && interface_up(fd_, opt_.interface)) {
+      link_ = LinkState::Up;
+      link_event(out, can::BusEventKind::InterfaceBack);
+      return true;
+    }
+    if (index == ifindex_) return false;
+    // Removed (and perhaps re-created) while down: start over.
+    close_socket();
+    link_ = LinkState::Gone;
+  }
+  if (!open_socket()) return false;
+  ++stats_.recoveries;
+  if (!interface_up(fd_, opt_.interface)) {  // re-created but not up yet
+    link_ = LinkState::Down;
+    return false;
+  }
+  link_event(out, can::BusEventKind::InterfaceBack);
+  return true;
+}
+
+}  // namespace turncal::socketcan

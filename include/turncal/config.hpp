@@ -1,0 +1,106 @@
+// turncal.toml validated into plain structs at the edge (style.md, 10).
+// Errors name file, line and key. No toml++ in this header.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "turncal/can/dbc.hpp"
+#include "turncal/result.hpp"
+
+namespace turncal {
+
+/// What a CAN signal means to turncal. Each role names one signal of one
+/// message of the DBC ("Message.Signal").
+enum class Role : std::uint8_t {
+  InsVelEast,               ///< INS velocity East, m/s
+  InsVelEastTimeTag,        ///< INS time tag of the East sample
+  InsVelNorth,              ///< INS velocity North, m/s
+  InsVelNorthTimeTag,       ///< INS time tag of the North sample
+  InsMode,                  ///< INS mode (idle, aligning, navigating, fault)
+  InsStatusTimeTag,         ///< INS time tag of the status frame
+  InsAlignRemaining,        ///< alignment time left, s
+  InsCommand,               ///< command to the INS
+  InsCommandAlignDuration,  ///< alignment duration, s
+  InsCommandHeading,        ///< initial heading of axis z2, deg clockwise from North
+  InsCommandSeq,            ///< sequence number of the INS command
+  EncoderAngle,             ///< table angle, deg counter-clockwise seen from above
+  EncoderTimeTag,           ///< table clock time tag of the encoder sample
+  TableState,               ///< table state
+  TableAck,                 ///< sequence number of the last accepted table command
+  TableFault,               ///< table fault code
+  TableRate,                ///< table rate, deg/s
+  TableCommand,             ///< command to the table
+  TableCommandSeq,          ///< sequence number of the table command
+  TableCommandTarget,       ///< target angle, deg
+  TableCommandRateLimit,    ///< rate limit, deg/s
+  HeartbeatCounter,         ///< host heartbeat rolling counter
+  HeartbeatState,           ///< host state in the heartbeat
+};
+inline constexpr std::size_t kRoleCount = static_cast<std::size_t>(Role::HeartbeatState) + 1;
+
+/// Configuration key of a role ("ins_vel_east", ...).
+std::string_view role_key(Role role);
+/// True for roles the host sends (commands, heartbeat).
+bool role_is_output(Role role);
+/// Which device a role belongs to: true for the INS, false for the table side.
+bool role_is_ins(Role role);
+
+struct SignalRef {
+  std::string message;
+  std::string signal;
+  SourcePos where;  ///< the key in the configuration, for errors found later
+};
+
+struct CanConfig {
+  std::string ins_interface = "vcan0";
+  std::string table_interface = "vcan0";
+  std::vector<std::filesystem::path> dbc_files;  ///< absolute, or relative to the config file
+  bool fd = false;                 ///< open the sockets for CAN FD
+  std::uint32_t tx_queue_frames = 256;  ///< send queue bound per socket, frames
+  std::uint32_t rx_buffer_bytes = 0;    ///< SO_RCVBUF, bytes; 0: kernel default
+  std::array<SignalRef, kRoleCount> roles;
+};
+
+struct Config {
+  std::filesystem::path source;  ///< the file it came from
+  CanConfig can;
+};
+
+/// The reference stand's roles (can-icd.md); the defaults of [can.roles].
+std::array<SignalRef, kRoleCount> reference_roles();
+
+/// Parses TOML text; `file` names it in errors; relative DBC paths are
+/// resolved against `file`'s folder.
+Result<Config> parse_config(std::string_view text, const std::string& file);
+/// Reads and parses a configuration file.
+Result<Config> load_config(const std::string& path);
+
+/// A role resolved against a DBC database.
+struct ResolvedRole {
+  const can::Message* message = nullptr;
+  const can::Signal* signal = nullptr;
+  std::size_t signal_index = 0;  ///< index in message->signals
+};
+
+/// Every role resolved; the database must outlive it.
+struct RoleMap {
+  std::array<ResolvedRole, kRoleCount> roles;
+  [[nodiscard]] const ResolvedRole& operator[](Role r) const { return roles[static_cast<std::size_t>(r)]; }
+  /// IDs (with the extended flag) of the messages turncal receives on the
+  /// INS interface (ins = true) or the table interface.
+  [[nodiscard]] std::vector<std::pair<std::uint32_t, bool>> receive_ids(bool ins) const;
+};
+
+/// Merges the DBC files of a configuration into one database; a message
+/// defined in two files is an error naming both.
+Result<can::Database> load_databases(const CanConfig& cfg);
+/// Checks every role against the database: the message exists, the signal is
+/// in it. Errors cite the configuration key.
+Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db);
+
+}  // namespace turncal

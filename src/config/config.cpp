@@ -1,0 +1,269 @@
+#include "turncal/config.hpp"
+
+#include <algorithm>
+#include <fstream>
+#include <sstream>
+#include <toml++/toml.h>
+
+namespace turncal {
+namespace {
+
+constexpr std::array<std::string_view, kRoleCount> kRoleKeys = {
+    "ins_vel_east",   "ins_vel_east_time_tag", "ins_vel_north",   "ins_vel_north_time_tag",
+    "ins_mode",       "ins_status_time_tag",   "ins_align_remaining", "ins_command",
+    "ins_command_align_duration", "ins_command_heading", "ins_command_seq", "encoder_angle",
+    "encoder_time_tag", "table_state", "table_ack", "table_fault", "table_rate", "table_command",
+    "table_command_seq", "table_command_target", "table_command_rate_limit", "heartbeat_counter",
+    "heartbeat_state"};
+
+constexpr std::array<std::string_view, kRoleCount> kReferenceRoles = {
+    "INS_VelE.VelE",      "INS_VelE.TimeTag",      "INS_VelN.VelN",      "INS_VelN.TimeTag",
+    "INS_Status.Mode",    "INS_Status.TimeTag",    "INS_Status.AlignRemaining", "INS_Command.Command",
+    "INS_Command.AlignDuration", "INS_Command.HeadingInit", "INS_Command.Seq", "TBL_Encoder.Angle",
+    "TBL_Encoder.TimeTag", "TBL_Status.State",     "TBL_Status.AckSeq",  "TBL_Status.Fault",
+    "TBL_Status.Rate",    "TBL_Command.Command",   "TBL_Command.Seq",    "TBL_Command.Target",
+    "TBL_Command.RateLimit", "HOST_Heartbeat.Counter", "HOST_Heartbeat.HostState"};
+
+SourcePos pos_of(const toml::source_region& r, const std::string& file) {
+  return SourcePos{file, r.begin.line, r.begin.column};
+}
+
+/// Reads a validated [section] into fields; every error names file, line and key.
+class Reader {
+ public:
+  Reader(const toml::table& t, std::string file, std::string prefix)
+      : t_(t), file_(std::move(file)), prefix_(std::move(prefix)) {}
+
+  Error error_at(const toml::node& n, std::string_view key, std::string what) const {
+    return make_error("key '" + prefix_ + std::string(key) + "': " + std::move(what), pos_of(n.source(), file_));
+  }
+  /// Unknown keys are errors: a typo must not silently fall back to a default.
+  Status no_unknown_keys(std::initializer_list<std::string_view> known) const {
+    for (auto&& [k, v] : t_) {
+      bool ok = false;
+      for (auto kk : known) ok = ok || k.str() == kk;
+      if (!ok) return make_error("unknown key '" + prefix_ + std::string(k.str()) + "'", pos_of(k.source(), file_));
+    }
+    return Status{Ok{}};
+  }
+  Status string(std::string_view key, std::string& out) const {
+    const toml::node* n = t_.get(key);
+    if (n == nullptr) return Status{Ok{}};
+    if (!n->is_string()) return error_at(*n, key, "expected a string");
+    out = n->as_string()->get();
+    return Status{Ok{}};
+  }
+  Status boolean(std::string_view key, bool& out) const {
+    const toml::node* n = t_.get(key);
+    if (n == nullptr) return Status{Ok{}};
+    if (!n->is_boolean()) return error_at(*n, key, "expected true or false");
+    out = n->as_boolean()->get();
+    return Status{Ok{}};
+  }
+  Status integer(std::string_view key, std::uint32_t& out, std::int64_t lo, std::int64_t hi) const {
+    const toml::node* n = t_.get(key);
+    if (n == nullptr) return Status{Ok{}};
+    if (!n->is_integer()) return error_at(*n, key, "expected an integer");
+    const std::int64_t v = n->as_integer()->get();
+    if (v < lo || v > hi)
+      return error_at(*n, key, "must be between " + std::to_string(lo) + " and " + std::to_string(hi));
+    out = static_cast<std::uint32_t>(v);
+    return Status{Ok{}};
+  }
+  const toml::table& table() const { return t_; }
+  const std::string& file() const { return file_; }
+
+ private:
+  const toml::table& t_;
+  std::string file_;
+  std::string prefix_;
+};
+
+Status check_interface(const Reader& r, std::string_view key, const std::string& name) {
+  const toml::node* n = r.table().get(key);
+  if (name.empty() || name.size() > 15 || name.find('/') != std::string::npos ||
+      name.find(' ') != std::string::npos) {
+    const SourcePos where = n != nullptr ? pos_of(n->source(), r.file()) : SourcePos{r.file(), 0, 0};
+    return make_error("key 'can." + std::string(key) + "': '" + name +
+                          "' is not an interface name (1 to 15 characters, no '/' or space)",
+                      where);
+  }
+  return Status{Ok{}};
+}
+
+Status read_roles(const toml::table& t, const std::string& file, CanConfig& can) {
+  for (auto&& [k, v] : t) {
+    std::size_t idx = kRoleCount;
+    for (std::size_t i = 0; i < kRoleCount; ++i)
+      if (k.str() == kRoleKeys[i]) idx = i;
+    if (idx == kRoleCount)
+      return make_error("unknown role 'can.roles." + std::string(k.str()) + "'", pos_of(k.source(), file));
+    const SourcePos where = pos_of(v.source(), file);
+    if (!v.is_string())
+      return make_error("key 'can.roles." + std::string(k.str()) + "': expected \"Message.Signal\"", where);
+    const std::string& s = v.as_string()->get();
+    const auto dot = s.find('.');
+    if (dot == std::string::npos || dot == 0 || dot + 1 == s.size() || s.find('.', dot + 1) != std::string::npos)
+      return make_error("key 'can.roles." + std::string(k.str()) + "': '" + s + "' is not \"Message.Signal\"", where);
+    can.roles[idx] = SignalRef{s.substr(0, dot), s.substr(dot + 1), where};
+  }
+  return Status{Ok{}};
+}
+
+Result<CanConfig> read_can(const toml::table& t, const std::string& file) {
+  CanConfig can;
+  can.roles = reference_roles();
+  for (auto& r : can.roles) r.where = SourcePos{file, 0, 0};
+  Reader r(t, file, "can.");
+  TURNCAL_TRY(r.no_unknown_keys({"ins_interface", "table_interface", "dbc", "fd", "tx_queue_frames",
+                                 "rx_buffer_bytes", "roles"}));
+  TURNCAL_TRY(r.string("ins_interface", can.ins_interface));
+  TURNCAL_TRY(r.string("table_interface", can.table_interface));
+  TURNCAL_TRY(check_interface(r, "ins_interface", can.ins_interface));
+  TURNCAL_TRY(check_interface(r, "table_interface", can.table_interface));
+  TURNCAL_TRY(r.boolean("fd", can.fd));
+  TURNCAL_TRY(r.integer("tx_queue_frames", can.tx_queue_frames, 1, 1 << 20));
+  TURNCAL_TRY(r.integer("rx_buffer_bytes", can.rx_buffer_bytes, 0, 1 << 30));
+  const std::filesystem::path base = std::filesystem::path(file).parent_path();
+  if (const toml::node* n = t.get("dbc")) {
+    const toml::array* arr = n->as_array();
+    if (arr == nullptr || arr->empty())
+      return r.error_at(*n, "dbc", "expected a non-empty list of DBC file names");
+    for (const toml::node& e : *arr) {
+      if (!e.is_string()) return r.error_at(e, "dbc", "expected a file name string");
+      std::filesystem::path p(e.as_string()->get());
+      can.dbc_files.push_back(p.is_absolute() ? p : base / p);
+    }
+  } else {
+    can.dbc_files.push_back(base / "reference-stand.dbc");
+  }
+  if (const toml::node* n = t.get("roles")) {
+    if (!n->is_table()) return r.error_at(*n, "roles", "expected a table");
+    TURNCAL_TRY(read_roles(*n->as_table(), file, can));
+  }
+  return can;
+}
+
+}  // namespace
+
+std::string_view role_key(Role role) { return kRoleKeys[static_cast<std::size_t>(role)]; }
+
+bool role_is_output(Role role) {
+  switch (role) {
+    case Role::InsCommand:
+    case Role::InsCommandAlignDuration:
+    case Role::InsCommandHeading:
+    case Role::InsCommandSeq:
+    case Role::TableCommand:
+    case Role::TableCommandSeq:
+    case Role::TableCommandTarget:
+    case Role::TableCommandRateLimit:
+    case Role::HeartbeatCounter:
+    case Role::HeartbeatState:
+      return true;
+    default:
+      return false;
+  }
+}
+
+bool role_is_ins(Role role) { return static_cast<std::size_t>(role) <= static_cast<std::size_t>(Role::InsCommandSeq); }
+
+std::array<SignalRef, kRoleCount> reference_roles() {
+  std::array<SignalRef, kRoleCount> out;
+  for (std::size_t i = 0; i < kRoleCount; ++i) {
+    const std::string_view s = kReferenceRoles[i];
+    const auto dot = s.find('.');
+    out[i] = SignalRef{std::string(s.substr(0, dot)), std::string(s.substr(dot + 1)), {}};
+  }
+  return out;
+}
+
+Result<Config> parse_config(std::string_view text, const std::string& file) {
+  toml::table root;
+  try {
+    root = toml::parse(text, file);
+  } catch (const toml::parse_error& e) {
+    return make_error(std::string(e.description()), pos_of(e.source(), file));
+  }
+  Config cfg;
+  cfg.source = file;
+  for (auto&& [k, v] : root) {
+    if (k.str() != "can")
+      return make_error("unknown section or key '" + std::string(k.str()) + "'", pos_of(k.source(), file));
+  }
+  toml::table empty;
+  const toml::node* can = root.get("can");
+  if (can != nullptr && !can->is_table())
+    return make_error("key 'can': expected a table", pos_of(can->source(), file));
+  auto c = read_can(can != nullptr ? *can->as_table() : empty, file);
+  if (!c) return std::move(c).error();
+  cfg.can = std::move(c).value();
+  return cfg;
+}
+
+Result<Config> load_config(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return make_error("cannot open configuration file", SourcePos{path, 0, 0});
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return parse_config(ss.str(), path);
+}
+
+Result<can::Database> load_databases(const CanConfig& cfg) {
+  can::Database merged;
+  std::vector<std::string> origin;
+  for (const auto& path : cfg.dbc_files) {
+    auto db = can::load_dbc(path.string());
+    if (!db) return std::move(db).error();
+    if (merged.version.empty()) merged.version = db->version;
+    for (auto& n : db->nodes) merged.nodes.push_back(n);
+    for (auto& m : db->messages) {
+      for (std::size_t i = 0; i < merged.messages.size(); ++i) {
+        const can::Message& o = merged.messages[i];
+        if ((o.id == m.id && o.extended == m.extended) || o.name == m.name)
+          return make_error("message '" + m.name + "' is defined in both " + origin[i] + " and " + path.string(),
+                            SourcePos{path.string(), m.line, 0});
+      }
+      merged.messages.push_back(std::move(m));
+      origin.push_back(path.string());
+    }
+  }
+  return merged;
+}
+
+Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
+  RoleMap map;
+  for (std::size_t i = 0; i < kRoleCount; ++i) {
+    const SignalRef& ref = cfg.roles[i];
+    const std::string key = "can.roles." + std::string(kRoleKeys[i]);
+    const can::Message* m = db.find(ref.message);
+    if (m == nullptr) return make_error("key '" + key + "': no message '" + ref.message + "' in the DBC", ref.where);
+    const can::Signal* s = m->find_signal(ref.signal);
+    if (s == nullptr)
+      return make_error("key '" + key + "': message '" + ref.message + "' has no signal '" + ref.signal + "'",
+                        ref.where);
+    map.roles[i] = ResolvedRole{m, s, static_cast<std::size_t>(s - m->signals.data())};
+  }
+  // One message is either sent or received by the host, never both.
+  for (std::size_t i = 0; i < kRoleCount; ++i)
+    for (std::size_t j = 0; j < kRoleCount; ++j)
+      if (map.roles[i].message == map.roles[j].message &&
+          role_is_output(static_cast<Role>(i)) != role_is_output(static_cast<Role>(j)))
+        return make_error("key 'can.roles." + std::string(kRoleKeys[i]) + "': message '" +
+                              map.roles[i].message->name + "' is used both to send and to receive",
+                          cfg.roles[i].where);
+  return map;
+}
+
+std::vector<std::pair<std::uint32_t, bool>> RoleMap::receive_ids(bool ins) const {
+  std::vector<std::pair<std::uint32_t, bool>> out;
+  for (std::size_t i = 0; i < kRoleCount; ++i) {
+    const Role r = static_cast<Role>(i);
+    if (role_is_output(r) || role_is_ins(r) != ins) continue;
+    const std::pair<std::uint32_t, bool> id{roles[i].message->id, roles[i].message->extended};
+    if (std::find(out.begin(), out.end(), id) == out.end()) out.push_back(id);
+  }
+  return out;
+}
+
+}  // namespace turncal

@@ -1,0 +1,203 @@
+#include <doctest/doctest.h>
+#include <unistd.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <random>
+#include <string>
+
+#include "turncal/can/candump.hpp"
+
+using namespace turncal::can;
+
+TEST_SUITE("candump") {
+  TEST_CASE("classic, extended, remote, FD and error frames parse") {
+    SUBCASE("classic") {
+      auto r = parse_log_line("(1700000000.123456) vcan0 123#DEADBEEF");
+      REQUIRE(r.ok());
+      CHECK(r->time_ns == 1700000000123456000);
+      CHECK(r->interface == "vcan0");
+      CHECK(r->frame.id == 0x123);
+      CHECK_FALSE(r->frame.extended);
+      CHECK(r->frame.len == 4);
+      CHECK(r->frame.data[0] == 0xDE);
+      CHECK(r->frame.data[3] == 0xEF);
+    }
+    SUBCASE("empty classic") {
+      auto r = parse_log_line("(0000000001.000001) can1 7FF#");
+      REQUIRE(r.ok());
+      CHECK(r->frame.len == 0);
+      CHECK(r->time_ns == 1000001000);
+    }
+    SUBCASE("extended") {
+      auto r = parse_log_line("(1.5) vcan0 12345678#00");
+      REQUIRE(r.ok());
+      CHECK(r->frame.extended);
+      CHECK(r->frame.id == 0x12345678);
+      CHECK(r->time_ns == 1500000000);
+    }
+    SUBCASE("remote with length") {
+      auto r = parse_log_line("(1.000000) vcan0 123#R3");
+      REQUIRE(r.ok());
+      CHECK(r->frame.remote);
+      CHECK(r->frame.len == 3);
+    }
+    SUBCASE("FD with flags") {
+      auto r = parse_log_line("(1.000000) vcan0 321##3000102030405060708090A0B");
+      REQUIRE(r.ok());
+      CHECK(r->frame.fd);
+      CHECK(r->frame.brs);
+      CHECK(r->frame.esi);
+      CHECK(r->frame.len == 12);
+      CHECK(r->frame.data[11] == 0x0B);
+    }
+    SUBCASE("error frame") {
+      auto r = parse_log_line("(1.000000) vcan0 20000040#0000000000000000");
+      REQUIRE(r.ok());
+      CHECK(r->frame.error);
+      CHECK(r->frame.id == 0x40);
+    }
+    SUBCASE("dotted data and nine decimals") {
+      auto r = parse_log_line("(12.123456789) vcan0 123#11.22.33");
+      REQUIRE(r.ok());
+      CHECK(r->frame.len == 3);
+      CHECK(r->time_ns == 12123456789);
+    }
+  }
+
+  TEST_CASE("malformed lines are errors with a column") {
+    const char* bad[] = {
+        "",
+        "1.0 vcan0 123#00",
+        "(1.0 vcan0 123#00",
+        "(1.) vcan0 123#00",
+        "(1.0) vcan0",
+        "(1.0) vcan0 12#00",
+        "(1.0) vcan0 800#00",
+        "(1.0) vcan0 123#0",
+        "(1.0) vcan0 123#GG",
+        "(1.0) vcan0 123#001122334455667788",
+        "(1.0) vcan0 123##0" "00112233445566778899",  // 10 bytes: no FD length
+        "(1.0) vcan0 123#R9",
+        "(1.0) vcan0 40000000#00",
+        "(1.0) averyveryverylongname 123#00",
+        "(1.0) vcan0 123",
+    };
+    for (const char* text : bad) {
+      const std::string line = text;
+      CAPTURE(line);
+      auto r = parse_log_line(line);
+      CHECK_FALSE(r.ok());
+      if (!r.ok()) CHECK(r.error().where.column >= 1);
+    }
+  }
+
+  TEST_CASE("format writes six decimals and reads back the same record") {
+    std::mt19937_64 rng(20261123);
+    for (int n = 0; n < 2000; ++n) {
+      LogRecord rec;
+      rec.time_ns = static_cast<std::int64_t>(rng() % 4'000'000'000'000'000'000ull / 1000 * 1000);
+      rec.interface = (n % 2) ? "vcan0" : "can12";
+      Frame& f = rec.frame;
+      const auto kind = rng() % 4;
+      f.extended = kind == 1;
+      f.fd = kind == 2;
+      f.remote = kind == 3 && (rng() % 2);
+      f.id = static_cast<std::uint32_t>(rng()) & (f.extended ? kExtIdMask : kStdIdMask);
+      static constexpr std::uint8_t kFdLens[] = {0, 1, 5, 8, 12, 16, 20, 24, 32, 48, 64};
+      f.len = f.fd ? kFdLens[rng() % std::size(kFdLens)] : static_cast<std::uint8_t>(rng() % 9);
+      f.brs = f.fd && (rng() % 2);
+      f.esi = f.fd && (rng() % 2);
+      if (!f.remote)
+        for (std::size_t i = 0; i < f.len; ++i) f.data[i] = static_cast<std::uint8_t>(rng());
+      const std::string line = format_log_line(rec);
+      CAPTURE(line);
+      REQUIRE(line.back() == '\n');
+      CHECK(line[line.find('.') + 7] == ')');
+      auto back = parse_log_line(std::string_view(line).substr(0, line.size() - 1));
+      REQUIRE(back.ok());
+      CHECK(back->time_ns == rec.time_ns);
+      CHECK(back->interface == rec.interface);
+      if (f.remote) {  // candump -l writes no length for remote frames
+        CHECK(back->frame.remote);
+        CHECK(back->frame.id == f.id);
+      } else {
+        CHECK(back->frame == f);
+      }
+    }
+  }
+
+  TEST_CASE("the writer and the streaming reader round trip a file") {
+    const auto path = std::filesystem::temp_directory_path() / ("turncal-log-" + std::to_string(::getpid()));
+    {
+      auto w = LogWriter::open(path.string());
+      REQUIRE(w.ok());
+      for (int i = 0; i < 50000; ++i) {
+        LogRecord r;
+        r.time_ns = 1'700'000'000'000'000'000 + i * 2'500'000LL;
+        r.interface = "vcan0";
+        r.frame.id = static_cast<std::uint32_t>(0x100 + i % 7);
+        r.frame.len = 8;
+        for (int b = 0; b < 8; ++b) r.frame.data[static_cast<std::size_t>(b)] = static_cast<std::uint8_t>(i + b);
+        REQUIRE(w->write(r).ok());
+      }
+      REQUIRE(w->sync().ok());
+      CHECK(w->records() == 50000);
+    }
+    auto rd = LogReader::open(path.string());
+    REQUIRE(rd.ok());
+    LogRecord rec;
+    int n = 0;
+    for (;;) {
+      auto got = rd->next(rec);
+      REQUIRE(got.ok());
+      if (!*got) break;
+      CHECK(rec.frame.id == static_cast<std::uint32_t>(0x100 + n % 7));
+      CHECK(rec.time_ns == 1'700'000'000'000'000'000 + n * 2'500'000LL);
+      ++n;
+    }
+    CHECK(n == 50000);
+    std::filesystem::remove(path);
+  }
+
+  TEST_CASE("a malformed line in a file is an error naming file and line") {
+    const auto path = std::filesystem::temp_directory_path() / ("turncal-bad-" + std::to_string(::getpid()));
+    {
+      FILE* f = std::fopen(path.c_str(), "w");
+      REQUIRE(f != nullptr);
+      std::fputs("(1.000000) vcan0 123#00\n\n(1.000001) vcan0 124#01\n(1.000002) vcan0 12X#00\n", f);
+      std::fclose(f);
+    }
+    auto rd = LogReader::open(path.string());
+    REQUIRE(rd.ok());
+    auto a = rd->next();
+    REQUIRE(a.ok());
+    REQUIRE(a->has_value());
+    auto b = rd->next();
+    REQUIRE(b.ok());
+    CHECK((*b)->frame.id == 0x124);
+    auto c = rd->next();
+    REQUIRE_FALSE(c.ok());
+    CHECK(c.error().where.line == 4);
+    CHECK(c.error().where.file == path.string());
+    CHECK(c.error().describe().find(":4:") != std::string::npos);
+    std::filesystem::remove(path);
+  }
+
+  TEST_CASE("a last line without a newline is read") {
+    int fds[2];
+    REQUIRE(::pipe(fds) == 0);
+    const std::string text = "(1.000000) vcan0 123#00\n(2.000000) vcan0 124#01";
+    REQUIRE(::write(fds[1], text.data(), text.size()) == static_cast<ssize_t>(text.size()));
+    ::close(fds[1]);
+    auto rd = LogReader::from_fd(fds[0], "pipe");
+    auto a = rd.next();
+    auto b = rd.next();
+    auto c = rd.next();
+    REQUIRE(b.ok());
+    CHECK((*b)->frame.id == 0x124);
+    REQUIRE(c.ok());
+    CHECK_FALSE(c->has_value());
+    ::close(fds[0]);
+  }
+}
