@@ -6,26 +6,43 @@ namespace {
 // kernel header.
 constexpr std::uint32_t kErrClasses[] = {0x001, 0x002, 0x004, 0x008, 0x010,
                                          0x020, 0x040, 0x080, 0x100};
-constexpr BusEventKind kErrKinds[] = {
-    BusEventKind::TxTimeout,          BusEventKind::LostArbitration, BusEventKind::ControllerProblem,
-    BusEventKind::ProtocolViolation,  BusEventKind::TransceiverProblem, BusEventKind::NoAck,
-    BusEventKind::BusOff,             BusEventKind::BusError,        BusEventKind::Restarted};
+constexpr BusEventKind kErrKinds[] = {BusEventKind::TxTimeout,
+                                      BusEventKind::LostArbitration,
+                                      BusEventKind::ControllerProblem,
+                                      BusEventKind::ProtocolViolation,
+                                      BusEventKind::TransceiverProblem,
+                                      BusEventKind::NoAck,
+                                      BusEventKind::BusOff,
+                                      BusEventKind::BusError,
+                                      BusEventKind::Restarted};
 }  // namespace
 
 const char* to_string(BusEventKind kind) {
   switch (kind) {
-    case BusEventKind::TxTimeout: return "tx timeout";
-    case BusEventKind::LostArbitration: return "lost arbitration";
-    case BusEventKind::ControllerProblem: return "controller problem";
-    case BusEventKind::ProtocolViolation: return "protocol violation";
-    case BusEventKind::TransceiverProblem: return "transceiver problem";
-    case BusEventKind::NoAck: return "no ack";
-    case BusEventKind::BusOff: return "bus-off";
-    case BusEventKind::BusError: return "bus error";
-    case BusEventKind::Restarted: return "controller restarted";
-    case BusEventKind::InterfaceDown: return "interface down";
-    case BusEventKind::InterfaceGone: return "interface removed";
-    case BusEventKind::InterfaceBack: return "interface back";
+    case BusEventKind::TxTimeout:
+      return "tx timeout";
+    case BusEventKind::LostArbitration:
+      return "lost arbitration";
+    case BusEventKind::ControllerProblem:
+      return "controller problem";
+    case BusEventKind::ProtocolViolation:
+      return "protocol violation";
+    case BusEventKind::TransceiverProblem:
+      return "transceiver problem";
+    case BusEventKind::NoAck:
+      return "no ack";
+    case BusEventKind::BusOff:
+      return "bus-off";
+    case BusEventKind::BusError:
+      return "bus error";
+    case BusEventKind::Restarted:
+      return "controller restarted";
+    case BusEventKind::InterfaceDown:
+      return "interface down";
+    case BusEventKind::InterfaceGone:
+      return "interface removed";
+    case BusEventKind::InterfaceBack:
+      return "interface back";
   }
   return "unknown";
 }
@@ -33,8 +50,9 @@ const char* to_string(BusEventKind kind) {
 std::string describe(const BusEvent& e) {
   std::string s = to_string(e.kind);
   if (e.kind == BusEventKind::ControllerProblem) {
-    static constexpr const char* kBits[] = {"rx overflow", "tx overflow", "rx warning", "tx warning",
-                                            "rx passive",  "tx passive",  "back to error active"};
+    static constexpr const char* kBits[] = {"rx overflow",         "tx overflow", "rx warning",
+                                            "tx warning",          "rx passive",  "tx passive",
+                                            "back to error active"};
     std::string bits;
     for (unsigned b = 0; b < 7; ++b)
       if ((e.detail >> b) & 1u) bits += (bits.empty() ? "" : ", ") + std::string(kBits[b]);

@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 
@@ -69,7 +70,8 @@ Status parse_frame(std::string_view s, std::size_t col0, Frame& f) {
     ++i;
     if (i < s.size()) {
       const int n = hex_value(s[i]);
-      if (n < 0 || n > 8 || i + 1 != s.size()) return line_error("bad remote frame length", col0 + i);
+      if (n < 0 || n > 8 || i + 1 != s.size())
+        return line_error("bad remote frame length", col0 + i);
       f.len = static_cast<std::uint8_t>(n);
     }
     return Status{Ok{}};
@@ -107,9 +109,10 @@ Status parse_log_line(std::string_view line, LogRecord& out) {
   ++i;
   std::int64_t sec = 0;
   std::size_t digits = 0;
+  constexpr std::int64_t kMaxSeconds = INT64_MAX / 1'000'000'000 - 1;  // year 2262
   while (i < line.size() && line[i] >= '0' && line[i] <= '9') {
-    if (++digits > 18) return line_error("timestamp too large", i);
     sec = sec * 10 + (line[i] - '0');
+    if (++digits > 10 || sec > kMaxSeconds) return line_error("timestamp out of range", i);
     ++i;
   }
   if (digits == 0 || i >= line.size() || line[i] != '.')
@@ -129,7 +132,13 @@ Status parse_log_line(std::string_view line, LogRecord& out) {
   if (i >= line.size() || line[i] != ' ') return line_error("expected a space", i);
   ++i;
   const std::size_t name_begin = i;
-  while (i < line.size() && line[i] != ' ') ++i;
+  while (i < line.size() && line[i] != ' ') {
+    // Linux interface names (dev_valid_name): no '/', ':', white space or NUL
+    const auto c = static_cast<unsigned char>(line[i]);
+    if (c <= 0x20 || c == 0x7F || c == '/' || c == ':')
+      return line_error("bad character in the interface name", i);
+    ++i;
+  }
   if (i == name_begin || i - name_begin > 15)
     return line_error("interface name must have 1 to 15 characters", name_begin);
   out.interface.assign(line.substr(name_begin, i - name_begin));
@@ -150,10 +159,14 @@ std::size_t format_log_line(const LogRecord& r, char* buf, std::size_t size) {
   static constexpr char kHex[] = "0123456789ABCDEF";
   char tmp[kMaxLogLine];
   const std::int64_t us = r.time_ns / 1000;
-  int n = std::snprintf(tmp, sizeof tmp, "(%010lld.%06lld) %.15s ",
-                        static_cast<long long>(us / 1'000'000),
-                        static_cast<long long>(us % 1'000'000), r.interface.c_str());
+  const int n =
+      std::snprintf(tmp, sizeof tmp, "(%010lld.%06lld) ", static_cast<long long>(us / 1'000'000),
+                    static_cast<long long>(us % 1'000'000));
   std::size_t p = n > 0 ? static_cast<std::size_t>(n) : 0;
+  const std::size_t name_len = std::min<std::size_t>(r.interface.size(), 15);
+  std::memcpy(tmp + p, r.interface.data(), name_len);
+  p += name_len;
+  tmp[p++] = ' ';
   const Frame& f = r.frame;
   if (f.error || f.extended) {
     const std::uint32_t id = f.error ? (f.id & kExtIdMask) | kErrFlag : f.id & kExtIdMask;
@@ -225,7 +238,9 @@ Result<LogReader> LogReader::open(const std::string& path) {
   return LogReader(fd, true, path);
 }
 
-LogReader LogReader::from_fd(int fd, std::string name) { return LogReader(fd, false, std::move(name)); }
+LogReader LogReader::from_fd(int fd, std::string name) {
+  return LogReader(fd, false, std::move(name));
+}
 
 bool LogReader::fill() {
   if (eof_) return false;
@@ -254,7 +269,8 @@ Result<bool> LogReader::next(LogRecord& out) {
     const void* nl = std::memchr(start, '\n', end_ - begin_);
     std::string_view line;
     if (nl != nullptr) {
-      line = std::string_view(start, static_cast<std::size_t>(static_cast<const char*>(nl) - start));
+      line =
+          std::string_view(start, static_cast<std::size_t>(static_cast<const char*>(nl) - start));
       begin_ += line.size() + 1;
     } else if (fill()) {
       continue;
@@ -300,7 +316,9 @@ LogWriter& LogWriter::operator=(LogWriter&& o) noexcept {
   }
   return *this;
 }
-LogWriter::~LogWriter() { (void)close(); }
+LogWriter::~LogWriter() {
+  (void)close();
+}
 
 Result<LogWriter> LogWriter::open(const std::string& path, bool append) {
   const int flags = O_WRONLY | O_CREAT | O_CLOEXEC | (append ? O_APPEND : O_TRUNC);
@@ -339,7 +357,8 @@ Status LogWriter::flush() {
 Status LogWriter::sync() {
   auto st = flush();
   if (!st) return st;
-  if (::fsync(fd_) != 0) return make_error(std::string("log fsync failed: ") + std::strerror(errno));
+  if (::fsync(fd_) != 0)
+    return make_error(std::string("log fsync failed: ") + std::strerror(errno));
   return Status{Ok{}};
 }
 

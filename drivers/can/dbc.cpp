@@ -55,12 +55,15 @@ class Lexer {
     }
     ++p_;
   }
-  static bool ident_start(char c) { return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || c == '_'; }
+  static bool ident_start(char c) {
+    return (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') || c == '_';
+  }
   static bool digit(char c) { return c >= '0' && c <= '9'; }
 
   Token lex() {
     for (;;) {  // whitespace and // comments
-      while (p_ < s_.size() && (s_[p_] == ' ' || s_[p_] == '\t' || s_[p_] == '\r' || s_[p_] == '\n'))
+      while (p_ < s_.size() &&
+             (s_[p_] == ' ' || s_[p_] == '\t' || s_[p_] == '\r' || s_[p_] == '\n'))
         advance();
       if (at(p_) == '/' && at(p_ + 1) == '/') {
         while (p_ < s_.size() && s_[p_] != '\n') advance();
@@ -136,11 +139,36 @@ std::string unescape(std::string_view s) {
 }
 
 bool is_keyword(std::string_view w) {
-  static constexpr std::string_view kKeywords[] = {
-      "VERSION", "NS_", "BS_", "BU_", "BO_", "SG_", "CM_", "VAL_", "VAL_TABLE_", "SIG_VALTYPE_",
-      "BA_DEF_", "BA_DEF_DEF_", "BA_", "BA_DEF_REL_", "BA_DEF_DEF_REL_", "BA_REL_", "BO_TX_BU_",
-      "EV_", "ENVVAR_DATA_", "SIG_GROUP_", "SG_MUL_VAL_", "SIGTYPE_VALTYPE_", "CAT_DEF_", "CAT_",
-      "FILTER", "SIG_TYPE_REF_", "SGTYPE_", "SGTYPE_VAL_", "BA_SGTYPE_", "SIG_TYPE_REF_"};
+  static constexpr std::string_view kKeywords[] = {"VERSION",
+                                                   "NS_",
+                                                   "BS_",
+                                                   "BU_",
+                                                   "BO_",
+                                                   "SG_",
+                                                   "CM_",
+                                                   "VAL_",
+                                                   "VAL_TABLE_",
+                                                   "SIG_VALTYPE_",
+                                                   "BA_DEF_",
+                                                   "BA_DEF_DEF_",
+                                                   "BA_",
+                                                   "BA_DEF_REL_",
+                                                   "BA_DEF_DEF_REL_",
+                                                   "BA_REL_",
+                                                   "BO_TX_BU_",
+                                                   "EV_",
+                                                   "ENVVAR_DATA_",
+                                                   "SIG_GROUP_",
+                                                   "SG_MUL_VAL_",
+                                                   "SIGTYPE_VALTYPE_",
+                                                   "CAT_DEF_",
+                                                   "CAT_",
+                                                   "FILTER",
+                                                   "SIG_TYPE_REF_",
+                                                   "SGTYPE_",
+                                                   "SGTYPE_VAL_",
+                                                   "BA_SGTYPE_",
+                                                   "SIG_TYPE_REF_"};
   for (auto k : kKeywords)
     if (w == k) return true;
   return false;
@@ -201,7 +229,8 @@ class Parser {
     std::string_view s = t.text;
     if (!s.empty() && s[0] == '+') s.remove_prefix(1);
     auto [ptr, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
-    if (ec != std::errc{} || ptr != s.data() + s.size()) return err(t, "bad number '" + std::string(t.text) + "'");
+    if (ec != std::errc{} || ptr != s.data() + s.size())
+      return err(t, "bad number '" + std::string(t.text) + "'");
     return v;
   }
   Result<std::uint64_t> unsigned_number(std::string_view what) {
@@ -220,13 +249,15 @@ class Parser {
     std::string_view s = t.text;
     if (!s.empty() && s[0] == '+') s.remove_prefix(1);
     auto [ptr, ec] = std::from_chars(s.data(), s.data() + s.size(), v);
-    if (ec != std::errc{} || ptr != s.data() + s.size()) return err(t, "bad integer '" + std::string(t.text) + "'");
+    if (ec != std::errc{} || ptr != s.data() + s.size())
+      return err(t, "bad integer '" + std::string(t.text) + "'");
     return v;
   }
   Result<std::uint32_t> message_id() {
     auto v = unsigned_number("a message ID");
     if (!v) return std::move(v).error();
-    if (*v > 0xFFFFFFFFu) return make_error("message ID out of range", SourcePos{file_, last_line(), 0});
+    if (*v > 0xFFFFFFFFu)
+      return make_error("message ID out of range", SourcePos{file_, last_line(), 0});
     return static_cast<std::uint32_t>(*v);
   }
   std::uint32_t last_line() { return lx_.peek().line; }
@@ -277,7 +308,8 @@ Status Parser::parse_message(const Token& kw) {
     return err(size_tok, "message size " + std::to_string(size) + " is not a CAN or CAN FD length");
   std::string transmitter;
   if (lx_.peek().kind == Token::Ident && lx_.peek().line == kw.line) transmitter = lx_.next().text;
-  if (by_raw_id_.count(raw_id) != 0) return err(kw, "message ID " + std::to_string(raw_id & ~kDbcExtendedFlag) + " defined twice");
+  if (by_raw_id_.count(raw_id) != 0)
+    return err(kw, "message ID " + std::to_string(raw_id & ~kDbcExtendedFlag) + " defined twice");
   Message m;
   m.extended = (raw_id & kDbcExtendedFlag) != 0;
   m.id = raw_id & (m.extended ? kExtIdMask : 0xFFFFFFFFu);
@@ -356,7 +388,8 @@ Status Parser::parse_signal(const Token& kw) {
   // receivers: comma-separated names on the same line
   while (lx_.peek().kind == Token::Ident && lx_.peek().line == kw.line && !lx_.peek().line_start) {
     s.receivers.emplace_back(lx_.next().text);
-    if (lx_.peek().kind == Token::Punct && lx_.peek().text == "," && lx_.peek().line == kw.line) lx_.next();
+    if (lx_.peek().kind == Token::Punct && lx_.peek().text == "," && lx_.peek().line == kw.line)
+      lx_.next();
   }
   Message& m = db_.messages[*current_];
   for (const Signal& other : m.signals)
@@ -453,10 +486,14 @@ Status Parser::finish(Database& db) {
     Signal* s = find_sig(v.raw_id, v.signal);
     if (s == nullptr) continue;
     if (v.type == 1 && s->length != 32)
-      return make_error("float signal '" + s->name + "' must be 32 bits", SourcePos{file_, v.line, 0});
+      return make_error("float signal '" + s->name + "' must be 32 bits",
+                        SourcePos{file_, v.line, 0});
     if (v.type == 2 && s->length != 64)
-      return make_error("double signal '" + s->name + "' must be 64 bits", SourcePos{file_, v.line, 0});
-    s->type = v.type == 1 ? ValueType::Float32 : v.type == 2 ? ValueType::Float64 : ValueType::Integer;
+      return make_error("double signal '" + s->name + "' must be 64 bits",
+                        SourcePos{file_, v.line, 0});
+    s->type = v.type == 1   ? ValueType::Float32
+              : v.type == 2 ? ValueType::Float64
+                            : ValueType::Integer;
   }
   for (auto& v : values_)
     if (Signal* s = find_sig(v.raw_id, v.signal)) s->values = std::move(v.values);
@@ -470,7 +507,8 @@ Status Parser::finish(Database& db) {
   for (auto [raw_id, format] : frame_formats_)
     if (Message* m = find(raw_id)) m->fd = m->fd || format == 14 || format == 15;
   // Vector's placeholder for signals not in any message.
-  std::erase_if(db.messages, [](const Message& m) { return m.name == "VECTOR__INDEPENDENT_SIG_MSG"; });
+  std::erase_if(db.messages,
+                [](const Message& m) { return m.name == "VECTOR__INDEPENDENT_SIG_MSG"; });
   for (Message& m : db.messages) {
     int multiplexors = 0;
     for (Signal& s : m.signals) {
@@ -482,11 +520,13 @@ Status Parser::finish(Database& db) {
       if (s.mux == MuxRole::Multiplexor) ++multiplexors;
     }
     if (multiplexors > 1)
-      return make_error("message '" + m.name + "' has more than one multiplexor", SourcePos{file_, m.line, 0});
+      return make_error("message '" + m.name + "' has more than one multiplexor",
+                        SourcePos{file_, m.line, 0});
     for (const Signal& s : m.signals)
       if (s.mux == MuxRole::Multiplexed && multiplexors == 0)
-        return make_error("signal '" + s.name + "' is multiplexed but '" + m.name + "' has no multiplexor",
-                          SourcePos{file_, s.line, 0});
+        return make_error(
+            "signal '" + s.name + "' is multiplexed but '" + m.name + "' has no multiplexor",
+            SourcePos{file_, s.line, 0});
   }
   return Status{Ok{}};
 }
@@ -540,7 +580,9 @@ Result<Database> Parser::run() {
   return std::move(db_);
 }
 
-std::uint64_t low_mask(std::uint32_t bits) { return bits >= 64 ? ~0ull : (1ull << bits) - 1; }
+std::uint64_t low_mask(std::uint32_t bits) {
+  return bits >= 64 ? ~0ull : (1ull << bits) - 1;
+}
 
 }  // namespace
 
@@ -638,14 +680,16 @@ std::int64_t raw_to_integer(const Signal& sig, std::uint64_t raw) {
 double raw_to_physical(const Signal& sig, std::uint64_t raw) {
   switch (sig.type) {
     case ValueType::Float32:
-      return static_cast<double>(std::bit_cast<float>(static_cast<std::uint32_t>(raw))) * sig.factor +
+      return static_cast<double>(std::bit_cast<float>(static_cast<std::uint32_t>(raw))) *
+                 sig.factor +
              sig.offset;
     case ValueType::Float64:
       return std::bit_cast<double>(raw) * sig.factor + sig.offset;
     case ValueType::Integer:
       break;
   }
-  const double base = sig.is_signed ? static_cast<double>(raw_to_integer(sig, raw)) : static_cast<double>(raw);
+  const double base =
+      sig.is_signed ? static_cast<double>(raw_to_integer(sig, raw)) : static_cast<double>(raw);
   return base * sig.factor + sig.offset;
 }
 
@@ -659,7 +703,9 @@ std::uint64_t physical_to_raw(const Signal& sig, double value) {
       break;
   }
   if (std::isnan(value)) return 0;
-  const long double scaled = std::nearbyint((static_cast<long double>(value) - sig.offset) / sig.factor);
+  const long double scaled =
+      std::nearbyint((static_cast<long double>(value) - static_cast<long double>(sig.offset)) /
+                     static_cast<long double>(sig.factor));
   if (sig.is_signed) {
     const long double hi = std::ldexp(1.0L, static_cast<int>(sig.length) - 1) - 1;
     const long double lo = -std::ldexp(1.0L, static_cast<int>(sig.length) - 1);
@@ -721,7 +767,8 @@ Frame FrameCodec::encode(const Message& msg, std::span<const double> values) {
   const std::span<std::uint8_t> payload(f.data.data(), f.len);
   std::optional<std::uint64_t> selector;
   for (std::size_t i = 0; i < msg.signals.size() && i < values.size(); ++i)
-    if (msg.signals[i].mux == MuxRole::Multiplexor) selector = physical_to_raw(msg.signals[i], values[i]);
+    if (msg.signals[i].mux == MuxRole::Multiplexor)
+      selector = physical_to_raw(msg.signals[i], values[i]);
   for (std::size_t i = 0; i < msg.signals.size() && i < values.size(); ++i) {
     const Signal& s = msg.signals[i];
     if (std::isnan(values[i])) continue;

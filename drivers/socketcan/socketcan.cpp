@@ -19,7 +19,8 @@ namespace turncal::socketcan {
 namespace {
 
 constexpr std::size_t kBatch = 64;
-constexpr std::size_t kCmsgSpace = CMSG_SPACE(sizeof(struct timespec)) + CMSG_SPACE(sizeof(std::uint32_t));
+constexpr std::size_t kCmsgSpace =
+    CMSG_SPACE(sizeof(struct timespec)) + CMSG_SPACE(sizeof(std::uint32_t));
 
 Error sys_error(const std::string& iface, const char* what, int err) {
   return make_error(iface + ": " + what + ": " + std::strerror(err));
@@ -45,7 +46,9 @@ void from_kernel(const canfd_frame& k, bool fd, can::Frame& f) {
   f.error = (k.can_id & CAN_ERR_FLAG) != 0;
   f.extended = !f.error && (k.can_id & CAN_EFF_FLAG) != 0;
   f.remote = (k.can_id & CAN_RTR_FLAG) != 0;
-  f.id = f.error ? (k.can_id & CAN_ERR_MASK) : f.extended ? (k.can_id & CAN_EFF_MASK) : (k.can_id & CAN_SFF_MASK);
+  f.id = f.error      ? (k.can_id & CAN_ERR_MASK)
+         : f.extended ? (k.can_id & CAN_EFF_MASK)
+                      : (k.can_id & CAN_SFF_MASK);
   f.fd = fd;
   f.brs = fd && (k.flags & CANFD_BRS) != 0;
   f.esi = fd && (k.flags & CANFD_ESI) != 0;
@@ -91,7 +94,9 @@ Socket& Socket::operator=(Socket&& o) noexcept {
   return *this;
 }
 
-Socket::~Socket() { close_socket(); }
+Socket::~Socket() {
+  close_socket();
+}
 
 void Socket::close_socket() {
   if (fd_ >= 0) ::close(fd_);
@@ -120,15 +125,17 @@ Status Socket::open_socket() {
   const int one = 1;
   if (opt_.fd && ::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_FD_FRAMES, &one, sizeof one) != 0)
     return fail("CAN_RAW_FD_FRAMES");
-  if (opt_.receive_own && ::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_RECV_OWN_MSGS, &one, sizeof one) != 0)
+  if (opt_.receive_own &&
+      ::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_RECV_OWN_MSGS, &one, sizeof one) != 0)
     return fail("CAN_RAW_RECV_OWN_MSGS");
   if (!opt_.filters.empty()) {
     std::vector<can_filter> filters;
     for (const Filter& f : opt_.filters) {
       can_filter k{};
       k.can_id = f.extended ? ((f.id & CAN_EFF_MASK) | CAN_EFF_FLAG) : (f.id & CAN_SFF_MASK);
-      k.can_mask = f.mask != 0 ? (f.mask | CAN_EFF_FLAG | CAN_RTR_FLAG)
-                               : ((f.extended ? CAN_EFF_MASK : CAN_SFF_MASK) | CAN_EFF_FLAG | CAN_RTR_FLAG);
+      k.can_mask = f.mask != 0
+                       ? (f.mask | CAN_EFF_FLAG | CAN_RTR_FLAG)
+                       : ((f.extended ? CAN_EFF_MASK : CAN_SFF_MASK) | CAN_EFF_FLAG | CAN_RTR_FLAG);
       filters.push_back(k);
     }
     if (::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_FILTER, filters.data(),
@@ -140,7 +147,8 @@ Status Socket::open_socket() {
     if (::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_ERR_FILTER, &mask, sizeof mask) != 0)
       return fail("CAN_RAW_ERR_FILTER");
   }
-  if (::setsockopt(fd, SOL_SOCKET, SO_TIMESTAMPNS, &one, sizeof one) != 0) return fail("SO_TIMESTAMPNS");
+  if (::setsockopt(fd, SOL_SOCKET, SO_TIMESTAMPNS, &one, sizeof one) != 0)
+    return fail("SO_TIMESTAMPNS");
   if (::setsockopt(fd, SOL_SOCKET, SO_RXQ_OVFL, &one, sizeof one) != 0) return fail("SO_RXQ_OVFL");
   if (opt_.rcvbuf_bytes > 0 &&
       ::setsockopt(fd, SOL_SOCKET, SO_RCVBUF, &opt_.rcvbuf_bytes, sizeof opt_.rcvbuf_bytes) != 0)
@@ -240,13 +248,15 @@ Socket::TxResult Socket::write_frame(const can::Frame& f) {
     const ssize_t n = ::write(fd_, &k, size);
     if (n == static_cast<ssize_t>(size)) return TxResult::Sent;
     if (n < 0 && errno == EINTR) continue;
-    if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == ENOBUFS)) return TxResult::Busy;
+    if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == ENOBUFS))
+      return TxResult::Busy;
     return TxResult::Failed;
   }
 }
 
 Status Socket::send(const can::Frame& f) {
-  if (f.fd && !opt_.fd) return make_error(opt_.interface + ": CAN FD frame on a socket opened for classic CAN");
+  if (f.fd && !opt_.fd)
+    return make_error(opt_.interface + ": CAN FD frame on a socket opened for classic CAN");
   if (f.len > (f.fd ? can::kMaxFdLen : can::kMaxClassicLen))
     return make_error(opt_.interface + ": frame payload too long");
   if (fd_ < 0) {
@@ -278,8 +288,10 @@ std::size_t Socket::flush() {
   while (!txq_.empty() && fd_ >= 0) {
     const TxResult r = write_frame(txq_.front());
     if (r == TxResult::Busy) break;
-    if (r == TxResult::Sent) ++stats_.tx_frames;
-    else ++stats_.tx_failed;
+    if (r == TxResult::Sent)
+      ++stats_.tx_frames;
+    else
+      ++stats_.tx_failed;
     txq_.pop_front();
   }
   return txq_.size();

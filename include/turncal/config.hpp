@@ -60,9 +60,9 @@ struct CanConfig {
   std::string ins_interface = "vcan0";
   std::string table_interface = "vcan0";
   std::vector<std::filesystem::path> dbc_files;  ///< absolute, or relative to the config file
-  bool fd = false;                 ///< open the sockets for CAN FD
-  std::uint32_t tx_queue_frames = 256;  ///< send queue bound per socket, frames
-  std::uint32_t rx_buffer_bytes = 0;    ///< SO_RCVBUF, bytes; 0: kernel default
+  bool fd = false;                               ///< open the sockets for CAN FD
+  std::uint32_t tx_queue_frames = 256;           ///< send queue bound per socket, frames
+  std::uint32_t rx_buffer_bytes = 0;             ///< SO_RCVBUF, bytes; 0: kernel default
   std::array<SignalRef, kRoleCount> roles;
 };
 
@@ -90,7 +90,9 @@ struct ResolvedRole {
 /// Every role resolved; the database must outlive it.
 struct RoleMap {
   std::array<ResolvedRole, kRoleCount> roles;
-  [[nodiscard]] const ResolvedRole& operator[](Role r) const { return roles[static_cast<std::size_t>(r)]; }
+  [[nodiscard]] const ResolvedRole& operator[](Role r) const {
+    return roles[static_cast<std::size_t>(r)];
+  }
   /// IDs (with the extended flag) of the messages turncal receives on the
   /// INS interface (ins = true) or the table interface.
   [[nodiscard]] std::vector<std::pair<std::uint32_t, bool>> receive_ids(bool ins) const;

@@ -72,14 +72,14 @@ inline Error make_error(std::string message, SourcePos where = {}) {
 }  // namespace turncal
 
 /// Returns the error of a Result-valued expression from the enclosing function.
-#define TURNCAL_TRY(expr)                                    \
-  do {                                                       \
-    auto turncal_try_ = (expr);                              \
+#define TURNCAL_TRY(expr)                                      \
+  do {                                                         \
+    auto turncal_try_ = (expr);                                \
     if (!turncal_try_) return std::move(turncal_try_).error(); \
   } while (0)
 
 /// Declares `var` from a Result-valued expression, or returns its error.
-#define TURNCAL_ASSIGN(var, expr)                      \
-  auto var##_result_ = (expr);                         \
+#define TURNCAL_ASSIGN(var, expr)                              \
+  auto var##_result_ = (expr);                                 \
   if (!var##_result_) return std::move(var##_result_).error(); \
   auto var = std::move(var##_result_).value()

@@ -1,28 +1,60 @@
 #include "turncal/config.hpp"
 
+#include <toml++/toml.h>
 #include <algorithm>
 #include <fstream>
 #include <sstream>
-#include <toml++/toml.h>
 
 namespace turncal {
 namespace {
 
-constexpr std::array<std::string_view, kRoleCount> kRoleKeys = {
-    "ins_vel_east",   "ins_vel_east_time_tag", "ins_vel_north",   "ins_vel_north_time_tag",
-    "ins_mode",       "ins_status_time_tag",   "ins_align_remaining", "ins_command",
-    "ins_command_align_duration", "ins_command_heading", "ins_command_seq", "encoder_angle",
-    "encoder_time_tag", "table_state", "table_ack", "table_fault", "table_rate", "table_command",
-    "table_command_seq", "table_command_target", "table_command_rate_limit", "heartbeat_counter",
-    "heartbeat_state"};
+constexpr std::array<std::string_view, kRoleCount> kRoleKeys = {"ins_vel_east",
+                                                                "ins_vel_east_time_tag",
+                                                                "ins_vel_north",
+                                                                "ins_vel_north_time_tag",
+                                                                "ins_mode",
+                                                                "ins_status_time_tag",
+                                                                "ins_align_remaining",
+                                                                "ins_command",
+                                                                "ins_command_align_duration",
+                                                                "ins_command_heading",
+                                                                "ins_command_seq",
+                                                                "encoder_angle",
+                                                                "encoder_time_tag",
+                                                                "table_state",
+                                                                "table_ack",
+                                                                "table_fault",
+                                                                "table_rate",
+                                                                "table_command",
+                                                                "table_command_seq",
+                                                                "table_command_target",
+                                                                "table_command_rate_limit",
+                                                                "heartbeat_counter",
+                                                                "heartbeat_state"};
 
-constexpr std::array<std::string_view, kRoleCount> kReferenceRoles = {
-    "INS_VelE.VelE",      "INS_VelE.TimeTag",      "INS_VelN.VelN",      "INS_VelN.TimeTag",
-    "INS_Status.Mode",    "INS_Status.TimeTag",    "INS_Status.AlignRemaining", "INS_Command.Command",
-    "INS_Command.AlignDuration", "INS_Command.HeadingInit", "INS_Command.Seq", "TBL_Encoder.Angle",
-    "TBL_Encoder.TimeTag", "TBL_Status.State",     "TBL_Status.AckSeq",  "TBL_Status.Fault",
-    "TBL_Status.Rate",    "TBL_Command.Command",   "TBL_Command.Seq",    "TBL_Command.Target",
-    "TBL_Command.RateLimit", "HOST_Heartbeat.Counter", "HOST_Heartbeat.HostState"};
+constexpr std::array<std::string_view, kRoleCount> kReferenceRoles = {"INS_VelE.VelE",
+                                                                      "INS_VelE.TimeTag",
+                                                                      "INS_VelN.VelN",
+                                                                      "INS_VelN.TimeTag",
+                                                                      "INS_Status.Mode",
+                                                                      "INS_Status.TimeTag",
+                                                                      "INS_Status.AlignRemaining",
+                                                                      "INS_Command.Command",
+                                                                      "INS_Command.AlignDuration",
+                                                                      "INS_Command.HeadingInit",
+                                                                      "INS_Command.Seq",
+                                                                      "TBL_Encoder.Angle",
+                                                                      "TBL_Encoder.TimeTag",
+                                                                      "TBL_Status.State",
+                                                                      "TBL_Status.AckSeq",
+                                                                      "TBL_Status.Fault",
+                                                                      "TBL_Status.Rate",
+                                                                      "TBL_Command.Command",
+                                                                      "TBL_Command.Seq",
+                                                                      "TBL_Command.Target",
+                                                                      "TBL_Command.RateLimit",
+                                                                      "HOST_Heartbeat.Counter",
+                                                                      "HOST_Heartbeat.HostState"};
 
 SourcePos pos_of(const toml::source_region& r, const std::string& file) {
   return SourcePos{file, r.begin.line, r.begin.column};
@@ -35,14 +67,17 @@ class Reader {
       : t_(t), file_(std::move(file)), prefix_(std::move(prefix)) {}
 
   Error error_at(const toml::node& n, std::string_view key, std::string what) const {
-    return make_error("key '" + prefix_ + std::string(key) + "': " + std::move(what), pos_of(n.source(), file_));
+    return make_error("key '" + prefix_ + std::string(key) + "': " + std::move(what),
+                      pos_of(n.source(), file_));
   }
   /// Unknown keys are errors: a typo must not silently fall back to a default.
   Status no_unknown_keys(std::initializer_list<std::string_view> known) const {
     for (auto&& [k, v] : t_) {
       bool ok = false;
       for (auto kk : known) ok = ok || k.str() == kk;
-      if (!ok) return make_error("unknown key '" + prefix_ + std::string(k.str()) + "'", pos_of(k.source(), file_));
+      if (!ok)
+        return make_error("unknown key '" + prefix_ + std::string(k.str()) + "'",
+                          pos_of(k.source(), file_));
     }
     return Status{Ok{}};
   }
@@ -66,7 +101,8 @@ class Reader {
     if (!n->is_integer()) return error_at(*n, key, "expected an integer");
     const std::int64_t v = n->as_integer()->get();
     if (v < lo || v > hi)
-      return error_at(*n, key, "must be between " + std::to_string(lo) + " and " + std::to_string(hi));
+      return error_at(*n, key,
+                      "must be between " + std::to_string(lo) + " and " + std::to_string(hi));
     out = static_cast<std::uint32_t>(v);
     return Status{Ok{}};
   }
@@ -83,7 +119,8 @@ Status check_interface(const Reader& r, std::string_view key, const std::string&
   const toml::node* n = r.table().get(key);
   if (name.empty() || name.size() > 15 || name.find('/') != std::string::npos ||
       name.find(' ') != std::string::npos) {
-    const SourcePos where = n != nullptr ? pos_of(n->source(), r.file()) : SourcePos{r.file(), 0, 0};
+    const SourcePos where =
+        n != nullptr ? pos_of(n->source(), r.file()) : SourcePos{r.file(), 0, 0};
     return make_error("key 'can." + std::string(key) + "': '" + name +
                           "' is not an interface name (1 to 15 characters, no '/' or space)",
                       where);
@@ -97,14 +134,19 @@ Status read_roles(const toml::table& t, const std::string& file, CanConfig& can)
     for (std::size_t i = 0; i < kRoleCount; ++i)
       if (k.str() == kRoleKeys[i]) idx = i;
     if (idx == kRoleCount)
-      return make_error("unknown role 'can.roles." + std::string(k.str()) + "'", pos_of(k.source(), file));
+      return make_error("unknown role 'can.roles." + std::string(k.str()) + "'",
+                        pos_of(k.source(), file));
     const SourcePos where = pos_of(v.source(), file);
     if (!v.is_string())
-      return make_error("key 'can.roles." + std::string(k.str()) + "': expected \"Message.Signal\"", where);
+      return make_error("key 'can.roles." + std::string(k.str()) + "': expected \"Message.Signal\"",
+                        where);
     const std::string& s = v.as_string()->get();
     const auto dot = s.find('.');
-    if (dot == std::string::npos || dot == 0 || dot + 1 == s.size() || s.find('.', dot + 1) != std::string::npos)
-      return make_error("key 'can.roles." + std::string(k.str()) + "': '" + s + "' is not \"Message.Signal\"", where);
+    if (dot == std::string::npos || dot == 0 || dot + 1 == s.size() ||
+        s.find('.', dot + 1) != std::string::npos)
+      return make_error(
+          "key 'can.roles." + std::string(k.str()) + "': '" + s + "' is not \"Message.Signal\"",
+          where);
     can.roles[idx] = SignalRef{s.substr(0, dot), s.substr(dot + 1), where};
   }
   return Status{Ok{}};
@@ -146,7 +188,9 @@ Result<CanConfig> read_can(const toml::table& t, const std::string& file) {
 
 }  // namespace
 
-std::string_view role_key(Role role) { return kRoleKeys[static_cast<std::size_t>(role)]; }
+std::string_view role_key(Role role) {
+  return kRoleKeys[static_cast<std::size_t>(role)];
+}
 
 bool role_is_output(Role role) {
   switch (role) {
@@ -166,7 +210,9 @@ bool role_is_output(Role role) {
   }
 }
 
-bool role_is_ins(Role role) { return static_cast<std::size_t>(role) <= static_cast<std::size_t>(Role::InsCommandSeq); }
+bool role_is_ins(Role role) {
+  return static_cast<std::size_t>(role) <= static_cast<std::size_t>(Role::InsCommandSeq);
+}
 
 std::array<SignalRef, kRoleCount> reference_roles() {
   std::array<SignalRef, kRoleCount> out;
@@ -189,7 +235,8 @@ Result<Config> parse_config(std::string_view text, const std::string& file) {
   cfg.source = file;
   for (auto&& [k, v] : root) {
     if (k.str() != "can")
-      return make_error("unknown section or key '" + std::string(k.str()) + "'", pos_of(k.source(), file));
+      return make_error("unknown section or key '" + std::string(k.str()) + "'",
+                        pos_of(k.source(), file));
   }
   toml::table empty;
   const toml::node* can = root.get("can");
@@ -221,8 +268,9 @@ Result<can::Database> load_databases(const CanConfig& cfg) {
       for (std::size_t i = 0; i < merged.messages.size(); ++i) {
         const can::Message& o = merged.messages[i];
         if ((o.id == m.id && o.extended == m.extended) || o.name == m.name)
-          return make_error("message '" + m.name + "' is defined in both " + origin[i] + " and " + path.string(),
-                            SourcePos{path.string(), m.line, 0});
+          return make_error(
+              "message '" + m.name + "' is defined in both " + origin[i] + " and " + path.string(),
+              SourcePos{path.string(), m.line, 0});
       }
       merged.messages.push_back(std::move(m));
       origin.push_back(path.string());
@@ -237,11 +285,14 @@ Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
     const SignalRef& ref = cfg.roles[i];
     const std::string key = "can.roles." + std::string(kRoleKeys[i]);
     const can::Message* m = db.find(ref.message);
-    if (m == nullptr) return make_error("key '" + key + "': no message '" + ref.message + "' in the DBC", ref.where);
+    if (m == nullptr)
+      return make_error("key '" + key + "': no message '" + ref.message + "' in the DBC",
+                        ref.where);
     const can::Signal* s = m->find_signal(ref.signal);
     if (s == nullptr)
-      return make_error("key '" + key + "': message '" + ref.message + "' has no signal '" + ref.signal + "'",
-                        ref.where);
+      return make_error(
+          "key '" + key + "': message '" + ref.message + "' has no signal '" + ref.signal + "'",
+          ref.where);
     map.roles[i] = ResolvedRole{m, s, static_cast<std::size_t>(s - m->signals.data())};
   }
   // One message is either sent or received by the host, never both.

@@ -41,21 +41,25 @@ inline turncal::socketcan::Socket open(const std::string& iface, bool fd = false
 }
 
 /// Polls and receives until `want` frames arrived or `timeout` passed.
-inline turncal::socketcan::RxBatch receive(turncal::socketcan::Socket& s, std::size_t want,
-                                           std::chrono::milliseconds timeout = std::chrono::milliseconds(2000)) {
+inline turncal::socketcan::RxBatch receive(
+    turncal::socketcan::Socket& s, std::size_t want,
+    std::chrono::milliseconds timeout = std::chrono::milliseconds(2000)) {
   turncal::socketcan::RxBatch out;
   const auto end = std::chrono::steady_clock::now() + timeout;
   while (out.frames.size() < want && std::chrono::steady_clock::now() < end) {
     pollfd p{s.fd(), POLLIN, 0};
-    if (s.fd() >= 0) ::poll(&p, 1, 50);
-    else ::poll(nullptr, 0, 50);
+    if (s.fd() >= 0)
+      ::poll(&p, 1, 50);
+    else
+      ::poll(nullptr, 0, 50);
     auto r = s.receive(out);
     if (!r.ok()) throw std::runtime_error(r.error().describe());
   }
   return out;
 }
 
-inline turncal::can::Frame frame(std::uint32_t id, std::initializer_list<std::uint8_t> bytes, bool ext = false) {
+inline turncal::can::Frame frame(std::uint32_t id, std::initializer_list<std::uint8_t> bytes,
+                                 bool ext = false) {
   turncal::can::Frame f;
   f.id = id;
   f.extended = ext;

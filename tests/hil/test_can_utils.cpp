@@ -91,8 +91,8 @@ TEST_SUITE("can-utils") {
   TEST_CASE("frames from cansend are read by our socket") {
     auto b = hil::open(hil::if0(), true);
     TempDir dir;
-    const char* frames[] = {"123#DEADBEEF", "1F334455#0102030405060708", "321##1AABBCCDDEEFF001122334455",
-                            "7FF#R"};
+    const char* frames[] = {"123#DEADBEEF", "1F334455#0102030405060708",
+                            "321##1AABBCCDDEEFF001122334455", "7FF#R"};
     for (const char* f : frames) {
       Child c({"cansend", hil::if0(), f}, dir.path);
       REQUIRE(c.wait(5000ms) == 0);
@@ -127,8 +127,10 @@ TEST_SUITE("can-utils") {
     std::vector<can::Frame> sent;
     const std::int64_t t0 = socketcan::realtime_ns();
     for (int i = 0; i < kFrames; ++i) {
-      auto f = (i % 3 == 0) ? hil::frame(0x1000000u + static_cast<std::uint32_t>(i), {1, 2, static_cast<std::uint8_t>(i)}, true)
-                            : hil::frame(0x100u + static_cast<std::uint32_t>(i), {static_cast<std::uint8_t>(i)});
+      auto f = (i % 3 == 0) ? hil::frame(0x1000000u + static_cast<std::uint32_t>(i),
+                                         {1, 2, static_cast<std::uint8_t>(i)}, true)
+                            : hil::frame(0x100u + static_cast<std::uint32_t>(i),
+                                         {static_cast<std::uint8_t>(i)});
       REQUIRE(a.send(f).ok());
       sent.push_back(f);
       if (i % 10 == 0) std::this_thread::sleep_for(2ms);
@@ -161,9 +163,11 @@ TEST_SUITE("can-utils") {
           r.frame.fd = true;
           r.frame.id = 0x300;
           r.frame.len = 16;
-          for (std::size_t k = 0; k < 16; ++k) r.frame.data[k] = static_cast<std::uint8_t>(i + static_cast<int>(k));
+          for (std::size_t k = 0; k < 16; ++k)
+            r.frame.data[k] = static_cast<std::uint8_t>(i + static_cast<int>(k));
         } else {
-          r.frame = hil::frame(0x200u + static_cast<std::uint32_t>(i), {static_cast<std::uint8_t>(i), 0xAA}, i % 2 == 1);
+          r.frame = hil::frame(0x200u + static_cast<std::uint32_t>(i),
+                               {static_cast<std::uint8_t>(i), 0xAA}, i % 2 == 1);
         }
         frames.push_back(r.frame);
         REQUIRE(w->write(r).ok());

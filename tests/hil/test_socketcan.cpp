@@ -58,8 +58,8 @@ TEST_SUITE("socketcan") {
     const std::pair<can::Frame, bool> cases[] = {
         {hil::frame(0x123, {1}), true},
         {hil::frame(0x124, {2}), false},
-        {hil::frame(0x123, {3}, true), false},       // same number, extended: another ID
-        {hil::frame(0x10000005, {4}, true), true},   // inside the masked range
+        {hil::frame(0x123, {3}, true), false},      // same number, extended: another ID
+        {hil::frame(0x10000005, {4}, true), true},  // inside the masked range
         {hil::frame(0x10000015, {5}, true), false},
     };
     for (const auto& [f, pass] : cases) REQUIRE(a.send(f).ok());
@@ -125,7 +125,8 @@ TEST_SUITE("socketcan") {
     auto a = hil::open(ao);
     const std::uint64_t backlog0 = backlog_drops();
     constexpr int kFlood = 5000;
-    for (int i = 0; i < kFlood; ++i) REQUIRE(a.send(hil::frame(0x200, {static_cast<std::uint8_t>(i)})).ok());
+    for (int i = 0; i < kFlood; ++i)
+      REQUIRE(a.send(hil::frame(0x200, {static_cast<std::uint8_t>(i)})).ok());
     while (a.flush() > 0) std::this_thread::sleep_for(1ms);
     socketcan::RxBatch rx;
     REQUIRE(b.receive(rx, 1000).ok());
@@ -136,8 +137,8 @@ TEST_SUITE("socketcan") {
     const std::uint64_t sent = a.stats().tx_frames;
     const std::uint64_t received = rx.frames.size() + tail.frames.size();
     const std::uint64_t backlog = backlog_drops() - backlog0;
-    MESSAGE("sent " << sent << ", received " << received << ", socket drops " << b.stats().rx_dropped
-                    << ", backlog drops " << backlog);
+    MESSAGE("sent " << sent << ", received " << received << ", socket drops "
+                    << b.stats().rx_dropped << ", backlog drops " << backlog);
     CHECK(sent == kFlood + 1);
     CHECK(b.stats().rx_dropped > 0);
     CHECK(received + b.stats().rx_dropped + backlog == sent);
@@ -203,7 +204,7 @@ TEST_SUITE("socketcan") {
     err.error = true;
     err.id = 0x040 | 0x004;  // bus-off, controller problem
     err.len = 8;
-    err.data[1] = 0x20;      // tx passive
+    err.data[1] = 0x20;  // tx passive
     REQUIRE(a.send(err).ok());
     REQUIRE(a.send(hil::frame(0x7, {7})).ok());
     auto rx = hil::receive(b, 1);

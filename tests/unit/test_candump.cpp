@@ -77,11 +77,14 @@ TEST_SUITE("candump") {
         "(1.0) vcan0 123#0",
         "(1.0) vcan0 123#GG",
         "(1.0) vcan0 123#001122334455667788",
-        "(1.0) vcan0 123##0" "00112233445566778899",  // 10 bytes: no FD length
+        "(1.0) vcan0 123##0"
+        "00112233445566778899",  // 10 bytes: no FD length
         "(1.0) vcan0 123#R9",
         "(1.0) vcan0 40000000#00",
         "(1.0) averyveryverylongname 123#00",
         "(1.0) vcan0 123",
+        "(17000000009.123456) vcan0 123#00",  // beyond int64 nanoseconds: found by fuzz_candump
+        "(1.0) vc:an0 123#00",
     };
     for (const char* text : bad) {
       const std::string line = text;
@@ -90,6 +93,11 @@ TEST_SUITE("candump") {
       CHECK_FALSE(r.ok());
       if (!r.ok()) CHECK(r.error().where.column >= 1);
     }
+  }
+
+  TEST_CASE("a NUL in the interface name is refused (found by fuzz_candump)") {
+    const std::string line("(1.0) v\0can0 123#00", 20);
+    CHECK_FALSE(parse_log_line(line).ok());
   }
 
   TEST_CASE("format writes six decimals and reads back the same record") {
@@ -128,7 +136,8 @@ TEST_SUITE("candump") {
   }
 
   TEST_CASE("the writer and the streaming reader round trip a file") {
-    const auto path = std::filesystem::temp_directory_path() / ("turncal-log-" + std::to_string(::getpid()));
+    const auto path =
+        std::filesystem::temp_directory_path() / ("turncal-log-" + std::to_string(::getpid()));
     {
       auto w = LogWriter::open(path.string());
       REQUIRE(w.ok());
@@ -138,7 +147,8 @@ TEST_SUITE("candump") {
         r.interface = "vcan0";
         r.frame.id = static_cast<std::uint32_t>(0x100 + i % 7);
         r.frame.len = 8;
-        for (int b = 0; b < 8; ++b) r.frame.data[static_cast<std::size_t>(b)] = static_cast<std::uint8_t>(i + b);
+        for (int b = 0; b < 8; ++b)
+          r.frame.data[static_cast<std::size_t>(b)] = static_cast<std::uint8_t>(i + b);
         REQUIRE(w->write(r).ok());
       }
       REQUIRE(w->sync().ok());
@@ -161,11 +171,13 @@ TEST_SUITE("candump") {
   }
 
   TEST_CASE("a malformed line in a file is an error naming file and line") {
-    const auto path = std::filesystem::temp_directory_path() / ("turncal-bad-" + std::to_string(::getpid()));
+    const auto path =
+        std::filesystem::temp_directory_path() / ("turncal-bad-" + std::to_string(::getpid()));
     {
       FILE* f = std::fopen(path.c_str(), "w");
       REQUIRE(f != nullptr);
-      std::fputs("(1.000000) vcan0 123#00\n\n(1.000001) vcan0 124#01\n(1.000002) vcan0 12X#00\n", f);
+      std::fputs("(1.000000) vcan0 123#00\n\n(1.000001) vcan0 124#01\n(1.000002) vcan0 12X#00\n",
+                 f);
       std::fclose(f);
     }
     auto rd = LogReader::open(path.string());

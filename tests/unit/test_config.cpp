@@ -82,8 +82,9 @@ TEST_SUITE("config") {
   }
 
   TEST_CASE("a role that names a missing signal is refused at its key") {
-    auto cfg = parse_config("[can]\ndbc = [\"" + kSrc + "/config/reference-stand.dbc\"]\n[can.roles]\n\n"
-                            "encoder_angle = \"TBL_Encoder.Angel\"\n",
+    auto cfg = parse_config("[can]\ndbc = [\"" + kSrc +
+                                "/config/reference-stand.dbc\"]\n[can.roles]\n\n"
+                                "encoder_angle = \"TBL_Encoder.Angel\"\n",
                             "stand.toml");
     REQUIRE(cfg.ok());
     auto db = load_databases(cfg->can);

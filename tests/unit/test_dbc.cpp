@@ -12,7 +12,8 @@ using namespace turncal::can;
 
 namespace {
 
-Signal make_signal(std::uint32_t start, std::uint32_t len, ByteOrder order, bool is_signed = false) {
+Signal make_signal(std::uint32_t start, std::uint32_t len, ByteOrder order,
+                   bool is_signed = false) {
   Signal s;
   s.name = "S";
   s.start_bit = start;
@@ -65,7 +66,9 @@ SIG_VALTYPE_ 200 D64 : 2;
 TEST_SUITE("dbc") {
   TEST_CASE("Intel and Motorola layouts match hand-worked vectors") {
     const std::uint8_t data[8] = {0x12, 0x34, 0x56, 0x78, 0x9A, 0xBC, 0xDE, 0xF0};
-    SUBCASE("Intel byte") { CHECK(extract_raw(make_signal(0, 8, ByteOrder::LittleEndian), data) == 0x12); }
+    SUBCASE("Intel byte") {
+      CHECK(extract_raw(make_signal(0, 8, ByteOrder::LittleEndian), data) == 0x12);
+    }
     SUBCASE("Intel 16 across bytes") {
       CHECK(extract_raw(make_signal(0, 16, ByteOrder::LittleEndian), data) == 0x3412);
     }
@@ -73,11 +76,18 @@ TEST_SUITE("dbc") {
       CHECK(extract_raw(make_signal(4, 8, ByteOrder::LittleEndian), data) == 0x41);
     }
     SUBCASE("Intel 64") {
-      CHECK(extract_raw(make_signal(0, 64, ByteOrder::LittleEndian), data) == 0xF0DEBC9A78563412ull);
+      CHECK(extract_raw(make_signal(0, 64, ByteOrder::LittleEndian), data) ==
+            0xF0DEBC9A78563412ull);
     }
-    SUBCASE("Motorola byte") { CHECK(extract_raw(make_signal(7, 8, ByteOrder::BigEndian), data) == 0x12); }
-    SUBCASE("Motorola 16") { CHECK(extract_raw(make_signal(7, 16, ByteOrder::BigEndian), data) == 0x1234); }
-    SUBCASE("Motorola low nibble") { CHECK(extract_raw(make_signal(3, 4, ByteOrder::BigEndian), data) == 0x2); }
+    SUBCASE("Motorola byte") {
+      CHECK(extract_raw(make_signal(7, 8, ByteOrder::BigEndian), data) == 0x12);
+    }
+    SUBCASE("Motorola 16") {
+      CHECK(extract_raw(make_signal(7, 16, ByteOrder::BigEndian), data) == 0x1234);
+    }
+    SUBCASE("Motorola low nibble") {
+      CHECK(extract_raw(make_signal(3, 4, ByteOrder::BigEndian), data) == 0x2);
+    }
     SUBCASE("Motorola across bytes") {
       // bits 3..0 of byte 0 (0x2), then bits 7..4 of byte 1 (0x3)
       CHECK(extract_raw(make_signal(3, 8, ByteOrder::BigEndian), data) == 0x23);
@@ -186,7 +196,8 @@ TEST_SUITE("dbc") {
       std::uint32_t line;
     };
     const Case cases[] = {
-        {"BO_ 1 M: 8 A\n SG_ S : 0|8@1+ (1,0) [0|1] \"\" B\n SG_ T : 60|8@1+ (1,0) [0|1] \"\" B\n", 3},
+        {"BO_ 1 M: 8 A\n SG_ S : 0|8@1+ (1,0) [0|1] \"\" B\n SG_ T : 60|8@1+ (1,0) [0|1] \"\" B\n",
+         3},
         {"BO_ 1 M: 8 A\n SG_ S : 0|65@1+ (1,0) [0|1] \"\" B\n", 2},
         {"BO_ 1 M: 8 A\n SG_ S : 0|8@2+ (1,0) [0|1] \"\" B\n", 2},
         {"BO_ 1 M: 9 A\n", 1},

@@ -11,18 +11,18 @@
 namespace turncal::can {
 
 enum class BusEventKind : std::uint8_t {
-  TxTimeout,          ///< CAN_ERR_TX_TIMEOUT
-  LostArbitration,    ///< CAN_ERR_LOSTARB
-  ControllerProblem,  ///< CAN_ERR_CRTL: see `detail` (CAN_ERR_CRTL_* bits)
-  ProtocolViolation,  ///< CAN_ERR_PROT
-  TransceiverProblem, ///< CAN_ERR_TRX
-  NoAck,              ///< CAN_ERR_ACK
-  BusOff,             ///< CAN_ERR_BUSOFF
-  BusError,           ///< CAN_ERR_BUSERROR
-  Restarted,          ///< CAN_ERR_RESTARTED: controller restarted after bus-off
-  InterfaceDown,      ///< the interface went down (ENETDOWN)
-  InterfaceGone,      ///< the interface was removed (ENODEV)
-  InterfaceBack,      ///< the interface is usable again
+  TxTimeout,           ///< CAN_ERR_TX_TIMEOUT
+  LostArbitration,     ///< CAN_ERR_LOSTARB
+  ControllerProblem,   ///< CAN_ERR_CRTL: see `detail` (CAN_ERR_CRTL_* bits)
+  ProtocolViolation,   ///< CAN_ERR_PROT
+  TransceiverProblem,  ///< CAN_ERR_TRX
+  NoAck,               ///< CAN_ERR_ACK
+  BusOff,              ///< CAN_ERR_BUSOFF
+  BusError,            ///< CAN_ERR_BUSERROR
+  Restarted,           ///< CAN_ERR_RESTARTED: controller restarted after bus-off
+  InterfaceDown,       ///< the interface went down (ENETDOWN)
+  InterfaceGone,       ///< the interface was removed (ENODEV)
+  InterfaceBack,       ///< the interface is usable again
 };
 
 struct BusEvent {

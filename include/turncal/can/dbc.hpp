@@ -36,7 +36,7 @@ struct Signal {
   std::string unit;
   std::vector<std::string> receivers;
   MuxRole mux = MuxRole::None;
-  std::uint64_t mux_value = 0;  ///< for Multiplexed signals
+  std::uint64_t mux_value = 0;                 ///< for Multiplexed signals
   std::map<std::int64_t, std::string> values;  ///< VAL_ table
   std::string comment;
   std::uint32_t line = 0;  ///< where it is defined
@@ -112,7 +112,8 @@ class FrameCodec {
   /// Physical values of every signal of the message, in its signal order
   /// (`out` must hold msg->signals.size()). Multiplexed signals not selected
   /// by the multiplexor are set to NaN.
-  DecodeStatus decode(const Frame& frame, std::span<double> out, const Message** msg = nullptr) const;
+  DecodeStatus decode(const Frame& frame, std::span<double> out,
+                      const Message** msg = nullptr) const;
   /// Builds a frame of `msg` from physical values (signal order).
   static Frame encode(const Message& msg, std::span<const double> values);
 

@@ -37,8 +37,8 @@ struct Frame {
 
 /// Valid CAN FD payload lengths (the DLC code points 9..15 map to 12..64).
 [[nodiscard]] constexpr bool is_valid_fd_len(std::size_t len) {
-  return len <= 8 || len == 12 || len == 16 || len == 20 || len == 24 || len == 32 ||
-         len == 48 || len == 64;
+  return len <= 8 || len == 12 || len == 16 || len == 20 || len == 24 || len == 32 || len == 48 ||
+         len == 64;
 }
 
 /// A frame with its receive (or send) time, nanoseconds since the Unix epoch.

@@ -30,23 +30,23 @@ struct Filter {
 
 struct Options {
   std::string interface;
-  bool fd = false;               ///< also receive and send CAN FD frames
-  std::vector<Filter> filters;   ///< empty: every frame
-  bool error_frames = true;      ///< receive error frames (as BusEvents)
-  bool receive_own = false;      ///< see our own sent frames
+  bool fd = false;                   ///< also receive and send CAN FD frames
+  std::vector<Filter> filters;       ///< empty: every frame
+  bool error_frames = true;          ///< receive error frames (as BusEvents)
+  bool receive_own = false;          ///< see our own sent frames
   std::size_t tx_queue_limit = 256;  ///< frames waiting for the kernel queue
-  int rcvbuf_bytes = 0;          ///< SO_RCVBUF; 0: kernel default
+  int rcvbuf_bytes = 0;              ///< SO_RCVBUF; 0: kernel default
 };
 
 struct Stats {
   std::uint64_t rx_frames = 0;
-  std::uint64_t rx_dropped = 0;    ///< lost in the kernel (socket queue overflow)
+  std::uint64_t rx_dropped = 0;  ///< lost in the kernel (socket queue overflow)
   std::uint64_t rx_error_frames = 0;
-  std::uint64_t tx_frames = 0;     ///< handed to the kernel
-  std::uint64_t tx_queued = 0;     ///< had to wait in the send queue
-  std::uint64_t tx_overflow = 0;   ///< dropped because the send queue was full
-  std::uint64_t tx_failed = 0;     ///< dropped because the interface was down or gone
-  std::uint64_t recoveries = 0;    ///< times the socket was re-opened
+  std::uint64_t tx_frames = 0;    ///< handed to the kernel
+  std::uint64_t tx_queued = 0;    ///< had to wait in the send queue
+  std::uint64_t tx_overflow = 0;  ///< dropped because the send queue was full
+  std::uint64_t tx_failed = 0;    ///< dropped because the interface was down or gone
+  std::uint64_t recoveries = 0;   ///< times the socket was re-opened
 };
 
 /// Frames and events of one receive call.

@@ -1,0 +1,48 @@
+// libFuzzer target: the frame decoders (signal codec by the reference
+// stand's DBC, error frames) on arbitrary frames.
+#include <cstddef>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "turncal/can/bus_event.hpp"
+#include "turncal/can/dbc.hpp"
+
+namespace {
+const turncal::can::Database& database() {
+  static const auto db = [] {
+    auto r = turncal::can::load_dbc(std::string(TURNCAL_SOURCE_DIR) + "/config/reference-stand.dbc");
+    if (!r.ok()) std::abort();
+    return std::make_unique<turncal::can::Database>(std::move(r).value());
+  }();
+  return *db;
+}
+}  // namespace
+
+extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
+  static const turncal::can::FrameCodec codec(database());
+  if (size < 6) return 0;
+  turncal::can::TimedFrame tf;
+  turncal::can::Frame& f = tf.frame;
+  std::uint32_t id = 0;
+  std::memcpy(&id, data, 4);
+  const std::uint8_t flags = data[4];
+  f.extended = (flags & 1) != 0;
+  f.fd = (flags & 2) != 0;
+  f.remote = (flags & 4) != 0;
+  f.error = (flags & 8) != 0;
+  f.id = id & (f.extended || f.error ? turncal::can::kExtIdMask : turncal::can::kStdIdMask);
+  const std::size_t max = f.fd ? turncal::can::kMaxFdLen : turncal::can::kMaxClassicLen;
+  f.len = static_cast<std::uint8_t>(data[5] % (max + 1));
+  const std::size_t n = std::min<std::size_t>(f.len, size - 6);
+  std::memcpy(f.data.data(), data + 6, n);
+  std::vector<double> values(16);
+  const turncal::can::Message* m = nullptr;
+  const auto st = codec.decode(f, values, &m);
+  if (st == turncal::can::DecodeStatus::Ok && (m == nullptr || m->size != f.len)) std::abort();
+  (void)turncal::can::decode_error_frame(tf);
+  return 0;
+}
