@@ -14,7 +14,8 @@
 namespace {
 const turncal::can::Database& database() {
   static const auto db = [] {
-    auto r = turncal::can::load_dbc(std::string(TURNCAL_SOURCE_DIR) + "/config/reference-stand.dbc");
+    auto r =
+        turncal::can::load_dbc(std::string(TURNCAL_SOURCE_DIR) + "/config/reference-stand.dbc");
     if (!r.ok()) std::abort();
     return std::make_unique<turncal::can::Database>(std::move(r).value());
   }();
