@@ -255,7 +255,7 @@ TEST_SUITE("dbc") {
         bool clash = false;
         int bits = 0;
         for (std::uint32_t b = 0; b < size * 8; ++b) {
-          if ((probe[b / 8] >> (b % 8)) & 1u) {
+          if ((static_cast<unsigned>(probe[b / 8]) >> (b % 8)) & 1u) {
             ++bits;
             clash = clash || used[b];
           }
@@ -263,7 +263,7 @@ TEST_SUITE("dbc") {
         REQUIRE(bits == static_cast<int>(s.length));
         if (clash) continue;
         for (std::uint32_t b = 0; b < size * 8; ++b)
-          if ((probe[b / 8] >> (b % 8)) & 1u) used[b] = true;
+          if ((static_cast<unsigned>(probe[b / 8]) >> (b % 8)) & 1u) used[b] = true;
         dbc << " SG_ " << s.name << " : " << s.start_bit << "|" << s.length << "@"
             << (s.order == ByteOrder::LittleEndian ? 1 : 0) << (s.is_signed ? "-" : "+")
             << " (1,0) [0|0] \"\" B\n";
