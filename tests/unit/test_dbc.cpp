@@ -153,11 +153,17 @@ TEST_SUITE("dbc") {
       CHECK(std::isnan(out[2]));
       CHECK(out[3] == 201);
     }
-    SUBCASE("a frame of the wrong length is refused") {
-      Frame f = FrameCodec::encode(*db->find("Engine"), std::vector<double>{1, 2, 0});
-      f.len = 7;
+    SUBCASE("a frame of the wrong length is refused, counted and skipped") {
+      Frame good = FrameCodec::encode(*db->find("Engine"), std::vector<double>{1, 2, 0});
+      Frame bad = good;
+      bad.len = 7;
       std::vector<double> out(3);
-      CHECK(codec.decode(f, out) == DecodeStatus::LengthMismatch);
+      DecodeCounts counts;
+      for (const Frame* f : {&good, &bad, &good}) counts.add(codec.decode(*f, out));
+      CHECK(counts.ok == 2);
+      CHECK(counts.length_mismatch == 1);
+      CHECK(counts.malformed() == 1);
+      CHECK(out[0] == doctest::Approx(1));  // the good frame after the bad one decoded
     }
     SUBCASE("unknown IDs and error frames are not data") {
       Frame f;

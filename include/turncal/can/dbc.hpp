@@ -98,6 +98,32 @@ void insert_raw(const Signal& sig, std::span<std::uint8_t> data, std::uint64_t r
 /// Why a frame could not be decoded.
 enum class DecodeStatus : std::uint8_t { Ok, UnknownId, LengthMismatch, NotData };
 
+/// Tally of decode outcomes: a frame that cannot be decoded is counted and
+/// skipped, never fatal.
+struct DecodeCounts {
+  std::uint64_t ok = 0;
+  std::uint64_t unknown_id = 0;
+  std::uint64_t length_mismatch = 0;
+  std::uint64_t not_data = 0;
+  void add(DecodeStatus st) {
+    switch (st) {
+      case DecodeStatus::Ok:
+        ++ok;
+        break;
+      case DecodeStatus::UnknownId:
+        ++unknown_id;
+        break;
+      case DecodeStatus::LengthMismatch:
+        ++length_mismatch;
+        break;
+      case DecodeStatus::NotData:
+        ++not_data;
+        break;
+    }
+  }
+  [[nodiscard]] std::uint64_t malformed() const { return length_mismatch; }
+};
+
 /// Decodes frames by ID through a Database (which must outlive it). Looks an
 /// ID up in a hash map; a frame whose length differs from the message's is
 /// counted and skipped, never fatal.
