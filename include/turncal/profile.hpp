@@ -9,21 +9,21 @@
 namespace turncal {
 
 struct TurnSpec {
-  double start_s = 0;          ///< experiment time the turn starts (t0 = 0), s
-  double angle_rad = 0;        ///< signed, counter-clockwise seen from above
-  double max_rate_rps = 0;     ///< rad/s
-  double max_accel_rps2 = 0;   ///< rad/s^2
+  double start_s = 0;         ///< experiment time the turn starts (t0 = 0), s
+  double angle_rad = 0;       ///< signed, counter-clockwise seen from above
+  double max_rate_rps = 0;    ///< rad/s
+  double max_accel_rps2 = 0;  ///< rad/s^2
 };
 
 struct Profile {
-  double duration_s = 3600;    ///< navigation time from t0 to the end, s
-  double align_s = 120;        ///< alignment before t0, s
-  std::vector<TurnSpec> turns; ///< in time order, not overlapping
+  double duration_s = 3600;     ///< navigation time from t0 to the end, s
+  double align_s = 120;         ///< alignment before t0, s
+  std::vector<TurnSpec> turns;  ///< in time order, not overlapping
 };
 
 /// The classic profile: one turn of `angle_rad` at `turn_start_s`.
-Profile classic_profile(double duration_s, double turn_start_s, double angle_rad, double max_rate_rps,
-                        double max_accel_rps2);
+Profile classic_profile(double duration_s, double turn_start_s, double angle_rad,
+                        double max_rate_rps, double max_accel_rps2);
 
 /// Table angle, rate and acceleration as functions of experiment time;
 /// piecewise quadratic in angle.

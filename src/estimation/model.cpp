@@ -1,5 +1,6 @@
 #include "turncal/estimation/model.hpp"
 
+#include <Eigen/Eigenvalues>
 #include <cmath>
 #include <unsupported/Eigen/MatrixFunctions>
 
@@ -28,6 +29,20 @@ StateMat noise_input(const ProcessNoise& n) {
 }
 
 }  // namespace
+
+StateMat psd_sqrt(const StateMat& q) {
+  // Scaled by its diagonal first: Q spans some 20 orders of magnitude (the
+  // a rows see q_a dt^3 / R^2), and an unscaled eigensolver would bury the
+  // small blocks in the round-off of the large ones.
+  StateVec d = q.diagonal().cwiseMax(0.0).cwiseSqrt();
+  for (int i = 0; i < sx::kN; ++i)
+    if (!(d(i) > 0)) d(i) = 1;
+  const StateMat qs =
+      d.cwiseInverse().asDiagonal() * (0.5 * (q + q.transpose())) * d.cwiseInverse().asDiagonal();
+  Eigen::SelfAdjointEigenSolver<StateMat> es(qs);
+  const StateVec ev = es.eigenvalues().cwiseMax(0.0).cwiseSqrt();
+  return d.asDiagonal() * es.eigenvectors() * ev.asDiagonal();
+}
 
 EarthAt EarthAt::at(const Site& site) {
   const double lat = site.latitude_rad;
@@ -91,6 +106,7 @@ Discrete discretize_hold(const EarthAt& e, double psi, double dt, const ProcessN
   d.phi = em.bottomRightCorner<n, n>().transpose();
   d.q = d.phi * em.topRightCorner<n, n>();
   d.q = 0.5 * (d.q + d.q.transpose()).eval();
+  d.sqrt_q = psd_sqrt(d.q);
   return d;
 }
 
@@ -111,12 +127,14 @@ TurnIntegrals turn_integrals(std::span<const AngleSample> samples) {
 }
 
 TurnIntegrals turn_integrals_constant_rate(double psi1, double psi2, double plateau_rate) {
-  return {plateau_rate * (std::sin(psi2) - std::sin(psi1)), -plateau_rate * (std::cos(psi2) - std::cos(psi1))};
+  return {plateau_rate * (std::sin(psi2) - std::sin(psi1)),
+          -plateau_rate * (std::cos(psi2) - std::cos(psi1))};
 }
 
-Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples, const ProcessNoise& noise) {
+Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
+                         const ProcessNoise& noise) {
   using namespace sx;
-  Discrete d{StateMat::Identity(), StateMat::Zero()};
+  Discrete d{StateMat::Identity(), StateMat::Zero(), StateMat::Zero()};
   const StateMat gqg = noise_input(noise);
   for (std::size_t k = 0; k + 1 < samples.size(); ++k) {
     const double dt = samples[k + 1].t_s - samples[k].t_s;
@@ -143,6 +161,7 @@ Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
   jump(kDv + 1, kR + 1) = -j.jc;
   d.phi = jump * d.phi;
   d.q = 0.5 * (d.q + d.q.transpose()).eval();
+  d.sqrt_q = psd_sqrt(d.q);
   return d;
 }
 

@@ -4,8 +4,8 @@
 
 namespace turncal {
 
-Profile classic_profile(double duration_s, double turn_start_s, double angle_rad, double max_rate_rps,
-                        double max_accel_rps2) {
+Profile classic_profile(double duration_s, double turn_start_s, double angle_rad,
+                        double max_rate_rps, double max_accel_rps2) {
   Profile p;
   p.duration_s = duration_s;
   p.turns.push_back(TurnSpec{turn_start_s, angle_rad, max_rate_rps, max_accel_rps2});

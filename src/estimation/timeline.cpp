@@ -10,7 +10,8 @@ namespace {
 std::vector<AngleSample> window_samples(std::span<const AngleSample> enc, double t1, double t2) {
   std::vector<AngleSample> out;
   auto interp = [&](double t) {
-    auto it = std::lower_bound(enc.begin(), enc.end(), t, [](const AngleSample& s, double v) { return s.t_s < v; });
+    auto it = std::lower_bound(enc.begin(), enc.end(), t,
+                               [](const AngleSample& s, double v) { return s.t_s < v; });
     if (it == enc.begin()) return AngleSample{t, it->psi_rad};
     if (it == enc.end()) return AngleSample{t, enc.back().psi_rad};
     const AngleSample& b = *it;
@@ -50,7 +51,10 @@ void for_each_step(const TimelineInput& in, const std::function<void(const Timel
       const Discrete after = discretize_hold(e, psi_hold, t_to - w.t_end_s, in.noise);
       Discrete d;
       d.phi = after.phi * turn.phi * before.phi;
-      d.q = after.phi * (turn.phi * before.q * turn.phi.transpose() + turn.q) * after.phi.transpose() + after.q;
+      d.q = after.phi * (turn.phi * before.q * turn.phi.transpose() + turn.q) *
+                after.phi.transpose() +
+            after.q;
+      d.sqrt_q = psd_sqrt(d.q);
       fn(TimelineStep{t_from, t_to, &d});
       hold = discretize_hold(e, psi_hold, in.epoch_s, in.noise);
       k = k_after;

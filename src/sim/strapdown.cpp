@@ -99,9 +99,11 @@ void Strapdown::align() {
   const double heading = -cfg_.psi_start_rad + cfg_.start.dpsi0_rad;
   c_bn_ = rot_z(-heading) * level;
   // Position given with an error; velocity starts with its own error.
-  lat_ = cfg_.latitude_rad + cfg_.start.dr_n_m / (earth::meridian_radius(cfg_.latitude_rad) + cfg_.height_m);
+  lat_ = cfg_.latitude_rad +
+         cfg_.start.dr_n_m / (earth::meridian_radius(cfg_.latitude_rad) + cfg_.height_m);
   lon_ = cfg_.longitude_rad +
-         cfg_.start.dr_e_m / ((earth::normal_radius(cfg_.latitude_rad) + cfg_.height_m) * std::cos(cfg_.latitude_rad));
+         cfg_.start.dr_e_m / ((earth::normal_radius(cfg_.latitude_rad) + cfg_.height_m) *
+                              std::cos(cfg_.latitude_rad));
   h_ = cfg_.height_m;
   v_ = Vec3(cfg_.start.v0.x(), cfg_.start.v0.y(), 0);
   t_ = 0;
@@ -151,13 +153,17 @@ VelocitySample Strapdown::output() {
   return {t_, ve, vn};
 }
 
-EncoderSample Strapdown::encoder() const { return {t_, table_.at(t_).angle}; }
+EncoderSample Strapdown::encoder() const {
+  return {t_, table_.at(t_).angle};
+}
 
 Run simulate(const Config& config) {
   Strapdown sd(config);
   Run run;
-  const auto out_every = static_cast<long>(std::llround(config.imu_rate_hz / config.output_rate_hz));
-  const auto enc_every = static_cast<long>(std::llround(config.imu_rate_hz / config.encoder_rate_hz));
+  const auto out_every =
+      static_cast<long>(std::llround(config.imu_rate_hz / config.output_rate_hz));
+  const auto enc_every =
+      static_cast<long>(std::llround(config.imu_rate_hz / config.encoder_rate_hz));
   long k = 0;
   run.velocity.push_back(sd.output());
   run.encoder.push_back(sd.encoder());

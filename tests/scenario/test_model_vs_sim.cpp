@@ -20,7 +20,9 @@ constexpr double kDegPerHour = kDeg / 3600.0;
 constexpr double kMg = 1e-3 * 9.80665;
 
 /// The reference profile: 3600 s, +180 deg at 1800 s, 30 deg/s, 30 deg/s^2.
-Profile reference_profile() { return classic_profile(3600, 1800, 180 * kDeg, 30 * kDeg, 30 * kDeg); }
+Profile reference_profile() {
+  return classic_profile(3600, 1800, 180 * kDeg, 30 * kDeg, 30 * kDeg);
+}
 
 struct Injection {
   std::string name;
@@ -93,9 +95,24 @@ std::vector<Injection> injections() {
   using namespace est;
   // one tenth of the tactical prior sigma (issue: second-order terms stay
   // near 0.2% there)
-  const double tenth[sx::kParams] = {0.1 * kDegPerHour, 0.1 * kDegPerHour, 0.1 * kDegPerHour,
-                                     1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4,
-                                     0.1 * kMg, 0.1 * kMg, 1e-4, 1e-4, 0.003, 0.003};
+  const double tenth[sx::kParams] = {0.1 * kDegPerHour,
+                                     0.1 * kDegPerHour,
+                                     0.1 * kDegPerHour,
+                                     1e-4,
+                                     1e-4,
+                                     1e-4,
+                                     1e-4,
+                                     1e-4,
+                                     1e-4,
+                                     1e-4,
+                                     1e-4,
+                                     1e-4,
+                                     0.1 * kMg,
+                                     0.1 * kMg,
+                                     1e-4,
+                                     1e-4,
+                                     0.003,
+                                     0.003};
   std::vector<Injection> out;
   XiVec all = XiVec::Zero();
   for (int p = 0; p < sx::kParams; ++p) {
@@ -133,9 +150,9 @@ TEST_SUITE("model vs simulation") {
         CAPTURE(inj.name);
         const Comparison c = compare(inj.xi, psi_deg * kDeg);
         const double tol = std::max(0.01 * c.max_signal, 1e-4);
-        MESSAGE(inj.name << " at " << psi_deg << " deg: signal " << c.max_signal << " m/s, max diff "
-                         << c.max_diff << " m/s at " << c.t_worst << " s (" << 100 * c.max_diff / c.max_signal
-                         << "%)");
+        MESSAGE(inj.name << " at " << psi_deg << " deg: signal " << c.max_signal
+                         << " m/s, max diff " << c.max_diff << " m/s at " << c.t_worst << " s ("
+                         << 100 * c.max_diff / c.max_signal << "%)");
         CHECK(c.max_diff <= tol);
       }
     }

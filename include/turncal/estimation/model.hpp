@@ -39,7 +39,12 @@ StateMat hold_dynamics(const EarthAt& e, double psi);
 struct Discrete {
   StateMat phi;
   StateMat q;
+  StateMat sqrt_q;  ///< a square root of q (sqrt_q sqrt_q^T = q), for the square-root filter
 };
+
+/// A square root of a symmetric positive semi-definite matrix, negative
+/// eigenvalues from round-off clamped to zero.
+StateMat psd_sqrt(const StateMat& q);
 /// expm(F dt) and Van Loan's Q_d; only the 7 navigation rows are non-trivial.
 Discrete discretize_hold(const EarthAt& e, double psi, double dt, const ProcessNoise& noise);
 
@@ -55,7 +60,8 @@ struct AngleSample {
 /// sub-steps at the sample times, the Theta_.3 tilt jump integrated over
 /// angle, and the proof-mass velocity jump from Jc, Js (model.md, 7). The
 /// table is still at the first and the last sample.
-Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples, const ProcessNoise& noise);
+Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
+                         const ProcessNoise& noise);
 
 /// Jc = int Omega^2 cos psi dt and Js = int Omega^2 sin psi dt from
 /// samples, as int Omega cos psi dpsi and int Omega sin psi dpsi.

@@ -10,19 +10,21 @@ namespace turncal::est {
 
 /// Offsets and sizes of the state blocks.
 namespace sx {
-inline constexpr int kDv = 0;     ///< dv1, dv2: velocity error East, North, m/s
-inline constexpr int kA = 2;      ///< a1, a2: computed geographic frame rotation, rad
-inline constexpr int kB = 4;      ///< b1, b2, b3: computed body vs computed geographic, rad
-inline constexpr int kNu0 = 7;    ///< gyro biases, rad/s
-inline constexpr int kTheta = 10; ///< gyro scale/misalignment, row-major 3x3
-inline constexpr int kDf0 = 19;   ///< accelerometer biases 1, 2, m/s^2
-inline constexpr int kG = 21;     ///< G13, G23
-inline constexpr int kR = 23;     ///< r1, r2: proof-mass offset of accelerometer 2, m
-inline constexpr int kNav = 7;    ///< navigation errors
+inline constexpr int kDv = 0;      ///< dv1, dv2: velocity error East, North, m/s
+inline constexpr int kA = 2;       ///< a1, a2: computed geographic frame rotation, rad
+inline constexpr int kB = 4;       ///< b1, b2, b3: computed body vs computed geographic, rad
+inline constexpr int kNu0 = 7;     ///< gyro biases, rad/s
+inline constexpr int kTheta = 10;  ///< gyro scale/misalignment, row-major 3x3
+inline constexpr int kDf0 = 19;    ///< accelerometer biases 1, 2, m/s^2
+inline constexpr int kG = 21;      ///< G13, G23
+inline constexpr int kR = 23;      ///< r1, r2: proof-mass offset of accelerometer 2, m
+inline constexpr int kNav = 7;     ///< navigation errors
 inline constexpr int kParams = 18;
 inline constexpr int kN = kNav + kParams;
 /// Index of Theta_ij (1-based i, j as in model.md).
-constexpr int theta(int i, int j) { return kTheta + 3 * (i - 1) + (j - 1); }
+constexpr int theta(int i, int j) {
+  return kTheta + 3 * (i - 1) + (j - 1);
+}
 }  // namespace sx
 
 using StateVec = Eigen::Matrix<double, sx::kN, 1>;

@@ -21,15 +21,15 @@ struct TimelineInput {
   Site site;
   ProcessNoise noise;
   double epoch_s = 1.0;
-  double duration_s = 0;          ///< from t0
-  double psi_start_rad = 0;       ///< start orientation (model sense)
-  std::vector<TurnWindow> turns;  ///< ascending, not overlapping
+  double duration_s = 0;             ///< from t0
+  double psi_start_rad = 0;          ///< start orientation (model sense)
+  std::vector<TurnWindow> turns;     ///< ascending, not overlapping
   std::vector<AngleSample> encoder;  ///< covering every turn window, psi unwrapped (model sense)
 };
 
 struct TimelineStep {
   double t_from;
-  double t_to;      ///< an epoch: a measurement may be taken here
+  double t_to;  ///< an epoch: a measurement may be taken here
   const Discrete* d;
 };
 

@@ -29,15 +29,15 @@ struct SensorErrors {
 /// Errors of the start.
 struct StartErrors {
   Eigen::Vector2d v0 = Eigen::Vector2d::Zero();  ///< initial velocity error East, North, m/s
-  double dr_e_m = 0;   ///< position error East, m
-  double dr_n_m = 0;   ///< position error North, m
+  double dr_e_m = 0;                             ///< position error East, m
+  double dr_n_m = 0;                             ///< position error North, m
   double dpsi0_rad = 0;  ///< heading given minus true, clockwise from North, rad
 };
 
 struct Noise {
-  double arw = 0;            ///< gyro angle random walk, rad/sqrt(s)
-  double vrw = 0;            ///< accelerometer velocity random walk, m/s/sqrt(s)
-  double velocity_sigma = 0; ///< white noise on the output velocity, m/s
+  double arw = 0;               ///< gyro angle random walk, rad/sqrt(s)
+  double vrw = 0;               ///< accelerometer velocity random walk, m/s/sqrt(s)
+  double velocity_sigma = 0;    ///< white noise on the output velocity, m/s
   double velocity_quantum = 0;  ///< output quantization step, m/s (0: none)
 };
 
@@ -57,9 +57,9 @@ struct Config {
 };
 
 struct VelocitySample {
-  double t_s;   ///< experiment time (t0 = 0)
-  double ve;    ///< INS output velocity East, m/s
-  double vn;    ///< INS output velocity North, m/s
+  double t_s;  ///< experiment time (t0 = 0)
+  double ve;   ///< INS output velocity East, m/s
+  double vn;   ///< INS output velocity North, m/s
 };
 
 struct EncoderSample {

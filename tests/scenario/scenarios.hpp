@@ -1,0 +1,114 @@
+// The reference scenarios of the estimation core (latitude 55.75 deg,
+// height 200 m, 3600 s, +180 deg turn at 1800 s, 30 deg/s, 30 deg/s^2,
+// heading error 10 arcmin, position error 10 m, epoch 1 s).
+#pragma once
+
+#include <random>
+
+#include "turncal/earth.hpp"
+#include "turncal/estimation/estimator.hpp"
+#include "turncal/sim/strapdown.hpp"
+
+namespace scenario {
+
+using namespace turncal;
+inline constexpr double kDeg = earth::kDeg;
+inline constexpr double kDegPerHour = kDeg / 3600.0;
+inline constexpr double kG0 = 9.80665;
+
+struct Scenario {
+  est::Priors priors;
+  double arw;     ///< rad/sqrt(s)
+  double vrw;     ///< m/s/sqrt(s)
+  double sigma_z; ///< m/s
+};
+
+inline Scenario tactical() {
+  Scenario s;
+  s.priors.v0_mps = 1e-3;
+  s.priors.position_m = 10;
+  s.priors.heading_rad = 10.0 / 60.0 * kDeg;
+  s.priors.params = {1 * kDegPerHour, 1 * kDegPerHour, 1 * kDegPerHour, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3,
+                     1e-3, 1e-3, 1e-3, 1e-3 * kG0, 1e-3 * kG0, 1e-3, 1e-3, 0.03, 0.03};
+  s.arw = 0.05 * kDeg / 60.0;
+  s.vrw = 50e-6 * kG0;
+  s.sigma_z = 1e-3;
+  return s;
+}
+
+inline Scenario navigation_grade() {
+  Scenario s;
+  s.priors.v0_mps = 1e-4;
+  s.priors.position_m = 10;
+  s.priors.heading_rad = 10.0 / 60.0 * kDeg;
+  s.priors.params = {0.02 * kDegPerHour, 0.02 * kDegPerHour, 0.02 * kDegPerHour, 3e-5, 3e-5, 3e-5, 3e-5, 3e-5, 3e-5,
+                     3e-5, 3e-5, 3e-5, 100e-6 * kG0, 100e-6 * kG0, 1e-4, 1e-4, 0.01, 0.01};
+  s.arw = 0.002 * kDeg / 60.0;
+  s.vrw = 10e-6 * kG0;
+  s.sigma_z = 1e-4;
+  return s;
+}
+
+inline Profile reference_profile() { return classic_profile(3600, 1800, 180 * kDeg, 30 * kDeg, 30 * kDeg); }
+
+inline est::TimelineInput timeline(const Scenario& s, double psi_s, const TableTrajectory& table,
+                                   const std::vector<sim::EncoderSample>& enc) {
+  est::TimelineInput in;
+  in.site = {55.75 * kDeg, 200};
+  in.noise = {s.vrw * s.vrw, s.arw * s.arw};
+  in.epoch_s = 1.0;
+  in.duration_s = 3600;
+  in.psi_start_rad = psi_s;
+  for (std::size_t i = 0; i < table.turns(); ++i) in.turns.push_back({table.turn_start(i), table.turn_end(i)});
+  for (const auto& e : enc) in.encoder.push_back({e.t_s, psi_s + e.angle_rad});
+  return in;
+}
+
+/// Encoder samples of the profile at 200 Hz (truth, no simulation needed).
+inline std::vector<sim::EncoderSample> encoder_of(const TableTrajectory& table, double duration_s) {
+  std::vector<sim::EncoderSample> out;
+  for (long k = 0; k <= static_cast<long>(duration_s * 200); ++k) {
+    const double t = static_cast<double>(k) / 200.0;
+    out.push_back({t, table.at(t).angle});
+  }
+  return out;
+}
+
+/// Draws the injected errors from the prior; returns them as xi.
+inline est::XiVec draw(const Scenario& s, std::mt19937_64& rng) {
+  std::normal_distribution<double> n(0, 1);
+  const est::XiVec sig = est::prior_sigmas(s.priors, {s.vrw * s.vrw, s.arw * s.arw});
+  est::XiVec xi = est::XiVec::Zero();
+  for (int i = 0; i < est::sxi::kN; ++i)
+    if (i != est::sxi::kNbar && i != est::sxi::kNbar + 1) xi(i) = sig(i) * n(rng);  // the sim makes its own
+  return xi;
+}
+
+inline sim::Config sim_config(const Scenario& s, const est::XiVec& xi, double psi_s, std::uint64_t seed) {
+  using namespace est;
+  sim::Config c;
+  c.latitude_rad = 55.75 * kDeg;
+  c.longitude_rad = 37.6 * kDeg;
+  c.height_m = 200;
+  c.psi_start_rad = psi_s;
+  c.profile = reference_profile();
+  c.profile.align_s = s.priors.align_s;
+  c.start.v0 = xi.segment<2>(sxi::kV0);
+  c.start.dr_e_m = xi(sxi::kDrE);
+  c.start.dr_n_m = xi(sxi::kDrN);
+  c.start.dpsi0_rad = xi(sxi::kDpsi0);
+  const auto p = xi.segment<sx::kParams>(sxi::kParams);
+  c.errors.nu0 = p.segment<3>(0);
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) c.errors.theta(i, j) = p(3 + 3 * i + j);
+  c.errors.df0 = p.segment<2>(12);
+  c.errors.g = p.segment<2>(14);
+  c.errors.r = p.segment<2>(16);
+  c.noise.arw = s.arw;
+  c.noise.vrw = s.vrw;
+  c.noise.velocity_sigma = s.sigma_z;
+  c.seed = seed;
+  return c;
+}
+
+}  // namespace scenario
