@@ -12,8 +12,10 @@ bool measurement_at(const EstimationInput& in, double t, Meas& z, double& sigma)
   const auto& v = in.velocity;
   const double epoch = in.timeline.epoch_s;
   if (in.mean_measurement) {
-    auto lo = std::upper_bound(v.begin(), v.end(), t - epoch, [](double x, const VelocityObs& o) { return x < o.t_s; });
-    auto hi = std::upper_bound(v.begin(), v.end(), t + 1e-9, [](double x, const VelocityObs& o) { return x < o.t_s; });
+    auto lo = std::upper_bound(v.begin(), v.end(), t - epoch,
+                               [](double x, const VelocityObs& o) { return x < o.t_s; });
+    auto hi = std::upper_bound(v.begin(), v.end(), t + 1e-9,
+                               [](double x, const VelocityObs& o) { return x < o.t_s; });
     if (lo == hi) return false;
     z.setZero();
     for (auto it = lo; it != hi; ++it) z += Meas(it->ve, it->vn);
@@ -22,7 +24,8 @@ bool measurement_at(const EstimationInput& in, double t, Meas& z, double& sigma)
     sigma = in.sigma_z / std::sqrt(n);
     return true;
   }
-  auto it = std::lower_bound(v.begin(), v.end(), t, [](const VelocityObs& o, double x) { return o.t_s < x; });
+  auto it = std::lower_bound(v.begin(), v.end(), t,
+                             [](const VelocityObs& o, double x) { return o.t_s < x; });
   const VelocityObs* best = nullptr;
   if (it != v.end()) best = &*it;
   if (it != v.begin() && (best == nullptr || t - (it - 1)->t_s < best->t_s - t)) best = &*(it - 1);
@@ -40,7 +43,8 @@ XiVec prior_sigmas(const Priors& pr, const ProcessNoise& noise) {
   s(sxi::kDrE) = s(sxi::kDrN) = pr.position_m;
   s(sxi::kDpsi0) = pr.heading_rad;
   s(sxi::kNbar) = s(sxi::kNbar + 1) = pr.align_s > 0 ? std::sqrt(noise.q_a / pr.align_s) : 0.0;
-  for (int p = 0; p < sx::kParams; ++p) s(sxi::kParams + p) = pr.params[static_cast<std::size_t>(p)];
+  for (int p = 0; p < sx::kParams; ++p)
+    s(sxi::kParams + p) = pr.params[static_cast<std::size_t>(p)];
   return s;
 }
 

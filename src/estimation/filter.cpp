@@ -23,7 +23,8 @@ SqrtFilter::SqrtFilter(const StateVec& x0, const Eigen::Matrix<double, sx::kN, E
   const Eigen::Matrix<double, sx::kN, Eigen::Dynamic> scaled = d_.cwiseInverse().asDiagonal() * s0;
   // Triangularize: S = L with L L^T = scaled scaled^T (QR of scaled^T).
   Eigen::HouseholderQR<Eigen::MatrixXd> qr(scaled.transpose());
-  const Eigen::MatrixXd r = qr.matrixQR().topRows(std::min<Eigen::Index>(scaled.cols(), sx::kN))
+  const Eigen::MatrixXd r = qr.matrixQR()
+                                .topRows(std::min<Eigen::Index>(scaled.cols(), sx::kN))
                                 .triangularView<Eigen::Upper>();
   s_.setZero();
   s_.leftCols(r.rows()) = r.transpose();
@@ -66,14 +67,18 @@ UpdateResult SqrtFilter::update(const Meas& z, const MeasMat& h, double sigma_z)
   return res;
 }
 
-StateVec SqrtFilter::state() const { return x_.cwiseProduct(d_); }
+StateVec SqrtFilter::state() const {
+  return x_.cwiseProduct(d_);
+}
 
 StateMat SqrtFilter::covariance() const {
   const StateMat s = d_.asDiagonal() * s_;
   return s * s.transpose();
 }
 
-StateVec SqrtFilter::sigma() const { return (d_.asDiagonal() * s_).rowwise().norm(); }
+StateVec SqrtFilter::sigma() const {
+  return (d_.asDiagonal() * s_).rowwise().norm();
+}
 
 JosephFilter::JosephFilter(const StateVec& x0, const StateMat& p0)
     : x_(x0.cast<long double>()), p_(p0.cast<long double>()) {}
@@ -89,7 +94,8 @@ UpdateResult JosephFilter::update(const Meas& z, const MeasMat& h, double sigma_
   using LH = Eigen::Matrix<long double, 2, sx::kN>;
   using L2 = Eigen::Matrix<long double, 2, 2>;
   const LH hl = h.cast<long double>();
-  const L2 r = L2::Identity() * static_cast<long double>(sigma_z) * static_cast<long double>(sigma_z);
+  const L2 r =
+      L2::Identity() * static_cast<long double>(sigma_z) * static_cast<long double>(sigma_z);
   const Eigen::Matrix<long double, 2, 1> nu = z.cast<long double>() - hl * x_;
   const L2 s = hl * p_ * hl.transpose() + r;
   const Eigen::Matrix<long double, sx::kN, 2> k = p_ * hl.transpose() * s.inverse();

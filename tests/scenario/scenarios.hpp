@@ -18,9 +18,9 @@ inline constexpr double kG0 = 9.80665;
 
 struct Scenario {
   est::Priors priors;
-  double arw;     ///< rad/sqrt(s)
-  double vrw;     ///< m/s/sqrt(s)
-  double sigma_z; ///< m/s
+  double arw;      ///< rad/sqrt(s)
+  double vrw;      ///< m/s/sqrt(s)
+  double sigma_z;  ///< m/s
 };
 
 inline Scenario tactical() {
@@ -28,8 +28,24 @@ inline Scenario tactical() {
   s.priors.v0_mps = 1e-3;
   s.priors.position_m = 10;
   s.priors.heading_rad = 10.0 / 60.0 * kDeg;
-  s.priors.params = {1 * kDegPerHour, 1 * kDegPerHour, 1 * kDegPerHour, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3,
-                     1e-3, 1e-3, 1e-3, 1e-3 * kG0, 1e-3 * kG0, 1e-3, 1e-3, 0.03, 0.03};
+  s.priors.params = {1 * kDegPerHour,
+                     1 * kDegPerHour,
+                     1 * kDegPerHour,
+                     1e-3,
+                     1e-3,
+                     1e-3,
+                     1e-3,
+                     1e-3,
+                     1e-3,
+                     1e-3,
+                     1e-3,
+                     1e-3,
+                     1e-3 * kG0,
+                     1e-3 * kG0,
+                     1e-3,
+                     1e-3,
+                     0.03,
+                     0.03};
   s.arw = 0.05 * kDeg / 60.0;
   s.vrw = 50e-6 * kG0;
   s.sigma_z = 1e-3;
@@ -41,15 +57,33 @@ inline Scenario navigation_grade() {
   s.priors.v0_mps = 1e-4;
   s.priors.position_m = 10;
   s.priors.heading_rad = 10.0 / 60.0 * kDeg;
-  s.priors.params = {0.02 * kDegPerHour, 0.02 * kDegPerHour, 0.02 * kDegPerHour, 3e-5, 3e-5, 3e-5, 3e-5, 3e-5, 3e-5,
-                     3e-5, 3e-5, 3e-5, 100e-6 * kG0, 100e-6 * kG0, 1e-4, 1e-4, 0.01, 0.01};
+  s.priors.params = {0.02 * kDegPerHour,
+                     0.02 * kDegPerHour,
+                     0.02 * kDegPerHour,
+                     3e-5,
+                     3e-5,
+                     3e-5,
+                     3e-5,
+                     3e-5,
+                     3e-5,
+                     3e-5,
+                     3e-5,
+                     3e-5,
+                     100e-6 * kG0,
+                     100e-6 * kG0,
+                     1e-4,
+                     1e-4,
+                     0.01,
+                     0.01};
   s.arw = 0.002 * kDeg / 60.0;
   s.vrw = 10e-6 * kG0;
   s.sigma_z = 1e-4;
   return s;
 }
 
-inline Profile reference_profile() { return classic_profile(3600, 1800, 180 * kDeg, 30 * kDeg, 30 * kDeg); }
+inline Profile reference_profile() {
+  return classic_profile(3600, 1800, 180 * kDeg, 30 * kDeg, 30 * kDeg);
+}
 
 inline est::TimelineInput timeline(const Scenario& s, double psi_s, const TableTrajectory& table,
                                    const std::vector<sim::EncoderSample>& enc) {
@@ -59,7 +93,8 @@ inline est::TimelineInput timeline(const Scenario& s, double psi_s, const TableT
   in.epoch_s = 1.0;
   in.duration_s = 3600;
   in.psi_start_rad = psi_s;
-  for (std::size_t i = 0; i < table.turns(); ++i) in.turns.push_back({table.turn_start(i), table.turn_end(i)});
+  for (std::size_t i = 0; i < table.turns(); ++i)
+    in.turns.push_back({table.turn_start(i), table.turn_end(i)});
   for (const auto& e : enc) in.encoder.push_back({e.t_s, psi_s + e.angle_rad});
   return in;
 }
@@ -80,11 +115,13 @@ inline est::XiVec draw(const Scenario& s, std::mt19937_64& rng) {
   const est::XiVec sig = est::prior_sigmas(s.priors, {s.vrw * s.vrw, s.arw * s.arw});
   est::XiVec xi = est::XiVec::Zero();
   for (int i = 0; i < est::sxi::kN; ++i)
-    if (i != est::sxi::kNbar && i != est::sxi::kNbar + 1) xi(i) = sig(i) * n(rng);  // the sim makes its own
+    if (i != est::sxi::kNbar && i != est::sxi::kNbar + 1)
+      xi(i) = sig(i) * n(rng);  // the sim makes its own
   return xi;
 }
 
-inline sim::Config sim_config(const Scenario& s, const est::XiVec& xi, double psi_s, std::uint64_t seed) {
+inline sim::Config sim_config(const Scenario& s, const est::XiVec& xi, double psi_s,
+                              std::uint64_t seed) {
   using namespace est;
   sim::Config c;
   c.latitude_rad = 55.75 * kDeg;

@@ -64,10 +64,9 @@ TEST_SUITE("filter") {
       const double sigma = std::sqrt(r.p(i, i));
       const double z = (r.x(i) - truth) / sigma;
       CAPTURE(est::kParamNames[static_cast<std::size_t>(p)]);
-      MESSAGE(est::kParamNames[static_cast<std::size_t>(p)] << ": truth " << truth << " estimate " << r.x(i)
-                                                             << " sigma " << sigma << " prior "
-                                                             << s.priors.params[static_cast<std::size_t>(p)]
-                                                             << " z " << z);
+      MESSAGE(est::kParamNames[static_cast<std::size_t>(p)]
+              << ": truth " << truth << " estimate " << r.x(i) << " sigma " << sigma << " prior "
+              << s.priors.params[static_cast<std::size_t>(p)] << " z " << z);
       CHECK(std::fabs(z) < 4.0);
     }
   }

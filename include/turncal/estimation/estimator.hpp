@@ -12,10 +12,10 @@ namespace turncal::est {
 
 /// Prior standard deviations of the independent start variables (model.md, 6).
 struct Priors {
-  double v0_mps = 1e-3;          ///< initial velocity error, per axis
-  double position_m = 10;        ///< position error, per axis
-  double heading_rad = 0;        ///< heading error given at alignment
-  double align_s = 120;          ///< alignment length (nbar variance q_a / T_align)
+  double v0_mps = 1e-3;                      ///< initial velocity error, per axis
+  double position_m = 10;                    ///< position error, per axis
+  double heading_rad = 0;                    ///< heading error given at alignment
+  double align_s = 120;                      ///< alignment length (nbar variance q_a / T_align)
   std::array<double, sx::kParams> params{};  ///< the 18 parameters, SI
 };
 
@@ -28,8 +28,8 @@ struct VelocityObs {
 struct EstimationInput {
   TimelineInput timeline;
   Priors priors;
-  double sigma_z = 1e-3;           ///< velocity output noise, m/s
-  bool mean_measurement = false;   ///< mean over the epoch instead of the nearest sample
+  double sigma_z = 1e-3;              ///< velocity output noise, m/s
+  bool mean_measurement = false;      ///< mean over the epoch instead of the nearest sample
   std::vector<VelocityObs> velocity;  ///< ascending in time
 };
 

@@ -34,7 +34,8 @@ class SqrtFilter {
   /// Starts at x0 with covariance factor s0 (P0 = s0 s0^T; may be singular
   /// and non-square-triangular). `scale` holds a characteristic size per
   /// state (e.g. prior sigmas); zeros are replaced by 1.
-  SqrtFilter(const StateVec& x0, const Eigen::Matrix<double, sx::kN, Eigen::Dynamic>& s0, const StateVec& scale);
+  SqrtFilter(const StateVec& x0, const Eigen::Matrix<double, sx::kN, Eigen::Dynamic>& s0,
+             const StateVec& scale);
   void predict(const StateMat& phi, const StateMat& sqrt_q);
   UpdateResult update(const Meas& z, const MeasMat& h, double sigma_z);
   [[nodiscard]] StateVec state() const;
@@ -42,9 +43,9 @@ class SqrtFilter {
   [[nodiscard]] StateVec sigma() const;
 
  private:
-  StateVec d_;    // scale
-  StateVec x_;    // scaled state
-  StateMat s_;    // scaled factor, lower triangular after the first step
+  StateVec d_;  // scale
+  StateVec x_;  // scaled state
+  StateMat s_;  // scaled factor, lower triangular after the first step
 };
 
 class JosephFilter {
