@@ -120,8 +120,9 @@ inline est::XiVec draw(const Scenario& s, std::mt19937_64& rng) {
   return xi;
 }
 
-inline sim::Config sim_config(const Scenario& s, const est::XiVec& xi, double psi_s,
-                              std::uint64_t seed) {
+/// The simulation of the reference site and profile with the errors of
+/// `xi` injected, noise off.
+inline sim::Config sim_config(const est::XiVec& xi, double psi_s) {
   using namespace est;
   sim::Config c;
   c.latitude_rad = 55.75 * kDeg;
@@ -129,7 +130,6 @@ inline sim::Config sim_config(const Scenario& s, const est::XiVec& xi, double ps
   c.height_m = 200;
   c.psi_start_rad = psi_s;
   c.profile = reference_profile();
-  c.profile.align_s = s.priors.align_s;
   c.start.v0 = xi.segment<2>(sxi::kV0);
   c.start.dr_e_m = xi(sxi::kDrE);
   c.start.dr_n_m = xi(sxi::kDrN);
@@ -141,6 +141,14 @@ inline sim::Config sim_config(const Scenario& s, const est::XiVec& xi, double ps
   c.errors.df0 = p.segment<2>(12);
   c.errors.g = p.segment<2>(14);
   c.errors.r = p.segment<2>(16);
+  return c;
+}
+
+/// The same with the scenario's noise and alignment length.
+inline sim::Config sim_config(const Scenario& s, const est::XiVec& xi, double psi_s,
+                              std::uint64_t seed) {
+  sim::Config c = sim_config(xi, psi_s);
+  c.profile.align_s = s.priors.align_s;
   c.noise.arw = s.arw;
   c.noise.vrw = s.vrw;
   c.noise.velocity_sigma = s.sigma_z;

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <string>
 
+#include "scenarios.hpp"
 #include "turncal/earth.hpp"
 #include "turncal/estimation/timeline.hpp"
 #include "turncal/sim/strapdown.hpp"
@@ -14,43 +15,15 @@ using turncal::earth::kDeg;
 
 namespace {
 
-constexpr double kLat = 55.75 * kDeg;
+constexpr double kLat = scenario::kDeg * 55.75;
 constexpr double kHeight = 200;
 constexpr double kDegPerHour = kDeg / 3600.0;
 constexpr double kMg = 1e-3 * 9.80665;
-
-/// The reference profile: 3600 s, +180 deg at 1800 s, 30 deg/s, 30 deg/s^2.
-Profile reference_profile() {
-  return classic_profile(3600, 1800, 180 * kDeg, 30 * kDeg, 30 * kDeg);
-}
 
 struct Injection {
   std::string name;
   est::XiVec xi;  // the same errors in the model's variables
 };
-
-/// Maps the model's xi onto the simulation's configuration.
-sim::Config sim_config(const est::XiVec& xi, double psi_s) {
-  using namespace est;
-  sim::Config c;
-  c.latitude_rad = kLat;
-  c.longitude_rad = 37.6 * kDeg;
-  c.height_m = kHeight;
-  c.psi_start_rad = psi_s;
-  c.profile = reference_profile();
-  c.start.v0 = xi.segment<2>(sxi::kV0);
-  c.start.dr_e_m = xi(sxi::kDrE);
-  c.start.dr_n_m = xi(sxi::kDrN);
-  c.start.dpsi0_rad = xi(sxi::kDpsi0);
-  const auto p = xi.segment<sx::kParams>(sxi::kParams);
-  c.errors.nu0 = p.segment<3>(0);
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j) c.errors.theta(i, j) = p(3 + 3 * i + j);
-  c.errors.df0 = p.segment<2>(12);
-  c.errors.g = p.segment<2>(14);
-  c.errors.r = p.segment<2>(16);
-  return c;
-}
 
 struct Comparison {
   double max_signal = 0;
@@ -61,7 +34,7 @@ struct Comparison {
 /// Runs the simulation with `xi` and the linear model with `model_xi`
 /// (the same unless a test flips a sign on purpose).
 Comparison compare(const est::XiVec& xi, double psi_s, const est::XiVec* model_xi = nullptr) {
-  const sim::Config cfg = sim_config(xi, psi_s);
+  const sim::Config cfg = scenario::sim_config(xi, psi_s);
   const sim::Run run = sim::simulate(cfg);
   const TableTrajectory table(cfg.profile);
   est::TimelineInput in;
