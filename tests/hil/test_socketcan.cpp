@@ -144,6 +144,32 @@ TEST_SUITE("socketcan") {
     CHECK(received + b.stats().rx_dropped + backlog == sent);
   }
 
+  TEST_CASE(
+      "a full kernel send queue never blocks: frames wait in a bounded queue, the rest are "
+      "counted") {
+    // A token-bucket qdisc with a tiny limit makes the kernel refuse frames
+    // with ENOBUFS, as a real controller's full queue does.
+    const std::string name = "tchil8";
+    hil::sh("ip link del " + name + " 2>/dev/null");
+    REQUIRE(hil::sh("ip link add dev " + name + " type vcan && ip link set " + name + " up") == 0);
+    REQUIRE(hil::sh("tc qdisc add dev " + name + " root tbf rate 1kbit burst 2000 limit 64") == 0);
+    socketcan::Options o;
+    o.interface = name;
+    o.tx_queue_limit = 8;
+    auto a = hil::open(o);
+    constexpr int kFrames = 400;
+    for (int i = 0; i < kFrames; ++i)
+      REQUIRE(a.send(hil::frame(0x55, {static_cast<std::uint8_t>(i)})).ok());
+    const auto& st = a.stats();
+    MESSAGE("sent " << st.tx_frames << ", waiting " << (a.tx_pending() ? st.tx_queued : 0)
+                    << ", overflow " << st.tx_overflow);
+    CHECK(a.tx_pending());
+    CHECK(st.tx_queued == 8);
+    CHECK(st.tx_overflow > 0);
+    CHECK(st.tx_frames + st.tx_queued + st.tx_overflow == kFrames);
+    hil::sh("ip link del " + name);
+  }
+
   TEST_CASE("an interface that goes down and comes back up is recovered") {
     auto b = hil::open(hil::if1());
     REQUIRE(hil::sh("ip link set " + hil::if1() + " down") == 0);
