@@ -291,7 +291,6 @@ class Parser {
   Database db_;
   std::optional<std::size_t> current_;  // index of the message SG_ lines belong to
   std::unordered_map<std::uint32_t, std::size_t> by_raw_id_;
-  std::vector<std::uint32_t> raw_ids_;
   std::vector<PendingValType> valtypes_;
   std::vector<PendingValues> values_;
   std::vector<PendingComment> comments_;
@@ -320,7 +319,6 @@ Status Parser::parse_message(const Token& kw) {
   m.transmitter = std::move(transmitter);
   m.line = kw.line;
   by_raw_id_[raw_id] = db_.messages.size();
-  raw_ids_.push_back(raw_id);
   current_ = db_.messages.size();
   db_.messages.push_back(std::move(m));
   return Status{Ok{}};
