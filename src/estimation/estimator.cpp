@@ -1,10 +1,15 @@
 #include "turncal/estimation/estimator.hpp"
 
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
 
 namespace turncal::est {
 namespace {
+
+using ParamVec = Eigen::Matrix<double, sx::kParams, 1>;
+using ParamMat = Eigen::Matrix<double, sx::kParams, sx::kParams>;
 
 /// The measurement for the epoch ending at t: the nearest sample (within
 /// half an epoch) or the mean of the samples in (t - epoch, t].
@@ -35,6 +40,163 @@ bool measurement_at(const EstimationInput& in, double t, Meas& z, double& sigma)
   return true;
 }
 
+/// The measurement noise the covariance analysis assumes at each epoch.
+double planned_sigma(const EstimationInput& in) {
+  if (!in.mean_measurement) return in.sigma_z;
+  const double n = std::max(1.0, std::floor(in.sample_rate_hz * in.timeline.epoch_s + 1e-9));
+  return in.sigma_z / std::sqrt(n);
+}
+
+/// The filter over `tl` from the alignment prior at tl.psi_start_rad; with
+/// data from in.velocity, or (covariance analysis) a measurement at every
+/// epoch and no data.
+Result<EstimationResult> run(const EstimationInput& in, const TimelineInput& tl, bool data) {
+  if (!(in.sigma_z > 0)) return make_error("the velocity noise sigma must be positive");
+  const EarthAt e = EarthAt::at(tl.site);
+  const XiMat t = initial_map(e, tl.psi_start_rad);
+  const XiVec sxi_diag = prior_sigmas(in.priors, tl.noise);
+  const Eigen::Matrix<double, sx::kN, Eigen::Dynamic> s0 = t * sxi_diag.asDiagonal();
+  // internal scaling: the prior sigma of each state
+  SqrtFilter f(StateVec::Zero(), s0, s0.rowwise().norm());
+  const MeasMat h = velocity_measurement();
+  const double sigma_plan = planned_sigma(in);
+  EstimationResult r;
+  const std::size_t expected = static_cast<std::size_t>(tl.duration_s / tl.epoch_s) + 1;
+  r.epoch_t.reserve(expected);
+  r.x_history.reserve(expected);
+  r.sigma_history.reserve(expected);
+  if (data) r.innovations.reserve(expected);
+  auto report = for_each_step(tl, [&](const TimelineStep& step) {
+    f.predict(step.d->phi, step.d->sqrt_q);
+    Meas z = Meas::Zero();
+    double sigma = sigma_plan;
+    if (!data || measurement_at(in, step.t_to, z, sigma)) {
+      const UpdateResult u = f.update(z, h, sigma);
+      if (!u.ok) ++r.degraded_updates;
+      if (data) r.innovations.push_back({step.t_to, u.innovation, u.innovation_cov});
+    }
+    r.epoch_t.push_back(step.t_to);
+    r.x_history.push_back(f.state());
+    r.sigma_history.push_back(f.sigma());
+  });
+  if (!report) return std::move(report).error();
+  r.timeline = std::move(*report);
+  r.x = f.state();
+  r.p = f.covariance();
+  return r;
+}
+
+ParamVec prior_params(const Priors& p) {
+  return Eigen::Map<const ParamVec>(p.params.data());
+}
+
+/// chi^2 quantile with k degrees of freedom at the normal quantile z
+/// (Wilson and Hilferty, 1931; good to a few 1e-3 relative for k >= 2).
+double chi2_quantile(double k, double z) {
+  const double a = 2.0 / (9.0 * k);
+  const double c = 1.0 - a + z * std::sqrt(a);
+  return k * c * c * c;
+}
+
+constexpr double kZ975 = 1.959963984540054;
+constexpr double kZ95 = 1.6448536269514722;
+
+InnovationStats innovation_stats(const std::vector<Innovation>& innov, int lags) {
+  InnovationStats s;
+  std::vector<Eigen::Vector2d> e;
+  e.reserve(innov.size());
+  for (const Innovation& i : innov) {
+    Eigen::LLT<Eigen::Matrix2d> llt(i.cov);
+    if (llt.info() != Eigen::Success) continue;
+    e.emplace_back(llt.matrixL().solve(i.value));
+  }
+  s.count = e.size();
+  if (e.empty()) return s;
+  const double n = static_cast<double>(e.size());
+  double nis = 0;
+  for (const auto& v : e) nis += v.squaredNorm();
+  s.nis_mean = nis / n;
+  s.nis_lo = chi2_quantile(2 * n, -kZ975) / n;
+  s.nis_hi = chi2_quantile(2 * n, kZ975) / n;
+  s.lags = std::clamp(lags, 1, std::max(1, static_cast<int>(e.size()) / 5));
+  for (int c = 0; c < 2; ++c) {
+    double c0 = 0;
+    for (const auto& v : e) c0 += v(c) * v(c);
+    double q = 0;
+    for (int l = 1; l <= s.lags; ++l) {
+      double cl = 0;
+      for (std::size_t k = 0; k + static_cast<std::size_t>(l) < e.size(); ++k)
+        cl += e[k](c) * e[k + static_cast<std::size_t>(l)](c);
+      const double rho = c0 > 0 ? cl / c0 : 0;
+      q += rho * rho / (n - l);
+    }
+    s.ljung_box[static_cast<std::size_t>(c)] = n * (n + 2) * q;
+  }
+  s.ljung_box_limit = chi2_quantile(s.lags, kZ95);
+  return s;
+}
+
+/// Parameters, effective biases, correlation and sharp combinations from x, P.
+void interpret(const EstimationInput& in, EstimationResult& r) {
+  const EarthAt e = EarthAt::at(in.timeline.site);
+  const ParamVec x = r.x.segment<sx::kParams>(sx::kNu0);
+  const ParamMat p = r.p.block<sx::kParams, sx::kParams>(sx::kNu0, sx::kNu0);
+  const ParamVec prior = prior_params(in.priors);
+  for (int j = 0; j < sx::kParams; ++j) {
+    const auto u = static_cast<std::size_t>(j);
+    r.parameters[u] = {kParamNames[u], kParamUnits[u], x(j), std::sqrt(std::max(0.0, p(j, j))),
+                       prior(j)};
+  }
+  for (int i = 0; i < 2; ++i) {
+    ParamVec c = ParamVec::Zero();
+    c(sx::kDf0 - sx::kNu0 + i) = 1;
+    c(sx::kG - sx::kNu0 + i) = e.g;
+    const double prior_var = c.cwiseProduct(prior).squaredNorm();
+    r.df_eff[static_cast<std::size_t>(i)] = {i == 0 ? "df_eff_1" : "df_eff_2", "m/s^2", c.dot(x),
+                                             std::sqrt(std::max(0.0, c.dot(p * c))),
+                                             std::sqrt(prior_var)};
+  }
+  for (int i = 0; i < sx::kParams; ++i)
+    for (int j = 0; j < sx::kParams; ++j) {
+      const double d = std::sqrt(p(i, i) * p(j, j));
+      r.correlation(i, j) = d > 0 ? p(i, j) / d : (i == j ? 1.0 : 0.0);
+    }
+  // Sharp combinations: eigenvectors of the prior-whitened posterior
+  // D0^-1 P D0^-1 with small eigenvalues, over the parameters the prior
+  // leaves free.
+  std::vector<int> free;
+  for (int j = 0; j < sx::kParams; ++j)
+    if (prior(j) > 0) free.push_back(j);
+  const auto m = static_cast<Eigen::Index>(free.size());
+  Eigen::MatrixXd w(m, m);
+  for (Eigen::Index a = 0; a < m; ++a)
+    for (Eigen::Index b = 0; b < m; ++b) {
+      const int i = free[static_cast<std::size_t>(a)], j = free[static_cast<std::size_t>(b)];
+      w(a, b) = p(i, j) / (prior(i) * prior(j));
+    }
+  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(w);
+  r.combinations.clear();
+  for (Eigen::Index k = 0; k < m; ++k) {  // ascending eigenvalues: sharpest first
+    const double ratio = std::sqrt(std::max(0.0, es.eigenvalues()(k)));
+    if (ratio > in.sharp_ratio) break;
+    const Eigen::VectorXd v = es.eigenvectors().col(k);
+    Eigen::Index lead_k = 0;
+    v.cwiseAbs().maxCoeff(&lead_k);
+    Combination c;
+    c.lead = free[static_cast<std::size_t>(lead_k)];
+    const double scale = v(lead_k) / prior(c.lead);  // coefficient of lead before scaling
+    for (Eigen::Index a = 0; a < m; ++a) {
+      const int j = free[static_cast<std::size_t>(a)];
+      c.coeff[static_cast<std::size_t>(j)] = a == lead_k ? 1.0 : v(a) / prior(j) / scale;
+    }
+    const ParamVec cv = Eigen::Map<const ParamVec>(c.coeff.data());
+    c.value = cv.dot(x);
+    c.prior_sigma = prior(c.lead) / std::fabs(v(lead_k));
+    c.sigma = ratio * c.prior_sigma;
+    r.combinations.push_back(c);
+  }
+}
+
 }  // namespace
 
 XiVec prior_sigmas(const Priors& pr, const ProcessNoise& noise) {
@@ -48,32 +210,69 @@ XiVec prior_sigmas(const Priors& pr, const ProcessNoise& noise) {
   return s;
 }
 
-EstimationResult estimate(const EstimationInput& in) {
-  const EarthAt e = EarthAt::at(in.timeline.site);
-  const XiMat t = initial_map(e, in.timeline.psi_start_rad);
-  const XiVec sxi_diag = prior_sigmas(in.priors, in.timeline.noise);
-  const Eigen::Matrix<double, sx::kN, Eigen::Dynamic> s0 = t * sxi_diag.asDiagonal();
-  // internal scaling: the prior sigma of each state, floored where the
-  // prior leaves a state exactly known
-  StateVec scale = s0.rowwise().norm();
-  SqrtFilter f(StateVec::Zero(), s0, scale);
-  const MeasMat h = velocity_measurement();
-  EstimationResult r;
-  for_each_step(in.timeline, [&](const TimelineStep& step) {
-    f.predict(step.d->phi, step.d->sqrt_q);
-    Meas z;
-    double sigma = in.sigma_z;
-    if (measurement_at(in, step.t_to, z, sigma)) {
-      const UpdateResult u = f.update(z, h, sigma);
-      if (!u.ok) ++r.degraded_updates;
-      r.innovations.push_back({step.t_to, u.innovation, u.innovation_cov});
-    }
-    r.epoch_t.push_back(step.t_to);
-    r.sigma_history.push_back(f.sigma());
-  });
-  r.x = f.state();
-  r.p = f.covariance();
+Result<EstimationResult> estimate(const EstimationInput& in) {
+  TURNCAL_ASSIGN(r, run(in, in.timeline, true));
+  interpret(in, r);
+  r.innovation_stats = innovation_stats(r.innovations, in.whiteness_lags);
+  if (in.with_two_stage) {
+    TURNCAL_ASSIGN(ts, two_stage(in, r.p));
+    r.two_stage = ts;
+    r.has_two_stage = true;
+  }
   return r;
+}
+
+Result<EstimationResult> analyse(const EstimationInput& in) {
+  TURNCAL_ASSIGN(r, run(in, in.timeline, false));
+  interpret(in, r);
+  if (in.with_two_stage) {
+    TURNCAL_ASSIGN(ts, two_stage(in, r.p));
+    r.two_stage = ts;
+    r.has_two_stage = true;
+  }
+  return r;
+}
+
+Result<TwoStage> two_stage(const EstimationInput& in, const StateMat& single_p) {
+  TURNCAL_ASSIGN(holds, hold_spans(in.timeline));
+  const ParamVec prior = prior_params(in.priors);
+  ParamVec d = prior;
+  for (int j = 0; j < sx::kParams; ++j)
+    if (!(d(j) > 0)) d(j) = 1;  // fixed parameters: no information, kept out below
+  // Whitened information: I = sum_h W_h^-1 - (H - 1) I, W_h = D0^-1 P_h D0^-1.
+  ParamMat info = ParamMat::Zero();
+  int used = 0;
+  for (const HoldSpan& hold : holds) {
+    TimelineInput tl = in.timeline;
+    tl.duration_s = hold.t_to_s - hold.t_from_s;
+    if (tl.duration_s < tl.epoch_s) continue;
+    tl.psi_start_rad = hold.psi_rad;
+    tl.turns.clear();
+    tl.encoder.clear();
+    TURNCAL_ASSIGN(r, run(in, tl, false));
+    ParamMat w = d.cwiseInverse().asDiagonal() *
+                 r.p.block<sx::kParams, sx::kParams>(sx::kNu0, sx::kNu0) *
+                 d.cwiseInverse().asDiagonal();
+    for (int j = 0; j < sx::kParams; ++j)
+      if (!(prior(j) > 0)) {
+        w.row(j).setZero();
+        w.col(j).setZero();
+        w(j, j) = 1;
+      }
+    info += w.ldlt().solve(ParamMat::Identity());
+    ++used;
+  }
+  if (used == 0) return make_error("the two-stage baseline needs at least one hold of an epoch");
+  info -= static_cast<double>(used - 1) * ParamMat::Identity();
+  const ParamMat pw = info.ldlt().solve(ParamMat::Identity());
+  TwoStage ts;
+  for (int j = 0; j < sx::kParams; ++j) {
+    const auto u = static_cast<std::size_t>(j);
+    ts.sigma[u] = prior(j) > 0 ? d(j) * std::sqrt(std::max(0.0, pw(j, j))) : 0.0;
+    const double single = std::sqrt(std::max(0.0, single_p(sx::kNu0 + j, sx::kNu0 + j)));
+    ts.ratio[u] = ts.sigma[u] > 0 ? single / ts.sigma[u] : 1.0;
+  }
+  return ts;
 }
 
 }  // namespace turncal::est

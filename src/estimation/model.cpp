@@ -132,7 +132,7 @@ TurnIntegrals turn_integrals_constant_rate(double psi1, double psi2, double plat
 }
 
 Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
-                         const ProcessNoise& noise) {
+                         const ProcessNoise& noise, const TurnIntegrals* integrals) {
   using namespace sx;
   Discrete d{StateMat::Identity(), StateMat::Zero(), StateMat::Zero()};
   const StateMat gqg = noise_input(noise);
@@ -153,7 +153,7 @@ Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
     d.q = step * d.q * step.transpose() + gqg * dt;
   }
   // Proof-mass terms: Delta dv1 = r1 Jc + r2 Js, Delta dv2 = r1 Js - r2 Jc.
-  const TurnIntegrals j = turn_integrals(samples);
+  const TurnIntegrals j = integrals != nullptr ? *integrals : turn_integrals(samples);
   StateMat jump = StateMat::Identity();
   jump(kDv, kR) = j.jc;
   jump(kDv, kR + 1) = j.js;

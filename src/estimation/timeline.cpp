@@ -2,33 +2,111 @@
 
 #include <algorithm>
 #include <cmath>
+#include <string>
 
 namespace turncal::est {
 namespace {
 
-/// Samples of the encoder within [t1, t2], with the end points interpolated.
-std::vector<AngleSample> window_samples(std::span<const AngleSample> enc, double t1, double t2) {
-  std::vector<AngleSample> out;
-  auto interp = [&](double t) {
-    auto it = std::lower_bound(enc.begin(), enc.end(), t,
-                               [](const AngleSample& s, double v) { return s.t_s < v; });
-    if (it == enc.begin()) return AngleSample{t, it->psi_rad};
-    if (it == enc.end()) return AngleSample{t, enc.back().psi_rad};
-    const AngleSample& b = *it;
-    const AngleSample& a = *(it - 1);
-    const double f = (t - a.t_s) / (b.t_s - a.t_s);
-    return AngleSample{t, a.psi_rad + f * (b.psi_rad - a.psi_rad)};
-  };
-  out.push_back(interp(t1));
-  for (const AngleSample& s : enc)
-    if (s.t_s > t1 && s.t_s < t2) out.push_back(s);
-  out.push_back(interp(t2));
+/// How one turn window is propagated.
+struct ResolvedTurn {
+  TurnWindow w;
+  std::vector<AngleSample> samples;  // first at t_start, last at t_end
+  TurnSource source = TurnSource::Encoder;
+  TurnIntegrals closed_form{0, 0};  // used when source is ClosedForm
+};
+
+double interp(std::span<const AngleSample> enc, double t) {
+  auto it = std::lower_bound(enc.begin(), enc.end(), t,
+                             [](const AngleSample& s, double v) { return s.t_s < v; });
+  if (it == enc.begin()) return it->psi_rad;
+  if (it == enc.end()) return enc.back().psi_rad;
+  const AngleSample& b = *it;
+  const AngleSample& a = *(it - 1);
+  const double f = (t - a.t_s) / (b.t_s - a.t_s);
+  return a.psi_rad + f * (b.psi_rad - a.psi_rad);
+}
+
+std::string at_turn(std::size_t i, const TurnWindow& w) {
+  return "turn " + std::to_string(i + 1) + " (" + std::to_string(w.t_start_s) + " s to " +
+         std::to_string(w.t_end_s) + " s)";
+}
+
+/// Decides, turn by turn, between the encoder samples (model.md, 7) and the
+/// constant-rate closed form when the encoder has a gap in the window.
+Result<std::vector<ResolvedTurn>> resolve_turns(const TimelineInput& in) {
+  std::vector<ResolvedTurn> out;
+  const std::span<const AngleSample> enc(in.encoder);
+  double psi_hold = in.psi_start_rad;
+  for (std::size_t i = 0; i < in.turns.size(); ++i) {
+    ResolvedTurn r;
+    r.w = in.turns[i];
+    const double t1 = r.w.t_start_s, t2 = r.w.t_end_s;
+    if (!(t2 > t1)) return make_error(at_turn(i, r.w) + ": the turn must end after it starts");
+    const double t_next = i + 1 < in.turns.size() ? in.turns[i + 1].t_start_s : in.duration_s;
+    auto first = std::upper_bound(enc.begin(), enc.end(), t1,
+                                  [](double v, const AngleSample& s) { return v < s.t_s; });
+    auto last = std::lower_bound(enc.begin(), enc.end(), t2,
+                                 [](const AngleSample& s, double v) { return s.t_s < v; });
+    // Coverage: a sample at or before t1, one at or after t2, and no gap
+    // between consecutive ones longer than the limit.
+    bool covered = first != enc.begin() && last != enc.end();
+    if (covered)
+      for (auto it = first - 1; it != last && covered; ++it)
+        covered = (it + 1)->t_s - it->t_s <= in.max_encoder_gap_s;
+    if (covered) {
+      r.samples.push_back({t1, interp(enc, t1)});
+      for (auto it = first; it != last; ++it) r.samples.push_back(*it);
+      r.samples.push_back({t2, interp(enc, t2)});
+    } else {
+      // The closed form: the angle from the hold before and the encoder
+      // after the turn if it speaks again before the next turn, else the
+      // plan; the bounded terms along a uniform angle sweep.
+      const bool after = last != enc.end() && last->t_s < t_next;
+      if (!after && !std::isfinite(r.w.angle_rad))
+        return make_error(at_turn(i, r.w) +
+                          ": the encoder has a gap in the turn and no angle after it, and the "
+                          "turn has no planned angle to fall back on");
+      if (!std::isfinite(r.w.plateau_rate_rps) || !(r.w.plateau_rate_rps > 0))
+        return make_error(at_turn(i, r.w) +
+                          ": the encoder has a gap in the turn, and the turn has no planned "
+                          "plateau rate for the constant-rate closed form");
+      const double psi1 = psi_hold;
+      const double psi2 = after ? last->psi_rad : psi1 + r.w.angle_rad;
+      const int n = std::max(2, static_cast<int>(std::ceil((t2 - t1) / 0.005)));
+      for (int k = 0; k <= n; ++k) {
+        const double f = static_cast<double>(k) / n;
+        r.samples.push_back({t1 + f * (t2 - t1), psi1 + f * (psi2 - psi1)});
+      }
+      r.source = TurnSource::ClosedForm;
+      const double rate = std::copysign(r.w.plateau_rate_rps, psi2 - psi1);
+      r.closed_form = turn_integrals_constant_rate(psi1, psi2, rate);
+    }
+    psi_hold = r.samples.back().psi_rad;
+    out.push_back(std::move(r));
+  }
   return out;
+}
+
+std::vector<HoldSpan> holds_of(const TimelineInput& in, const std::vector<ResolvedTurn>& turns) {
+  std::vector<HoldSpan> holds;
+  double t = 0, psi = in.psi_start_rad;
+  for (const ResolvedTurn& r : turns) {
+    holds.push_back({t, r.w.t_start_s, psi});
+    t = r.w.t_end_s;
+    psi = r.samples.back().psi_rad;
+  }
+  holds.push_back({t, in.duration_s, psi});
+  return holds;
 }
 
 }  // namespace
 
-void for_each_step(const TimelineInput& in, const std::function<void(const TimelineStep&)>& fn) {
+Result<TimelineReport> for_each_step(const TimelineInput& in,
+                                     const std::function<void(const TimelineStep&)>& fn) {
+  if (!(in.epoch_s > 0)) return make_error("the filter epoch must be positive");
+  TURNCAL_ASSIGN(turns, resolve_turns(in));
+  TimelineReport report;
+  report.holds = holds_of(in, turns);
   const EarthAt e = EarthAt::at(in.site);
   const auto n_epochs = static_cast<long>(std::floor(in.duration_s / in.epoch_s + 1e-9));
   std::size_t next_turn = 0;
@@ -38,17 +116,18 @@ void for_each_step(const TimelineInput& in, const std::function<void(const Timel
   while (k < n_epochs) {
     const double t_from = static_cast<double>(k) * in.epoch_s;
     double t_to = static_cast<double>(k + 1) * in.epoch_s;
-    if (next_turn < in.turns.size() && in.turns[next_turn].t_start_s < t_to) {
+    if (next_turn < turns.size() && turns[next_turn].w.t_start_s < t_to) {
       // hold to the turn, the turn, hold to the first epoch after it
-      const TurnWindow w = in.turns[next_turn++];
-      long k_after = static_cast<long>(std::ceil(w.t_end_s / in.epoch_s - 1e-9));
+      const ResolvedTurn& r = turns[next_turn++];
+      long k_after = static_cast<long>(std::ceil(r.w.t_end_s / in.epoch_s - 1e-9));
       if (k_after <= k) k_after = k + 1;
       t_to = static_cast<double>(k_after) * in.epoch_s;
-      const Discrete before = discretize_hold(e, psi_hold, w.t_start_s - t_from, in.noise);
-      const auto samples = window_samples(in.encoder, w.t_start_s, w.t_end_s);
-      const Discrete turn = turn_transition(e, samples, in.noise);
-      psi_hold = samples.back().psi_rad;
-      const Discrete after = discretize_hold(e, psi_hold, t_to - w.t_end_s, in.noise);
+      const Discrete before = discretize_hold(e, psi_hold, r.w.t_start_s - t_from, in.noise);
+      const Discrete turn = turn_transition(
+          e, r.samples, in.noise, r.source == TurnSource::ClosedForm ? &r.closed_form : nullptr);
+      report.turns.push_back(r.source);
+      psi_hold = r.samples.back().psi_rad;
+      const Discrete after = discretize_hold(e, psi_hold, t_to - r.w.t_end_s, in.noise);
       Discrete d;
       d.phi = after.phi * turn.phi * before.phi;
       d.q = after.phi * (turn.phi * before.q * turn.phi.transpose() + turn.q) *
@@ -56,13 +135,21 @@ void for_each_step(const TimelineInput& in, const std::function<void(const Timel
             after.q;
       d.sqrt_q = psd_sqrt(d.q);
       fn(TimelineStep{t_from, t_to, &d});
+      ++report.steps;
       hold = discretize_hold(e, psi_hold, in.epoch_s, in.noise);
       k = k_after;
       continue;
     }
     fn(TimelineStep{t_from, t_to, &hold});
+    ++report.steps;
     ++k;
   }
+  return report;
+}
+
+Result<std::vector<HoldSpan>> hold_spans(const TimelineInput& in) {
+  TURNCAL_ASSIGN(turns, resolve_turns(in));
+  return holds_of(in, turns);
 }
 
 }  // namespace turncal::est

@@ -21,7 +21,7 @@ TEST_SUITE("filter") {
       est::JosephFilter jo(est::StateVec::Zero(), s0 * s0.transpose());
       const est::MeasMat h = est::velocity_measurement();
       double worst = 0;
-      est::for_each_step(in, [&](const est::TimelineStep& step) {
+      const auto steps = est::for_each_step(in, [&](const est::TimelineStep& step) {
         sq.predict(step.d->phi, step.d->sqrt_q);
         jo.predict(step.d->phi, step.d->q);
         (void)sq.update(est::Meas::Zero(), h, s.sigma_z);
@@ -33,6 +33,7 @@ TEST_SUITE("filter") {
             if (norm > 0) worst = std::max(worst, std::fabs(a(i, j) - b(i, j)) / norm);
           }
       });
+      REQUIRE(steps.ok());
       MESSAGE("largest covariance difference, relative to sigma_i sigma_j: " << worst);
       CHECK(worst < 1e-9);
     }
@@ -56,7 +57,9 @@ TEST_SUITE("filter") {
     in.priors = s.priors;
     in.sigma_z = s.sigma_z;
     for (const auto& v : run.velocity) in.velocity.push_back({v.t_s, v.ve, v.vn});
-    const est::EstimationResult r = est::estimate(in);
+    const auto got = est::estimate(in);
+    REQUIRE(got.ok());
+    const est::EstimationResult& r = *got;
     CHECK(r.degraded_updates == 0);
     for (int p = 0; p < est::sx::kParams; ++p) {
       const int i = est::sx::kNu0 + p;

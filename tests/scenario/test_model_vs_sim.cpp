@@ -48,7 +48,7 @@ Comparison compare(const est::XiVec& xi, double psi_s, const est::XiVec* model_x
   est::StateVec x = est::initial_map(earth, psi_s) * (model_xi != nullptr ? *model_xi : xi);
   Comparison c;
   const auto per_epoch = static_cast<std::size_t>(std::llround(cfg.output_rate_hz * in.epoch_s));
-  est::for_each_step(in, [&](const est::TimelineStep& s) {
+  const auto steps = est::for_each_step(in, [&](const est::TimelineStep& s) {
     x = s.d->phi * x;
     const auto k = static_cast<std::size_t>(std::llround(s.t_to / in.epoch_s)) * per_epoch;
     REQUIRE(k < run.velocity.size());
@@ -61,6 +61,7 @@ Comparison compare(const est::XiVec& xi, double psi_s, const est::XiVec* model_x
       c.t_worst = s.t_to;
     }
   });
+  REQUIRE(steps.ok());
   return c;
 }
 

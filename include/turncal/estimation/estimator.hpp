@@ -1,14 +1,25 @@
 // Single-loop estimation (model.md, 8): one square-root filter over both
-// holds and the turn, driven by the INS output velocity.
+// holds and the turn, driven by the INS output velocity; the same filter on
+// the model alone (covariance analysis); the two-stage baseline; and what
+// the result means: parameters in SI with their sigmas, the effective
+// accelerometer biases, the combinations the run determines, the
+// correlation matrix and the innovation statistics.
 #pragma once
 
 #include <array>
+#include <string_view>
 #include <vector>
 
 #include "turncal/estimation/filter.hpp"
 #include "turncal/estimation/timeline.hpp"
+#include "turncal/result.hpp"
 
 namespace turncal::est {
+
+/// SI units of the 18 parameters, in state order from sx::kNu0.
+inline constexpr std::array<std::string_view, sx::kParams> kParamUnits = {
+    "rad/s", "rad/s", "rad/s", "1",     "1",     "1", "1", "1", "1",
+    "1",     "1",     "1",     "m/s^2", "m/s^2", "1", "1", "m", "m"};
 
 /// Prior standard deviations of the independent start variables (model.md, 6).
 struct Priors {
@@ -28,9 +39,15 @@ struct VelocityObs {
 struct EstimationInput {
   TimelineInput timeline;
   Priors priors;
-  double sigma_z = 1e-3;              ///< velocity output noise, m/s
+  double sigma_z = 1e-3;              ///< velocity output noise of one sample, m/s
   bool mean_measurement = false;      ///< mean over the epoch instead of the nearest sample
+  double sample_rate_hz = 100;        ///< INS velocity rate (covariance analysis of the mean)
   std::vector<VelocityObs> velocity;  ///< ascending in time
+  /// Report the combinations whose posterior sigma is at most this
+  /// fraction of their prior sigma (model.md, 8).
+  double sharp_ratio = 0.1;
+  bool with_two_stage = false;  ///< also run the two-stage baseline (its covariance)
+  int whiteness_lags = 20;      ///< lags of the innovation whiteness test
 };
 
 struct Innovation {
@@ -39,19 +56,84 @@ struct Innovation {
   Eigen::Matrix2d cov;
 };
 
+/// One estimated quantity in SI.
+struct ParameterEstimate {
+  std::string_view name;
+  std::string_view unit;
+  double value = 0;
+  double sigma = 0;
+  double prior_sigma = 0;
+};
+
+/// A linear combination sum_j coeff_j p_j of the parameters that the run
+/// determines much better than the prior. Scaled so that the coefficient
+/// of `lead` (the parameter that weighs most in it) is 1: the value and
+/// sigma are in that parameter's unit.
+struct Combination {
+  std::array<double, sx::kParams> coeff{};
+  int lead = 0;  ///< index into the 18 parameters
+  double value = 0;
+  double sigma = 0;
+  double prior_sigma = 0;
+};
+
+/// Consistency and whiteness of the normalized innovations
+/// e_k = Re_k^-1/2 nu_k (2 components per epoch).
+struct InnovationStats {
+  std::size_t count = 0;
+  double nis_mean = 0;  ///< mean of e^T e; 2 for a consistent filter
+  double nis_lo = 0;    ///< two-sided 95% interval of nis_mean under consistency
+  double nis_hi = 0;
+  int lags = 0;
+  std::array<double, 2> ljung_box{};  ///< Ljung-Box Q of each component over `lags`
+  double ljung_box_limit = 0;         ///< 95% point of chi^2(lags)
+  [[nodiscard]] bool consistent() const { return nis_mean >= nis_lo && nis_mean <= nis_hi; }
+  [[nodiscard]] bool white() const {
+    return ljung_box[0] <= ljung_box_limit && ljung_box[1] <= ljung_box_limit;
+  }
+};
+
+/// The two-stage baseline (model.md, 8): one filter per hold from the
+/// prior, the INS taken as re-aligned at each position, fused as
+/// independent information. Only its covariance is computed: its
+/// estimates would need a re-aligned INS at each hold, which the
+/// single-loop experiment does not have.
+struct TwoStage {
+  std::array<double, sx::kParams> sigma{};  ///< two-stage sigma per parameter, SI
+  std::array<double, sx::kParams> ratio{};  ///< single-loop sigma / two-stage sigma
+};
+
 struct EstimationResult {
-  StateVec x;
-  StateMat p;
+  StateVec x = StateVec::Zero();
+  StateMat p = StateMat::Zero();
   std::vector<double> epoch_t;
+  std::vector<StateVec> x_history;      ///< estimate after each epoch
   std::vector<StateVec> sigma_history;  ///< sqrt(diag P) after each epoch
   std::vector<Innovation> innovations;
   std::size_t degraded_updates = 0;
+  TimelineReport timeline;
+  std::array<ParameterEstimate, sx::kParams> parameters{};
+  std::array<ParameterEstimate, 2> df_eff{};  ///< df0_i + g G_i3
+  std::vector<Combination> combinations;      ///< sharpest first
+  Eigen::Matrix<double, sx::kParams, sx::kParams> correlation =
+      Eigen::Matrix<double, sx::kParams, sx::kParams>::Zero();
+  InnovationStats innovation_stats;
+  bool has_two_stage = false;
+  TwoStage two_stage;
 };
 
 /// Sigma_xi (diagonal) from the priors and the process noise.
 XiVec prior_sigmas(const Priors& priors, const ProcessNoise& noise);
 
 /// Runs the square-root filter over the record.
-EstimationResult estimate(const EstimationInput& in);
+Result<EstimationResult> estimate(const EstimationInput& in);
+
+/// Covariance analysis: the same filter on the model alone, a measurement
+/// at every epoch, no data (in.velocity is ignored). Predicts the accuracy
+/// of a planned experiment; the estimates are zero.
+Result<EstimationResult> analyse(const EstimationInput& in);
+
+/// The two-stage baseline's covariance; `single` gives the ratio.
+Result<TwoStage> two_stage(const EstimationInput& in, const StateMat& single_p);
 
 }  // namespace turncal::est

@@ -36,6 +36,9 @@ class SqrtFilter {
   /// state (e.g. prior sigmas); zeros are replaced by 1.
   SqrtFilter(const StateVec& x0, const Eigen::Matrix<double, sx::kN, Eigen::Dynamic>& s0,
              const StateVec& scale);
+  /// Precondition (model.md, 7): the parameters are constant, so the
+  /// parameter rows of phi are those of the identity and those of sqrt_q
+  /// are zero. Only the navigation rows are read.
   void predict(const StateMat& phi, const StateMat& sqrt_q);
   UpdateResult update(const Meas& z, const MeasMat& h, double sigma_z);
   [[nodiscard]] StateVec state() const;
@@ -43,9 +46,18 @@ class SqrtFilter {
   [[nodiscard]] StateVec sigma() const;
 
  private:
-  StateVec d_;  // scale
-  StateVec x_;  // scaled state
-  StateMat s_;  // scaled factor, lower triangular after the first step
+  // Internally the parameters come first: with the factor S lower
+  // triangular in that order, S = [[S_pp, 0], [S_np, S_nn]], and a time
+  // step leaves S_pp alone, so it costs a 7x18 product and a 7-row
+  // re-triangularization instead of a 25x50 QR. The measurement update
+  // sweeps the columns from the last with Givens rotations, which keeps S
+  // lower triangular (Carlson's idea in array form).
+  static constexpr int kP = sx::kParams, kV = sx::kNav;
+  using IntVec = StateVec;  // internal order and scale
+  using IntMat = StateMat;
+  IntVec d_;  // scale, internal order
+  IntVec x_;  // scaled state, internal order
+  IntMat s_;  // scaled factor, internal order, lower triangular
 };
 
 class JosephFilter {

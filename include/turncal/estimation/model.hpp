@@ -59,16 +59,17 @@ struct AngleSample {
 /// the first sample's time to the last's: bounded terms propagated in
 /// sub-steps at the sample times, the Theta_.3 tilt jump integrated over
 /// angle, and the proof-mass velocity jump from Jc, Js (model.md, 7). The
-/// table is still at the first and the last sample.
-Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
-                         const ProcessNoise& noise);
-
-/// Jc = int Omega^2 cos psi dt and Js = int Omega^2 sin psi dt from
-/// samples, as int Omega cos psi dpsi and int Omega sin psi dpsi.
+/// table is still at the first and the last sample. `integrals`, when
+/// given, replaces Jc, Js from the samples (the constant-rate fallback).
 struct TurnIntegrals {
   double jc;
   double js;
 };
+Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
+                         const ProcessNoise& noise, const TurnIntegrals* integrals = nullptr);
+
+/// Jc = int Omega^2 cos psi dt and Js = int Omega^2 sin psi dt from
+/// samples, as int Omega cos psi dpsi and int Omega sin psi dpsi.
 TurnIntegrals turn_integrals(std::span<const AngleSample> samples);
 /// The closed form for a turn at a constant plateau rate (model.md, 7).
 TurnIntegrals turn_integrals_constant_rate(double psi1, double psi2, double plateau_rate);

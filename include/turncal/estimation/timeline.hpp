@@ -4,17 +4,23 @@
 // (model.md, 5) and are skipped: one step spans hold - turn - hold.
 #pragma once
 
+#include <cmath>
 #include <functional>
 #include <span>
 #include <vector>
 
 #include "turncal/estimation/model.hpp"
+#include "turncal/result.hpp"
 
 namespace turncal::est {
 
 struct TurnWindow {
   double t_start_s;  ///< last still instant before the turn
   double t_end_s;    ///< first still instant after it
+  /// The planned turn, for the fallback when the encoder has a gap in the
+  /// window: angle (model sense, signed) and plateau rate. NaN: unknown.
+  double angle_rad = NAN;
+  double plateau_rate_rps = NAN;
 };
 
 struct TimelineInput {
@@ -24,7 +30,11 @@ struct TimelineInput {
   double duration_s = 0;             ///< from t0
   double psi_start_rad = 0;          ///< start orientation (model sense)
   std::vector<TurnWindow> turns;     ///< ascending, not overlapping
-  std::vector<AngleSample> encoder;  ///< covering every turn window, psi unwrapped (model sense)
+  std::vector<AngleSample> encoder;  ///< ascending, psi unwrapped (model sense)
+  /// The longest encoder gap within a turn window that the sample-based
+  /// turn transition accepts (the reference encoder runs at 200 Hz); a
+  /// longer one switches that turn to the constant-rate closed form.
+  double max_encoder_gap_s = 0.05;
 };
 
 struct TimelineStep {
@@ -33,7 +43,29 @@ struct TimelineStep {
   const Discrete* d;
 };
 
-/// Builds the steps; the callback gets them in time order.
-void for_each_step(const TimelineInput& in, const std::function<void(const TimelineStep&)>& fn);
+/// A still interval between turns (or the start or end of the run).
+struct HoldSpan {
+  double t_from_s;
+  double t_to_s;
+  double psi_rad;  ///< orientation during the hold (model sense)
+};
+
+/// How each turn was propagated.
+enum class TurnSource { Encoder, ClosedForm };
+
+struct TimelineReport {
+  std::vector<HoldSpan> holds;
+  std::vector<TurnSource> turns;
+  std::size_t steps = 0;
+};
+
+/// Builds the steps; the callback gets them in time order. Fails when a
+/// turn window has an encoder gap and no planned angle and rate to fall
+/// back on.
+Result<TimelineReport> for_each_step(const TimelineInput& in,
+                                     const std::function<void(const TimelineStep&)>& fn);
+
+/// The holds of the run and their orientations, as for_each_step sees them.
+Result<std::vector<HoldSpan>> hold_spans(const TimelineInput& in);
 
 }  // namespace turncal::est
