@@ -93,8 +93,10 @@ inline est::TimelineInput timeline(const Scenario& s, double psi_s, const TableT
   in.epoch_s = 1.0;
   in.duration_s = 3600;
   in.psi_start_rad = psi_s;
-  for (std::size_t i = 0; i < table.turns(); ++i)
-    in.turns.push_back({table.turn_start(i), table.turn_end(i)});
+  for (std::size_t i = 0; i < table.turns(); ++i) {
+    const double t1 = table.turn_start(i), t2 = table.turn_end(i);
+    in.turns.push_back({t1, t2, table.at(t2).angle - table.at(t1).angle, table.peak_rate(i)});
+  }
   for (const auto& e : enc) in.encoder.push_back({e.t_s, psi_s + e.angle_rad});
   return in;
 }
