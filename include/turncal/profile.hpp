@@ -43,6 +43,8 @@ class TableTrajectory {
   [[nodiscard]] double turn_end(std::size_t i) const { return segs_[i].t3; }
   [[nodiscard]] double peak_rate(std::size_t i) const { return segs_[i].w; }
   [[nodiscard]] std::size_t turns() const { return segs_.size(); }
+  /// The profile's run length from t0, s.
+  [[nodiscard]] double duration() const { return duration_; }
 
  private:
   struct Seg {
@@ -51,6 +53,7 @@ class TableTrajectory {
   };
   std::vector<Seg> segs_;
   std::vector<double> breaks_;
+  double duration_ = 0;
 };
 
 }  // namespace turncal

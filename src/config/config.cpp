@@ -1,5 +1,7 @@
 #include "turncal/config.hpp"
 
+#include "toml_reader.hpp"
+
 #include <toml++/toml.h>
 #include <algorithm>
 #include <fstream>
@@ -7,6 +9,9 @@
 
 namespace turncal {
 namespace {
+
+using config_detail::pos_of;
+using config_detail::Reader;
 
 constexpr std::array<std::string_view, kRoleCount> kRoleKeys = {"ins_vel_east",
                                                                 "ins_vel_east_time_tag",
@@ -55,65 +60,6 @@ constexpr std::array<std::string_view, kRoleCount> kReferenceRoles = {"INS_VelE.
                                                                       "TBL_Command.RateLimit",
                                                                       "HOST_Heartbeat.Counter",
                                                                       "HOST_Heartbeat.HostState"};
-
-SourcePos pos_of(const toml::source_region& r, const std::string& file) {
-  return SourcePos{file, r.begin.line, r.begin.column};
-}
-
-/// Reads a validated [section] into fields; every error names file, line and key.
-class Reader {
- public:
-  Reader(const toml::table& t, std::string file, std::string prefix)
-      : t_(t), file_(std::move(file)), prefix_(std::move(prefix)) {}
-
-  Error error_at(const toml::node& n, std::string_view key, std::string what) const {
-    return make_error("key '" + prefix_ + std::string(key) + "': " + std::move(what),
-                      pos_of(n.source(), file_));
-  }
-  /// Unknown keys are errors: a typo must not silently fall back to a default.
-  Status no_unknown_keys(std::initializer_list<std::string_view> known) const {
-    for (auto&& [k, v] : t_) {
-      bool ok = false;
-      for (auto kk : known) ok = ok || k.str() == kk;
-      if (!ok)
-        return make_error("unknown key '" + prefix_ + std::string(k.str()) + "'",
-                          pos_of(k.source(), file_));
-    }
-    return Status{Ok{}};
-  }
-  Status string(std::string_view key, std::string& out) const {
-    const toml::node* n = t_.get(key);
-    if (n == nullptr) return Status{Ok{}};
-    if (!n->is_string()) return error_at(*n, key, "expected a string");
-    out = n->as_string()->get();
-    return Status{Ok{}};
-  }
-  Status boolean(std::string_view key, bool& out) const {
-    const toml::node* n = t_.get(key);
-    if (n == nullptr) return Status{Ok{}};
-    if (!n->is_boolean()) return error_at(*n, key, "expected true or false");
-    out = n->as_boolean()->get();
-    return Status{Ok{}};
-  }
-  Status integer(std::string_view key, std::uint32_t& out, std::int64_t lo, std::int64_t hi) const {
-    const toml::node* n = t_.get(key);
-    if (n == nullptr) return Status{Ok{}};
-    if (!n->is_integer()) return error_at(*n, key, "expected an integer");
-    const std::int64_t v = n->as_integer()->get();
-    if (v < lo || v > hi)
-      return error_at(*n, key,
-                      "must be between " + std::to_string(lo) + " and " + std::to_string(hi));
-    out = static_cast<std::uint32_t>(v);
-    return Status{Ok{}};
-  }
-  const toml::table& table() const { return t_; }
-  const std::string& file() const { return file_; }
-
- private:
-  const toml::table& t_;
-  std::string file_;
-  std::string prefix_;
-};
 
 Status check_interface(const Reader& r, std::string_view key, const std::string& name) {
   const toml::node* n = r.table().get(key);

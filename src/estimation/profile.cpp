@@ -12,7 +12,7 @@ Profile classic_profile(double duration_s, double turn_start_s, double angle_rad
   return p;
 }
 
-TableTrajectory::TableTrajectory(const Profile& profile) {
+TableTrajectory::TableTrajectory(const Profile& profile) : duration_(profile.duration_s) {
   double angle = 0;
   for (const TurnSpec& t : profile.turns) {
     Seg s{};

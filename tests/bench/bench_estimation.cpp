@@ -1,18 +1,19 @@
 // Benchmarks of the estimation core (not tests): the single-loop filter
-// over a 2-hour run (turn of +180 deg at 1 h) at 1 s and at 0.1 s epochs,
-// and the covariance analysis of the same plan. The cost does not depend
-// on the velocity values, so the record is noise at 100 Hz and the encoder
-// the profile's own angle at 200 Hz. Prints one figure per line;
-// scripts/bench runs it.
+// over a 2-hour run (the tactical reference plan, its +180 deg turn at 1 h) at 1 s and at 0.1 s
+// epochs, and the covariance analysis of the same plan. The cost does not depend on the velocity
+// values, so the record is noise at 100 Hz and the encoder the profile's own angle at 200 Hz.
+// Prints one figure per line; scripts/bench runs it.
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <random>
+#include <string>
 
 #include "turncal/earth.hpp"
 #include "turncal/estimation/estimator.hpp"
+#include "turncal/plan.hpp"
 #include "turncal/profile.hpp"
 
 using namespace turncal;
@@ -22,13 +23,15 @@ namespace {
 
 constexpr double kDuration = 7200;
 
-est::EstimationInput two_hour_run(double epoch_s) {
-  const double deg = earth::kDeg;
-  const Profile profile = classic_profile(kDuration, kDuration / 2, 180 * deg, 30 * deg, 30 * deg);
+/// The tactical reference plan stretched to 2 hours, the turn at 1 hour.
+est::EstimationInput two_hour_run(const Plan& plan, double epoch_s) {
+  Profile profile = plan.profile;
+  profile.duration_s = kDuration;
+  profile.turns.at(0).start_s = kDuration / 2;
   const TableTrajectory table(profile);
   est::EstimationInput in;
-  in.timeline.site = {55.75 * deg, 200};
-  in.timeline.noise = {std::pow(50e-6 * 9.80665, 2), std::pow(0.05 * deg / 60, 2)};
+  in.timeline.site = plan.site;
+  in.timeline.noise = plan.noise();
   in.timeline.epoch_s = epoch_s;
   in.timeline.duration_s = kDuration;
   in.timeline.turns.push_back({table.turn_start(0), table.turn_end(0)});
@@ -36,11 +39,8 @@ est::EstimationInput two_hour_run(double epoch_s) {
     const double t = static_cast<double>(k) / 200;
     in.timeline.encoder.push_back({t, table.at(t).angle});
   }
-  in.priors.heading_rad = 10.0 / 60 * deg;
-  const double dph = deg / 3600;
-  in.priors.params = {dph,  dph,  dph,  1e-3, 1e-3, 1e-3, 1e-3, 1e-3, 1e-3,
-                      1e-3, 1e-3, 1e-3, 1e-2, 1e-2, 1e-3, 1e-3, 0.03, 0.03};
-  in.sigma_z = 1e-3;
+  in.priors = plan.priors;
+  in.sigma_z = plan.sigma_z;
   std::mt19937_64 rng(1);
   std::normal_distribution<double> n(0, in.sigma_z);
   for (long k = 0; k <= static_cast<long>(kDuration * 100); ++k)
@@ -62,9 +62,14 @@ double best_of(int reps, F&& f) {
 }  // namespace
 
 int main() {
+  const auto plan = load_plan(std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/tactical.toml");
+  if (!plan) {
+    std::fprintf(stderr, "%s\n", plan.error().describe().c_str());
+    return 1;
+  }
   double sink = 0;
   for (const double epoch : {1.0, 0.1}) {
-    const est::EstimationInput in = two_hour_run(epoch);
+    const est::EstimationInput in = two_hour_run(*plan, epoch);
     std::size_t epochs = 0;
     const double t_est = best_of(3, [&] {
       const auto r = est::estimate(in);

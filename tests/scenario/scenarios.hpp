@@ -1,12 +1,16 @@
-// The reference scenarios of the estimation core (latitude 55.75 deg,
-// height 200 m, 3600 s, +180 deg turn at 1800 s, 30 deg/s, 30 deg/s^2,
+// The reference scenarios of the estimation core, read from their profile
+// files in config/profiles/ (latitude 55.75 deg, height 200 m, 3600 s, +180
+// deg turn at 1800 s, 30 deg/s, 30 deg/s^2,
 // heading error 10 arcmin, position error 10 m, epoch 1 s).
 #pragma once
 
 #include <random>
+#include <stdexcept>
+#include <string>
 
 #include "turncal/earth.hpp"
 #include "turncal/estimation/estimator.hpp"
+#include "turncal/plan.hpp"
 #include "turncal/sim/strapdown.hpp"
 
 namespace scenario {
@@ -21,77 +25,37 @@ struct Scenario {
   double arw;      ///< rad/sqrt(s)
   double vrw;      ///< m/s/sqrt(s)
   double sigma_z;  ///< m/s
+  Profile profile;
+  est::Site site;
 };
 
+/// A reference scenario from its profile file in config/profiles/.
+inline Scenario from_plan(const std::string& name) {
+  const auto plan = load_plan(std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/" + name);
+  if (!plan) throw std::runtime_error(plan.error().describe());
+  return Scenario{plan->priors, plan->arw, plan->vrw, plan->sigma_z, plan->profile, plan->site};
+}
+
 inline Scenario tactical() {
-  Scenario s;
-  s.priors.v0_mps = 1e-3;
-  s.priors.position_m = 10;
-  s.priors.heading_rad = 10.0 / 60.0 * kDeg;
-  s.priors.params = {1 * kDegPerHour,
-                     1 * kDegPerHour,
-                     1 * kDegPerHour,
-                     1e-3,
-                     1e-3,
-                     1e-3,
-                     1e-3,
-                     1e-3,
-                     1e-3,
-                     1e-3,
-                     1e-3,
-                     1e-3,
-                     1e-3 * kG0,
-                     1e-3 * kG0,
-                     1e-3,
-                     1e-3,
-                     0.03,
-                     0.03};
-  s.arw = 0.05 * kDeg / 60.0;
-  s.vrw = 50e-6 * kG0;
-  s.sigma_z = 1e-3;
-  return s;
+  return from_plan("tactical.toml");
 }
 
 inline Scenario navigation_grade() {
-  Scenario s;
-  s.priors.v0_mps = 1e-4;
-  s.priors.position_m = 10;
-  s.priors.heading_rad = 10.0 / 60.0 * kDeg;
-  s.priors.params = {0.02 * kDegPerHour,
-                     0.02 * kDegPerHour,
-                     0.02 * kDegPerHour,
-                     3e-5,
-                     3e-5,
-                     3e-5,
-                     3e-5,
-                     3e-5,
-                     3e-5,
-                     3e-5,
-                     3e-5,
-                     3e-5,
-                     100e-6 * kG0,
-                     100e-6 * kG0,
-                     1e-4,
-                     1e-4,
-                     0.01,
-                     0.01};
-  s.arw = 0.002 * kDeg / 60.0;
-  s.vrw = 10e-6 * kG0;
-  s.sigma_z = 1e-4;
-  return s;
+  return from_plan("navigation-grade.toml");
 }
 
+/// The classic profile of both reference scenarios.
 inline Profile reference_profile() {
-  return classic_profile(3600, 1800, 180 * kDeg, 30 * kDeg, 30 * kDeg);
+  return tactical().profile;
 }
 
 inline est::TimelineInput timeline(const Scenario& s, double psi_s, const TableTrajectory& table,
                                    const std::vector<sim::EncoderSample>& enc) {
   est::TimelineInput in;
-  in.site = {55.75 * kDeg, 200};
+  in.site = s.site;
   in.noise = {s.vrw * s.vrw, s.arw * s.arw};
   in.epoch_s = 1.0;
-  in.duration_s = 3600;
+  in.duration_s = table.duration();
   in.psi_start_rad = psi_s;
   for (std::size_t i = 0; i < table.turns(); ++i) {
     const double t1 = table.turn_start(i), t2 = table.turn_end(i);
@@ -122,16 +86,17 @@ inline est::XiVec draw(const Scenario& s, std::mt19937_64& rng) {
   return xi;
 }
 
-/// The simulation of the reference site and profile with the errors of
-/// `xi` injected, noise off.
-inline sim::Config sim_config(const est::XiVec& xi, double psi_s) {
+/// The simulation of the scenario's site and profile (by default the
+/// reference ones) with the errors of `xi` injected, noise off.
+inline sim::Config sim_config(const est::XiVec& xi, double psi_s,
+                              const Scenario& where = tactical()) {
   using namespace est;
   sim::Config c;
-  c.latitude_rad = 55.75 * kDeg;
+  c.latitude_rad = where.site.latitude_rad;
   c.longitude_rad = 37.6 * kDeg;
-  c.height_m = 200;
+  c.height_m = where.site.height_m;
   c.psi_start_rad = psi_s;
-  c.profile = reference_profile();
+  c.profile = where.profile;
   c.start.v0 = xi.segment<2>(sxi::kV0);
   c.start.dr_e_m = xi(sxi::kDrE);
   c.start.dr_n_m = xi(sxi::kDrN);
@@ -149,7 +114,7 @@ inline sim::Config sim_config(const est::XiVec& xi, double psi_s) {
 /// The same with the scenario's noise and alignment length.
 inline sim::Config sim_config(const Scenario& s, const est::XiVec& xi, double psi_s,
                               std::uint64_t seed) {
-  sim::Config c = sim_config(xi, psi_s);
+  sim::Config c = sim_config(xi, psi_s, s);
   c.profile.align_s = s.priors.align_s;
   c.noise.arw = s.arw;
   c.noise.vrw = s.vrw;

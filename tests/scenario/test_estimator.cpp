@@ -78,7 +78,7 @@ TEST_SUITE("estimator") {
     const Scenario s = tactical();
     const auto r = est::analyse(plan(s, 0, reference_profile()));
     REQUIRE(r.ok());
-    const double g = est::EarthAt::at({55.75 * kDeg, 200}).g;
+    const double g = est::EarthAt::at(s.site).g;
     for (int axis = 0; axis < 2; ++axis) {
       const std::size_t df = kIdx(est::sx::kDf0 + axis), gi3 = kIdx(est::sx::kG + axis),
                         th = kIdx(est::sx::theta(axis + 1, 3));
@@ -95,14 +95,15 @@ TEST_SUITE("estimator") {
       CHECK(r->df_eff[static_cast<std::size_t>(axis)].sigma >
             0.5 * r->df_eff[static_cast<std::size_t>(axis)].prior_sigma);
     }
-    // A second turn (on by 90 deg at 2700 s) gives the proof-mass offset a
+    // A second turn (config/profiles/tactical-two-turns.toml: on by 90 deg
+    // at 2700 s) gives the proof-mass offset a
     // second jump to be seen in, but it cannot part df_eff from g Theta_.3:
     // for any turn about the vertical the tilt jump, -g [int A dpsi]
     // Theta_.3 through the dv rows, equals -g (A(psi2) - A(psi1)) Theta_.3,
     // the same signature as the bias change (A(psi2) - A(psi1)) df_eff.
     // Only a turn about another axis would part them.
-    Profile two = reference_profile();
-    two.turns.push_back({2700, 90 * kDeg, 30 * kDeg, 30 * kDeg});
+    const Profile two = from_plan("tactical-two-turns.toml").profile;
+    REQUIRE(two.turns.size() == 2);
     const auto r2 = est::analyse(plan(s, 0, two));
     REQUIRE(r2.ok());
     auto ratio = [](const est::ParameterEstimate& p) { return p.sigma / p.prior_sigma; };
