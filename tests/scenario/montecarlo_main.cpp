@@ -36,7 +36,7 @@ int main(int argc, char** argv) {
                 mc.rms_z_df_eff[1]);
     std::printf(
         "  NIS mean %.4f (95%% interval [%.4f, %.4f]); runs not white %d, inconsistent %d "
-        "(5%% of %d expected each); degraded updates %zu; errors %zu\n",
+        "(by chance 9.75%% and 5%% of %d); degraded updates %zu; errors %zu\n",
         mc.nis_mean, mc.nis_lo, mc.nis_hi, mc.not_white, mc.inconsistent, runs, mc.degraded,
         mc.errors.size());
     for (const auto& e : mc.errors) std::printf("  error: %s\n", e.c_str());

@@ -16,8 +16,9 @@ TEST_SUITE("monte carlo") {
     // the INS velocity to 60-120 m/s, where the linear model misses the
     // simulation by up to 3%; the test shows that the free navigation
     // states absorb it. Innovations: the pooled NIS mean lies in its 95%
-    // interval, and at most 8 of 50 runs fail the 5% Ljung-Box test
-    // (binomial mean 2.5, sd 1.5: 8 is 3.5 sd out).
+    // interval, and at most 11 of 50 runs fail the Ljung-Box test (a run
+    // fails if either axis does, each at 5%, so 9.75% of runs fail by
+    // chance: binomial mean 4.9, sd 2.1, and 11 is 3 sd out).
     for (const auto& [name, s] : {std::pair{std::string("tactical"), tactical()},
                                   std::pair{std::string("navigation grade"), navigation_grade()}}) {
       const MonteCarlo mc = monte_carlo(s, 50, 1000);
@@ -39,7 +40,7 @@ TEST_SUITE("monte carlo") {
                    << "]; not white " << mc.not_white << " of 50");
       CHECK(mc.nis_mean >= mc.nis_lo);
       CHECK(mc.nis_mean <= mc.nis_hi);
-      CHECK(mc.not_white <= 8);
+      CHECK(mc.not_white <= 11);
     }
   }
 }

@@ -87,7 +87,10 @@ struct InnovationStats {
   int lags = 0;
   std::array<double, 2> ljung_box{};  ///< Ljung-Box Q of each component over `lags`
   double ljung_box_limit = 0;         ///< 95% point of chi^2(lags)
+  /// NIS within its 95% interval: a consistent filter fails 5% of runs.
   [[nodiscard]] bool consistent() const { return nis_mean >= nis_lo && nis_mean <= nis_hi; }
+  /// Both axes under the limit: a white sequence fails 9.75% of runs
+  /// (two tests at 5%).
   [[nodiscard]] bool white() const {
     return ljung_box[0] <= ljung_box_limit && ljung_box[1] <= ljung_box_limit;
   }
