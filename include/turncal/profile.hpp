@@ -4,6 +4,7 @@
 // model, which sees only encoder samples.
 #pragma once
 
+#include <cstddef>
 #include <vector>
 
 namespace turncal {
@@ -25,34 +26,72 @@ struct Profile {
 Profile classic_profile(double duration_s, double turn_start_s, double angle_rad,
                         double max_rate_rps, double max_accel_rps2);
 
-/// Table angle, rate and acceleration as functions of experiment time;
-/// piecewise quadratic in angle.
-class TableTrajectory {
+/// Table angle, rate and acceleration of a table driven by commands: a
+/// piecewise-quadratic angle history, each piece at a constant
+/// acceleration. A new plan at time t replaces whatever was planned after
+/// t; the history before t is kept, so the motion can be queried (and
+/// integrated exactly, piece by piece) at any time. Times are of one clock,
+/// any origin; before the first piece the table rests at the start angle.
+class TableMotion {
  public:
-  explicit TableTrajectory(const Profile& profile);
   struct State {
-    double angle;  ///< rad, relative to the angle at t0
+    double angle;  ///< rad, counter-clockwise seen from above
     double rate;   ///< rad/s
     double accel;  ///< rad/s^2
   };
+  /// One planned move, as it will happen if nothing interrupts it.
+  struct Move {
+    double t_start;
+    double t_end;  ///< at rest again
+    double peak_rate;
+  };
+  explicit TableMotion(double angle0 = 0) : angle0_(angle0) {}
   [[nodiscard]] State at(double t) const;
-  /// Times where the acceleration jumps (segment boundaries), ascending.
-  [[nodiscard]] const std::vector<double>& breakpoints() const { return breaks_; }
-  /// Start and end time of turn i.
-  [[nodiscard]] double turn_start(std::size_t i) const { return segs_[i].t0; }
-  [[nodiscard]] double turn_end(std::size_t i) const { return segs_[i].t3; }
-  [[nodiscard]] double peak_rate(std::size_t i) const { return segs_[i].w; }
-  [[nodiscard]] std::size_t turns() const { return segs_.size(); }
-  /// The profile's run length from t0, s.
-  [[nodiscard]] double duration() const { return duration_; }
+  /// A move from rest at t by `delta` rad: trapezoidal rate within the
+  /// limits, triangular when the rate limit is not reached. If the table is
+  /// not at rest at t, the move starts when the current plan comes to rest.
+  Move move_by(double t, double delta, double max_rate, double max_accel);
+  /// Decelerates from the state at t to rest at `decel` (rad/s^2); returns
+  /// the time it is at rest.
+  double stop(double t, double decel);
+  /// Times where the acceleration may jump, ascending.
+  [[nodiscard]] std::vector<double> breakpoints() const;
+  /// Appends those strictly inside (ta, tb).
+  void breakpoints_in(double ta, double tb, std::vector<double>& out) const;
+  /// The first time at or after t from which the plan stays at rest.
+  [[nodiscard]] double rest_time() const { return pieces_.empty() ? 0 : pieces_.back().t0; }
 
  private:
-  struct Seg {
-    double t0, t1, t2, t3;  // accel, cruise, decel boundaries
-    double a, w, sign, angle0;
+  struct Piece {
+    double t0, angle0, rate0, accel;  // valid from t0 to the next piece
   };
-  std::vector<Seg> segs_;
-  std::vector<double> breaks_;
+  void truncate(double t);  // drops the plan after t and starts a piece at t
+  void push(double t0, double accel);
+  double angle0_;
+  std::vector<Piece> pieces_;
+};
+
+/// The table motion of a profile, in experiment time (t0 = 0, the table at
+/// angle 0 at t0).
+class TableTrajectory {
+ public:
+  explicit TableTrajectory(const Profile& profile);
+  using State = TableMotion::State;
+  [[nodiscard]] State at(double t) const { return motion_.at(t); }
+  /// Times where the acceleration jumps (segment boundaries), ascending.
+  [[nodiscard]] std::vector<double> breakpoints() const { return motion_.breakpoints(); }
+  /// Start and end time of turn i.
+  [[nodiscard]] double turn_start(std::size_t i) const { return moves_[i].t_start; }
+  [[nodiscard]] double turn_end(std::size_t i) const { return moves_[i].t_end; }
+  [[nodiscard]] double peak_rate(std::size_t i) const { return moves_[i].peak_rate; }
+  [[nodiscard]] std::size_t turns() const { return moves_.size(); }
+  /// The profile's run length from t0, s.
+  [[nodiscard]] double duration() const { return duration_; }
+  [[nodiscard]] const TableMotion& motion() const { return motion_; }
+
+ private:
+  TableMotion motion_;
+  std::vector<TableMotion::Move> moves_;
   double duration_ = 0;
 };
 

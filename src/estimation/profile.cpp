@@ -1,5 +1,6 @@
 #include "turncal/profile.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 namespace turncal {
@@ -12,54 +13,74 @@ Profile classic_profile(double duration_s, double turn_start_s, double angle_rad
   return p;
 }
 
-TableTrajectory::TableTrajectory(const Profile& profile) : duration_(profile.duration_s) {
-  double angle = 0;
-  for (const TurnSpec& t : profile.turns) {
-    Seg s{};
-    const double d = std::fabs(t.angle_rad);
-    s.sign = t.angle_rad < 0 ? -1.0 : 1.0;
-    s.a = t.max_accel_rps2;
-    s.angle0 = angle;
-    double t_acc = t.max_rate_rps / s.a;
-    double t_cruise = 0;
-    if (d >= t.max_rate_rps * t_acc) {
-      s.w = t.max_rate_rps;
-      t_cruise = (d - s.w * t_acc) / s.w;
-    } else {  // triangular: the rate limit is never reached
-      t_acc = std::sqrt(d / s.a);
-      s.w = s.a * t_acc;
-    }
-    s.t0 = t.start_s;
-    s.t1 = s.t0 + t_acc;
-    s.t2 = s.t1 + t_cruise;
-    s.t3 = s.t2 + t_acc;
-    segs_.push_back(s);
-    for (double b : {s.t0, s.t1, s.t2, s.t3}) breaks_.push_back(b);
-    angle += t.angle_rad;
-  }
+TableMotion::State TableMotion::at(double t) const {
+  auto it = std::upper_bound(pieces_.begin(), pieces_.end(), t,
+                             [](double v, const Piece& p) { return v < p.t0; });
+  if (it == pieces_.begin()) return {angle0_, 0, 0};
+  const Piece& p = *(it - 1);
+  const double dt = t - p.t0;
+  return {p.angle0 + p.rate0 * dt + 0.5 * p.accel * dt * dt, p.rate0 + p.accel * dt, p.accel};
 }
 
-TableTrajectory::State TableTrajectory::at(double t) const {
-  double angle = 0;
-  for (const Seg& s : segs_) {
-    if (t <= s.t0) return {s.angle0, 0, 0};
-    const double a_acc = 0.5 * s.a * (s.t1 - s.t0) * (s.t1 - s.t0);
-    if (t < s.t1) {
-      const double dt = t - s.t0;
-      return {s.angle0 + s.sign * 0.5 * s.a * dt * dt, s.sign * s.a * dt, s.sign * s.a};
-    }
-    if (t < s.t2) {
-      const double dt = t - s.t1;
-      return {s.angle0 + s.sign * (a_acc + s.w * dt), s.sign * s.w, 0};
-    }
-    const double total = 2 * a_acc + s.w * (s.t2 - s.t1);
-    if (t < s.t3) {
-      const double dt = s.t3 - t;
-      return {s.angle0 + s.sign * (total - 0.5 * s.a * dt * dt), s.sign * s.a * dt, -s.sign * s.a};
-    }
-    angle = s.angle0 + s.sign * total;
+void TableMotion::truncate(double t) {
+  const State s = at(t);
+  while (!pieces_.empty() && pieces_.back().t0 >= t) pieces_.pop_back();
+  pieces_.push_back({t, s.angle, s.rate, 0});
+}
+
+void TableMotion::push(double t0, double accel) {
+  const State s = at(t0);
+  pieces_.push_back({t0, s.angle, s.rate, accel});
+}
+
+TableMotion::Move TableMotion::move_by(double t, double delta, double max_rate, double max_accel) {
+  t = std::max(t, rest_time());
+  truncate(t);
+  const double start = pieces_.back().angle0;
+  const double d = std::fabs(delta), sign = delta < 0 ? -1.0 : 1.0;
+  double t_acc = max_rate / max_accel, t_cruise = 0, w = max_rate;
+  if (d >= max_rate * t_acc) {
+    t_cruise = (d - w * t_acc) / w;
+  } else {  // triangular: the rate limit is never reached
+    t_acc = std::sqrt(d / max_accel);
+    w = max_accel * t_acc;
   }
-  return {angle, 0, 0};
+  pieces_.back().accel = sign * max_accel;
+  if (t_cruise > 0) push(t + t_acc, 0);
+  push(t + t_acc + t_cruise, -sign * max_accel);
+  const double t_end = t + 2 * t_acc + t_cruise;
+  // rest exactly at the target: no round-off drift of the angle
+  pieces_.push_back({t_end, start + delta, 0, 0});
+  return {t, t_end, w};
+}
+
+double TableMotion::stop(double t, double decel) {
+  truncate(t);
+  const State s = at(t);
+  if (s.rate == 0) return t;
+  const double t_rest = t + std::fabs(s.rate) / decel;
+  pieces_.back().accel = s.rate > 0 ? -decel : decel;
+  const double angle = s.angle + 0.5 * s.rate * (t_rest - t);
+  pieces_.push_back({t_rest, angle, 0, 0});
+  return t_rest;
+}
+
+void TableMotion::breakpoints_in(double ta, double tb, std::vector<double>& out) const {
+  auto it = std::upper_bound(pieces_.begin(), pieces_.end(), ta,
+                             [](double v, const Piece& p) { return v < p.t0; });
+  for (; it != pieces_.end() && it->t0 < tb; ++it) out.push_back(it->t0);
+}
+
+std::vector<double> TableMotion::breakpoints() const {
+  std::vector<double> b;
+  b.reserve(pieces_.size());
+  for (const Piece& p : pieces_) b.push_back(p.t0);
+  return b;
+}
+
+TableTrajectory::TableTrajectory(const Profile& profile) : duration_(profile.duration_s) {
+  for (const TurnSpec& t : profile.turns)
+    moves_.push_back(motion_.move_by(t.start_s, t.angle_rad, t.max_rate_rps, t.max_accel_rps2));
 }
 
 }  // namespace turncal

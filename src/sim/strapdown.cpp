@@ -45,8 +45,7 @@ Strapdown::Increments Strapdown::imu(double ta, double tb) {
   const double g = earth::normal_gravity(lat, cfg_.height_m);
   // Integrate over [ta, tb], split where the table's acceleration jumps.
   std::vector<double> cuts{ta};
-  for (double b : table_.breakpoints())
-    if (b > ta && b < tb) cuts.push_back(b);
+  table_.motion().breakpoints_in(ta, tb, cuts);
   cuts.push_back(tb);
   Vec3 earth_rate_int = Vec3::Zero();  // int A(psi)^T u_x dt
   double omega2_int = 0;               // int Omega^2 dt
