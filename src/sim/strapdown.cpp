@@ -33,8 +33,20 @@ constexpr double kGlW[3] = {5.0 / 9.0, 8.0 / 9.0, 5.0 / 9.0};
 }  // namespace
 
 Strapdown::Strapdown(const Config& config)
-    : cfg_(config), table_(config.profile), rng_(config.seed), dt_(1.0 / config.imu_rate_hz) {
+    : cfg_(config),
+      profile_table_(config.profile),
+      motion_(config.motion != nullptr ? config.motion : &profile_table_.motion()),
+      motion_t0_(config.motion != nullptr ? config.motion_t0_s : 0.0),
+      angle_t0_(motion_->at(motion_t0_).angle),
+      rng_(config.seed),
+      dt_(1.0 / config.imu_rate_hz) {
   align();
+}
+
+TableMotion::State Strapdown::table_at(double t) const {
+  TableMotion::State s = motion_->at(motion_t0_ + t);
+  s.angle -= angle_t0_;
+  return s;
 }
 
 Strapdown::Increments Strapdown::imu(double ta, double tb) {
@@ -45,21 +57,23 @@ Strapdown::Increments Strapdown::imu(double ta, double tb) {
   const double g = earth::normal_gravity(lat, cfg_.height_m);
   // Integrate over [ta, tb], split where the table's acceleration jumps.
   std::vector<double> cuts{ta};
-  table_.motion().breakpoints_in(ta, tb, cuts);
+  const std::size_t first_cut = cuts.size();
+  motion_->breakpoints_in(motion_t0_ + ta, motion_t0_ + tb, cuts);
+  for (std::size_t i = first_cut; i < cuts.size(); ++i) cuts[i] -= motion_t0_;
   cuts.push_back(tb);
   Vec3 earth_rate_int = Vec3::Zero();  // int A(psi)^T u_x dt
   double omega2_int = 0;               // int Omega^2 dt
   for (std::size_t i = 0; i + 1 < cuts.size(); ++i) {
     const double mid = 0.5 * (cuts[i] + cuts[i + 1]), half = 0.5 * (cuts[i + 1] - cuts[i]);
     for (int k = 0; k < 3; ++k) {
-      const auto st = table_.at(mid + half * kGlX[k]);
+      const auto st = table_at(mid + half * kGlX[k]);
       const double psi = cfg_.psi_start_rad + st.angle;
       const double w = kGlW[k] * half;
       earth_rate_int += w * Vec3(u2 * std::sin(psi), u2 * std::cos(psi), u3);
       omega2_int += w * st.rate * st.rate;
     }
   }
-  const auto sa = table_.at(ta), sb = table_.at(tb);
+  const auto sa = table_at(ta), sb = table_at(tb);
   const double dt = tb - ta;
   Increments inc;
   const Vec3 true_dtheta = earth_rate_int + Vec3(0, 0, sb.angle - sa.angle);
@@ -95,7 +109,9 @@ void Strapdown::align() {
   level.row(1) = y_h.transpose();
   level.row(2) = up.transpose();
   // Heading of z2 clockwise from North: true -psi_s, given with an error.
-  const double heading = -cfg_.psi_start_rad + cfg_.start.dpsi0_rad;
+  const double given =
+      std::isnan(cfg_.heading_given_rad) ? -cfg_.psi_start_rad : cfg_.heading_given_rad;
+  const double heading = given + cfg_.start.dpsi0_rad;
   c_bn_ = rot_z(-heading) * level;
   // Position given with an error; velocity starts with its own error.
   lat_ = cfg_.latitude_rad +
@@ -153,7 +169,7 @@ VelocitySample Strapdown::output() {
 }
 
 EncoderSample Strapdown::encoder() const {
-  return {t_, table_.at(t_).angle};
+  return {t_, table_at(t_).angle};
 }
 
 Run simulate(const Config& config) {

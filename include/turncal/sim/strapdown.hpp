@@ -9,6 +9,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <cmath>
 #include <cstdint>
 #include <random>
 #include <vector>
@@ -50,6 +51,16 @@ struct Config {
   SensorErrors errors;
   StartErrors start;
   Noise noise;
+  /// The table moved by commands instead of by `profile` (the virtual
+  /// stand): its clock reads motion_t0_s at t0, the run has no end
+  /// (profile.duration_s still bounds step()), and the motion must outlive
+  /// the simulation. Only profile.align_s is used from the profile.
+  const TableMotion* motion = nullptr;
+  double motion_t0_s = 0;
+  /// The heading the INS is given at alignment (of z2, clockwise from
+  /// North, rad), e.g. from a host's command; NaN: the true heading. The
+  /// error start.dpsi0_rad is added either way.
+  double heading_given_rad = NAN;
   double imu_rate_hz = 400;
   double output_rate_hz = 100;
   double encoder_rate_hz = 200;
@@ -78,18 +89,22 @@ class Strapdown {
   [[nodiscard]] VelocitySample output();
   /// Table angle now (truth; the encoder reads it).
   [[nodiscard]] EncoderSample encoder() const;
-  [[nodiscard]] const TableTrajectory& table() const { return table_; }
 
  private:
   struct Increments {
     Eigen::Vector3d dtheta, dv;
   };
   Increments imu(double ta, double tb);
+  /// Table state relative to t0, in simulation time.
+  [[nodiscard]] TableMotion::State table_at(double t) const;
   void navigate(const Increments& inc, double dt);
   void align();
 
   Config cfg_;
-  TableTrajectory table_;
+  TableTrajectory profile_table_;
+  const TableMotion* motion_;  // the profile's or the config's
+  double motion_t0_;
+  double angle_t0_;
   std::mt19937_64 rng_;
   std::normal_distribution<double> normal_{0.0, 1.0};
   double t_ = 0;
