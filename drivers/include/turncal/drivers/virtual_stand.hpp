@@ -1,0 +1,114 @@
+// The virtual stand (can-icd.md): the virtual INS and table as CAN nodes of
+// the configured DBC and roles, on two device clocks, with stand-level
+// faults. Pure and deterministic: it is fed host frames with their stand
+// time and emits its own frames in time order; turncal-sim puts it on
+// SocketCAN (live, at any speed) or straight into a log (offline).
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+#include <random>
+#include <vector>
+
+#include "turncal/can/dbc.hpp"
+#include "turncal/config.hpp"
+#include "turncal/drivers/virtual_ins.hpp"
+#include "turncal/drivers/virtual_table.hpp"
+
+namespace turncal::stand {
+
+/// A device clock on the stand's simulated time: reads
+/// offset + (1 + rate_ppm 1e-6) t, plus `jump_s` from `jump_at_s` on.
+struct DeviceClock {
+  double offset_s = 0;
+  double rate_ppm = 0;
+  double jump_at_s = NAN;
+  double jump_s = 0;
+  [[nodiscard]] double read(double t) const {
+    return offset_s + (1 + rate_ppm * 1e-6) * t + (t >= jump_at_s ? jump_s : 0.0);
+  }
+  /// The ICD's time tag: microseconds, wrapping every 2^32.
+  [[nodiscard]] std::uint32_t tag(double t) const;
+};
+
+/// Faults of the stand as a whole (the devices' own are in their setups).
+struct StandFaults {
+  double ins_drop_rate = 0;     ///< fraction of INS velocity frames dropped at random
+  double ins_burst_at_s = NAN;  ///< every INS frame dropped in [at, at + length)
+  double ins_burst_s = 0;
+  double ins_silent_at_s = NAN;      ///< the INS sends nothing from then on
+  double encoder_silent_at_s = NAN;  ///< no TBL_Encoder from then on
+  double garbage_rate_hz = 0;  ///< frames of a known ID with a wrong length, and of unknown IDs
+  double flood_at_s = NAN;     ///< a flood of frames of an unknown ID
+  double flood_s = 0;
+  double flood_rate_hz = 5000;
+};
+
+struct StandSetup {
+  InsSetup ins;
+  TableLimits table_limits;
+  TableFaults table_faults;
+  double table_angle0_rad = 0;
+  DeviceClock ins_clock;
+  DeviceClock table_clock;
+  StandFaults faults;
+  double ins_status_hz = 10;
+  double encoder_hz = 200;
+  double table_status_hz = 20;
+  std::uint64_t seed = 1;  ///< for drops and garbage
+};
+
+struct StandFrame {
+  double t_s;     ///< stand time it is sent
+  bool ins_side;  ///< from the INS (else the table side)
+  can::Frame frame;
+};
+
+struct StandCounts {
+  std::uint64_t host_frames = 0;
+  std::uint64_t host_undecodable = 0;  ///< unknown ID or wrong length: counted, skipped
+  std::uint64_t ins_commands = 0;
+  std::uint64_t table_commands = 0;
+  std::uint64_t refused = 0;
+  std::uint64_t heartbeats = 0;
+  std::uint64_t dropped = 0;  ///< by the injected drop faults
+};
+
+class VirtualStand {
+ public:
+  /// `db` and `roles` must outlive the stand.
+  VirtualStand(const StandSetup& setup, const can::Database& db, const RoleMap& roles);
+  /// Emits, in time order, every frame due in (last t, t].
+  void advance(double t, std::vector<StandFrame>& out);
+  /// A frame from the host, received at stand time t (>= the last advance).
+  void receive(double t, const can::Frame& frame);
+  [[nodiscard]] const VirtualTable& table() const { return table_; }
+  [[nodiscard]] const VirtualIns& ins() const { return ins_; }
+  [[nodiscard]] const StandCounts& counts() const { return counts_; }
+
+ private:
+  void emit_ins_status(double t, std::vector<StandFrame>& out);
+  void emit_velocity(const InsVelocity& v, std::vector<StandFrame>& out);
+  void emit_encoder(double t, std::vector<StandFrame>& out);
+  void emit_table_status(double t, std::vector<StandFrame>& out);
+  void emit_garbage(double t, std::vector<StandFrame>& out);
+  can::Frame encode(Role any_role_of_message, std::span<const std::pair<Role, double>> values);
+  [[nodiscard]] bool ins_quiet(double t) const;
+  [[nodiscard]] double role_value(Role r, std::span<const double> values) const;
+
+  StandSetup setup_;
+  const can::Database& db_;
+  const RoleMap& roles_;
+  can::FrameCodec codec_;
+  VirtualTable table_;
+  VirtualIns ins_;
+  std::mt19937_64 rng_;
+  double now_ = 0;
+  long ins_status_k_ = 0, encoder_k_ = 0, table_status_k_ = 0, garbage_k_ = 0, flood_k_ = 0;
+  std::uint8_t ins_counter_ = 0;
+  std::vector<InsVelocity> vel_;
+  std::vector<double> scratch_;
+  StandCounts counts_;
+};
+
+}  // namespace turncal::stand
