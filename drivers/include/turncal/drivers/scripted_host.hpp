@@ -1,0 +1,48 @@
+// A host that runs a plan's experiment on a virtual stand the way turncald
+// will, by the clock and without looking back: heartbeat at 10 Hz, enable
+// the table, align the INS with the heading from the table, turn as the
+// profile says (relative to t0), until the run's end. turncal-sim's offline
+// mode uses it to write a whole run; tests use it to drive the stand.
+#pragma once
+
+#include <vector>
+
+#include "turncal/can/candump.hpp"
+#include "turncal/can/dbc.hpp"
+#include "turncal/config.hpp"
+#include "turncal/drivers/virtual_stand.hpp"
+#include "turncal/plan.hpp"
+
+namespace turncal::stand {
+
+class ScriptedHost {
+ public:
+  /// `roles` must outlive the host. heading_offset: the stand's mounting
+  /// (can-icd.md): heading of z2 = heading_offset - table angle.
+  ScriptedHost(const Plan& plan, const RoleMap& roles, double heading_offset_rad);
+  /// Host frames due in (last t, t], given the stand's state at t.
+  void step(double t, const VirtualStand& stand, std::vector<StandFrame>& out);
+  /// True once the run has gone `duration_s` past t0.
+  [[nodiscard]] bool done() const { return done_; }
+  static constexpr double kEnableAt = 1.0;  ///< stand time of the enable, s
+  static constexpr double kAlignAt = 2.0;   ///< stand time of the alignment command, s
+
+ private:
+  can::Frame frame(Role any, std::initializer_list<std::pair<Role, double>> values) const;
+  Plan plan_;
+  const RoleMap& roles_;
+  double heading_offset_;
+  long heartbeat_k_ = 0;
+  std::uint8_t seq_ = 0;
+  std::size_t next_turn_ = 0;
+  bool enabled_ = false, aligning_ = false, done_ = false;
+};
+
+/// A whole run of `plan` on a virtual stand driven by a ScriptedHost in
+/// 1 ms ticks, every frame of both directions written to `log` in time
+/// order (interfaces from `can`, times from `start_time_s`, Unix seconds).
+Status run_offline(const Plan& plan, const CanConfig& can, const can::Database& db,
+                   const RoleMap& roles, const StandSetup& setup, can::LogWriter& log,
+                   double start_time_s);
+
+}  // namespace turncal::stand

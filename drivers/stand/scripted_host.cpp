@@ -1,0 +1,90 @@
+#include "turncal/drivers/scripted_host.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace turncal::stand {
+namespace {
+constexpr double kDeg = 0.017453292519943295;
+}
+
+ScriptedHost::ScriptedHost(const Plan& plan, const RoleMap& roles, double heading_offset_rad)
+    : plan_(plan), roles_(roles), heading_offset_(heading_offset_rad) {}
+
+can::Frame ScriptedHost::frame(Role any,
+                               std::initializer_list<std::pair<Role, double>> values) const {
+  const can::Message& m = *roles_[any].message;
+  std::vector<double> v(m.signals.size(), 0.0);
+  for (const auto& [r, x] : values) v[roles_[r].signal_index] = x;
+  return can::FrameCodec::encode(m, v);
+}
+
+void ScriptedHost::step(double t, const VirtualStand& stand, std::vector<StandFrame>& out) {
+  // heartbeat from "the main loop", 10 Hz
+  while (static_cast<double>(heartbeat_k_) / 10 <= t) {
+    const double th = static_cast<double>(heartbeat_k_) / 10;
+    out.push_back({th, false,
+                   frame(Role::HeartbeatCounter,
+                         {{Role::HeartbeatCounter, static_cast<double>(heartbeat_k_ % 256)},
+                          {Role::HeartbeatState, done_ ? 0.0 : 1.0}})});
+    ++heartbeat_k_;
+  }
+  if (!enabled_ && t >= kEnableAt) {
+    out.push_back(
+        {t, false,
+         frame(Role::TableCommand, {{Role::TableCommand, 4}, {Role::TableCommandSeq, ++seq_}})});
+    enabled_ = true;
+  }
+  if (!aligning_ && t >= kAlignAt) {
+    const double heading = heading_offset_ - stand.table().angle(t);
+    out.push_back({t, true,
+                   frame(Role::InsCommand, {{Role::InsCommand, 1},
+                                            {Role::InsCommandAlignDuration, plan_.profile.align_s},
+                                            {Role::InsCommandHeading, heading / kDeg},
+                                            {Role::InsCommandSeq, ++seq_}})});
+    aligning_ = true;
+  }
+  const double t0 = stand.ins().t0();
+  if (std::isnan(t0)) return;
+  if (next_turn_ < plan_.profile.turns.size() &&
+      t >= t0 + plan_.profile.turns[next_turn_].start_s) {
+    const TurnSpec& turn = plan_.profile.turns[next_turn_++];
+    out.push_back(
+        {t, false,
+         frame(Role::TableCommand, {{Role::TableCommand, 2},
+                                    {Role::TableCommandSeq, ++seq_},
+                                    {Role::TableCommandTarget, turn.angle_rad / kDeg},
+                                    {Role::TableCommandRateLimit, turn.max_rate_rps / kDeg}})});
+  }
+  if (t >= t0 + plan_.profile.duration_s) done_ = true;
+}
+
+Status run_offline(const Plan& plan, const CanConfig& can, const can::Database& db,
+                   const RoleMap& roles, const StandSetup& setup, can::LogWriter& log,
+                   double start_time_s) {
+  VirtualStand st(setup, db, roles);
+  ScriptedHost host(plan, roles, setup.ins.heading_offset_rad);
+  std::vector<StandFrame> frames, from_host;
+  can::LogRecord rec;
+  const auto base_ns = static_cast<std::int64_t>(std::llround(start_time_s * 1e9));
+  for (long k = 0; !host.done(); ++k) {
+    const double t = static_cast<double>(k) * 1e-3;
+    st.advance(t, frames);
+    host.step(t, st, from_host);
+    for (const StandFrame& f : from_host) st.receive(f.t_s, f.frame);
+    frames.insert(frames.end(), from_host.begin(), from_host.end());
+    std::stable_sort(frames.begin(), frames.end(),
+                     [](const StandFrame& a, const StandFrame& b) { return a.t_s < b.t_s; });
+    for (const StandFrame& f : frames) {
+      rec.time_ns = base_ns + static_cast<std::int64_t>(std::llround(f.t_s * 1e9));
+      rec.interface = f.ins_side ? can.ins_interface : can.table_interface;
+      rec.frame = f.frame;
+      TURNCAL_TRY(log.write(rec));
+    }
+    frames.clear();
+    from_host.clear();
+  }
+  return Status{Ok{}};
+}
+
+}  // namespace turncal::stand
