@@ -59,22 +59,38 @@ void ScriptedHost::step(double t, const VirtualStand& stand, std::vector<StandFr
   if (t >= t0 + plan_.profile.duration_s) done_ = true;
 }
 
+StandLoop::StandLoop(const StandSetup& setup, const can::Database& db, const RoleMap& roles,
+                     const Plan* script)
+    : stand_(setup, db, roles) {
+  if (script != nullptr)
+    host_ = std::make_unique<ScriptedHost>(*script, roles, setup.ins.heading_offset_rad);
+}
+
+void StandLoop::tick(std::span<const can::Frame> from_bus, std::vector<StandFrame>& out) {
+  const double t = next_time();
+  const std::size_t first = out.size();
+  stand_.advance(t, out);
+  for (const can::Frame& f : from_bus) stand_.receive(t, f);
+  if (host_ != nullptr) {
+    host_->step(t, stand_, from_host_);
+    for (const StandFrame& f : from_host_) stand_.receive(f.t_s, f.frame);
+    out.insert(out.end(), from_host_.begin(), from_host_.end());
+    from_host_.clear();
+  }
+  std::stable_sort(out.begin() + static_cast<std::ptrdiff_t>(first), out.end(),
+                   [](const StandFrame& a, const StandFrame& b) { return a.t_s < b.t_s; });
+  ++k_;
+}
+
 Status run_offline(const Plan& plan, const CanConfig& can, const can::Database& db,
                    const RoleMap& roles, const StandSetup& setup, can::LogWriter& log,
                    double start_time_s) {
-  VirtualStand st(setup, db, roles);
-  ScriptedHost host(plan, roles, setup.ins.heading_offset_rad);
-  std::vector<StandFrame> frames, from_host;
+  StandLoop loop(setup, db, roles, &plan);
+  std::vector<StandFrame> frames;
   can::LogRecord rec;
   const auto base_ns = static_cast<std::int64_t>(std::llround(start_time_s * 1e9));
-  for (long k = 0; !host.done(); ++k) {
-    const double t = static_cast<double>(k) * 1e-3;
-    st.advance(t, frames);
-    host.step(t, st, from_host);
-    for (const StandFrame& f : from_host) st.receive(f.t_s, f.frame);
-    frames.insert(frames.end(), from_host.begin(), from_host.end());
-    std::stable_sort(frames.begin(), frames.end(),
-                     [](const StandFrame& a, const StandFrame& b) { return a.t_s < b.t_s; });
+  while (!loop.done()) {
+    loop.tick({}, frames);
     for (const StandFrame& f : frames) {
       rec.time_ns = base_ns + static_cast<std::int64_t>(std::llround(f.t_s * 1e9));
       rec.interface = f.ins_side ? can.ins_interface : can.table_interface;
@@ -82,7 +98,6 @@ Status run_offline(const Plan& plan, const CanConfig& can, const can::Database& 
       TURNCAL_TRY(log.write(rec));
     }
     frames.clear();
-    from_host.clear();
   }
   return Status{Ok{}};
 }

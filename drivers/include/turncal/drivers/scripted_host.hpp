@@ -5,6 +5,8 @@
 // mode uses it to write a whole run; tests use it to drive the stand.
 #pragma once
 
+#include <memory>
+#include <span>
 #include <vector>
 
 #include "turncal/can/candump.hpp"
@@ -36,6 +38,32 @@ class ScriptedHost {
   std::uint8_t seq_ = 0;
   std::size_t next_turn_ = 0;
   bool enabled_ = false, aligning_ = false, done_ = false;
+};
+
+/// The virtual stand in 1 ms ticks of simulated time, with an optional
+/// scripted host: what turncal-sim runs, offline and live alike, so that
+/// both produce the same frames.
+class StandLoop {
+ public:
+  static constexpr double kTick = 1e-3;
+  /// `script`: the plan a ScriptedHost runs, or nullptr for an outside host.
+  StandLoop(const StandSetup& setup, const can::Database& db, const RoleMap& roles,
+            const Plan* script);
+  /// Runs the next tick: host frames from the bus (received since the last
+  /// tick) are applied at its time; `out` gets every frame of the tick, the
+  /// stand's and the scripted host's, in time order.
+  void tick(std::span<const can::Frame> from_bus, std::vector<StandFrame>& out);
+  /// Simulated time of the next tick.
+  [[nodiscard]] double next_time() const { return static_cast<double>(k_) * kTick; }
+  /// The scripted host has finished its run (never, without a script).
+  [[nodiscard]] bool done() const { return host_ != nullptr && host_->done(); }
+  [[nodiscard]] const VirtualStand& stand() const { return stand_; }
+
+ private:
+  VirtualStand stand_;
+  std::unique_ptr<ScriptedHost> host_;
+  std::vector<StandFrame> from_host_;
+  long k_ = 0;
 };
 
 /// A whole run of `plan` on a virtual stand driven by a ScriptedHost in
