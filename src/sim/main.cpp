@@ -1,13 +1,23 @@
-// turncal-sim: the virtual stand. This first version has the offline mode:
-// a whole run of a plan, the table commanded as a host would, written
-// straight to a candump log with the frames and times a capture would
-// have, and the injected truth written as JSON (SI, model.md's names).
+// turncal-sim: the virtual stand (can-icd.md). Live, it emulates the INS
+// and the table on the configured CAN interfaces, in real time or N times
+// faster, for a host (turncald) to drive; with --scripted-host it drives
+// itself through a plan as turncald would, its host frames on the bus too.
+// Offline, it writes such a scripted run straight to a candump log, as fast
+// as the CPU allows. Either way the injected errors, drawn from the plan's
+// priors with the seed, can be written as JSON (SI, model.md's names).
 //
-//   turncal-sim --offline --out RUN.log --truth TRUTH.json
-//               [--profile PLAN.toml] [--config turncal.toml] [--seed N]
-//               [--heading-offset DEG] [--start-time UNIX_S]
+//   turncal-sim [--speed N] [--scripted-host] [--truth TRUTH.json] [common]
+//   turncal-sim --offline --out RUN.log --truth TRUTH.json [common]
+//   common: [--profile PLAN.toml] [--config turncal.toml] [--seed N]
+//           [--heading-offset DEG] [--ins-interface IF] [--table-interface IF]
+//           [--start-time UNIX_S] (offline only)
 #include <nlohmann/json.hpp>
 
+#include <poll.h>
+
+#include <chrono>
+#include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -17,6 +27,7 @@
 #include "turncal/can/candump.hpp"
 #include "turncal/config.hpp"
 #include "turncal/drivers/scripted_host.hpp"
+#include "turncal/drivers/socketcan.hpp"
 #include "turncal/drivers/virtual_stand.hpp"
 #include "turncal/earth.hpp"
 #include "turncal/estimation/state.hpp"
@@ -30,6 +41,9 @@ constexpr double kDeg = 0.017453292519943295;
 
 struct Options {
   bool offline = false;
+  bool scripted_host = false;
+  double speed = 1;
+  std::string ins_interface, table_interface;
   std::string out, truth;
   std::string profile = std::string(TURNCAL_DATA_DIR) + "/profiles/tactical.toml";
   std::string config = std::string(TURNCAL_DATA_DIR) + "/turncal.toml";
@@ -41,9 +55,11 @@ struct Options {
 int usage(const char* why) {
   if (why != nullptr) std::fprintf(stderr, "turncal-sim: %s\n", why);
   std::fprintf(stderr,
-               "usage: turncal-sim --offline --out RUN.log --truth TRUTH.json\n"
-               "                   [--profile PLAN.toml] [--config turncal.toml] [--seed N]\n"
-               "                   [--heading-offset DEG] [--start-time UNIX_S]\n");
+               "usage: turncal-sim [--speed N] [--scripted-host] [--truth TRUTH.json] [common]\n"
+               "       turncal-sim --offline --out RUN.log --truth TRUTH.json [common]\n"
+               "common: [--profile PLAN.toml] [--config turncal.toml] [--seed N]\n"
+               "        [--heading-offset DEG] [--ins-interface IF] [--table-interface IF]\n"
+               "        [--start-time UNIX_S] (offline only)\n");
   return 2;
 }
 
@@ -157,38 +173,141 @@ nlohmann::json truth_json(const sim::Config& c, const Plan& plan, const Options&
                 {"velocity_mps", c.noise.velocity_sigma}}}};
 }
 
-int offline(const Options& o) {
-  auto plan = load_plan(o.profile);
-  if (!plan) return std::fprintf(stderr, "%s\n", plan.error().describe().c_str()), 1;
-  auto cfg = load_config(o.config);
-  if (!cfg) return std::fprintf(stderr, "%s\n", cfg.error().describe().c_str()), 1;
-  auto db = load_databases(cfg->can);
-  if (!db) return std::fprintf(stderr, "%s\n", db.error().describe().c_str()), 1;
-  auto roles = resolve_roles(cfg->can, *db);
-  if (!roles) return std::fprintf(stderr, "%s\n", roles.error().describe().c_str()), 1;
-
+/// What both modes need: the plan, the stand's configuration and the
+/// stand's setup with the truth drawn from the seed.
+struct World {
+  Plan plan;
+  Config cfg;
+  can::Database db;
   stand::StandSetup setup;
-  setup.ins.sim = draw_truth(*plan, o.seed);
+};
+
+Result<World> load_world(const Options& o) {
+  World w;
+  TURNCAL_ASSIGN(plan, load_plan(o.profile));
+  w.plan = std::move(plan);
+  TURNCAL_ASSIGN(cfg, load_config(o.config));
+  w.cfg = std::move(cfg);
+  if (!o.ins_interface.empty()) w.cfg.can.ins_interface = o.ins_interface;
+  if (!o.table_interface.empty()) w.cfg.can.table_interface = o.table_interface;
+  TURNCAL_ASSIGN(db, load_databases(w.cfg.can));
+  w.db = std::move(db);
+  stand::StandSetup& setup = w.setup;
+  setup.ins.sim = draw_truth(w.plan, o.seed);
   setup.ins.heading_offset_rad = o.heading_offset_deg * kDeg;
-  setup.table_angle0_rad = plan->start_angle_rad;
-  if (!plan->profile.turns.empty()) {
-    setup.table_limits.max_accel_rps2 = plan->profile.turns[0].max_accel_rps2;
-    for (const TurnSpec& t : plan->profile.turns)
+  setup.table_angle0_rad = w.plan.start_angle_rad;
+  if (!w.plan.profile.turns.empty()) {
+    setup.table_limits.max_accel_rps2 = w.plan.profile.turns[0].max_accel_rps2;
+    for (const TurnSpec& t : w.plan.profile.turns)
       setup.table_limits.max_rate_rps = std::max(setup.table_limits.max_rate_rps, t.max_rate_rps);
   }
   setup.seed = o.seed;
-  {
+  if (!o.truth.empty()) {
     std::ofstream tj(o.truth);
-    tj << truth_json(setup.ins.sim, *plan, o).dump(2) << "\n";
-    if (!tj) return std::fprintf(stderr, "%s: cannot write the truth file\n", o.truth.c_str()), 1;
+    tj << truth_json(setup.ins.sim, w.plan, o).dump(2) << "\n";
+    if (!tj) return make_error("cannot write the truth file", SourcePos{o.truth, 0, 0});
   }
-  auto log = can::LogWriter::open(o.out);
-  if (!log) return std::fprintf(stderr, "%s\n", log.error().describe().c_str()), 1;
+  return w;
+}
 
-  const auto run = stand::run_offline(*plan, cfg->can, *db, *roles, setup, *log, o.start_time_s);
-  if (!run) return std::fprintf(stderr, "%s\n", run.error().describe().c_str()), 1;
-  if (auto c = log->close(); !c)
-    return std::fprintf(stderr, "%s\n", c.error().describe().c_str()), 1;
+int fail(const Error& e) {
+  std::fprintf(stderr, "turncal-sim: %s\n", e.describe().c_str());
+  return 1;
+}
+
+int offline(const Options& o) {
+  auto w = load_world(o);
+  if (!w) return fail(w.error());
+  // the roles point into the database: resolve them where it now lives
+  auto roles = resolve_roles(w->cfg.can, w->db);
+  if (!roles) return fail(roles.error());
+  auto log = can::LogWriter::open(o.out);
+  if (!log) return fail(log.error());
+  const auto run =
+      stand::run_offline(w->plan, w->cfg.can, w->db, *roles, w->setup, *log, o.start_time_s);
+  if (!run) return fail(run.error());
+  if (auto c = log->close(); !c) return fail(c.error());
+  return 0;
+}
+
+volatile std::sig_atomic_t g_stop = 0;
+extern "C" void on_signal(int) {
+  g_stop = 1;
+}
+
+int live(const Options& o) {
+  auto w = load_world(o);
+  if (!w) return fail(w.error());
+  auto roles = resolve_roles(w->cfg.can, w->db);
+  if (!roles) return fail(roles.error());
+  struct sigaction sa {};
+  sa.sa_handler = on_signal;
+  ::sigaction(SIGINT, &sa, nullptr);
+  ::sigaction(SIGTERM, &sa, nullptr);
+
+  // one socket per interface; the INS and the table may share one
+  std::vector<socketcan::Socket> sockets;
+  for (const std::string& name : {w->cfg.can.ins_interface, w->cfg.can.table_interface}) {
+    if (!sockets.empty() && sockets.front().interface() == name) break;
+    socketcan::Options so;
+    so.interface = name;
+    so.error_frames = false;
+    so.tx_queue_limit = 4096;
+    auto s = socketcan::Socket::open(so);
+    if (!s) return fail(s.error());
+    sockets.push_back(std::move(*s));
+  }
+  socketcan::Socket& ins_sock = sockets.front();
+  socketcan::Socket& table_sock = sockets.back();
+  stand::StandLoop loop(w->setup, w->db, *roles, o.scripted_host ? &w->plan : nullptr);
+  std::fprintf(stderr, "turncal-sim: stand on %s (INS) and %s (table), speed %g%s, seed %llu\n",
+               ins_sock.interface().c_str(), table_sock.interface().c_str(), o.speed,
+               o.scripted_host ? ", scripted host" : "", static_cast<unsigned long long>(o.seed));
+
+  using Clock = std::chrono::steady_clock;
+  const auto wall0 = Clock::now();
+  std::vector<stand::StandFrame> frames;
+  std::vector<can::Frame> from_bus;
+  socketcan::RxBatch rx;
+  while (g_stop == 0 && !loop.done()) {
+    for (socketcan::Socket& s : sockets) {
+      rx.clear();
+      if (s.fd() < 0) {
+        s.try_recover(rx);
+        continue;
+      }
+      auto got = s.receive(rx);
+      if (!got) return fail(got.error());
+      for (const can::TimedFrame& f : rx.frames) from_bus.push_back(f.frame);
+    }
+    const double target =
+        std::chrono::duration<double>(Clock::now() - wall0).count() * o.speed;
+    while (loop.next_time() <= target && !loop.done()) {
+      loop.tick(from_bus, frames);
+      from_bus.clear();
+      for (const stand::StandFrame& f : frames)
+        (void)(f.ins_side ? ins_sock : table_sock).send(f.frame);
+      frames.clear();
+    }
+    for (socketcan::Socket& s : sockets) s.flush();
+    // sleep until the next tick is due, or a host frame arrives
+    const double wait_s = (loop.next_time() - target) / o.speed;
+    std::vector<pollfd> fds;
+    for (socketcan::Socket& s : sockets)
+      if (s.fd() >= 0)
+        fds.push_back({s.fd(), static_cast<short>(POLLIN | (s.tx_pending() ? POLLOUT : 0)), 0});
+    ::poll(fds.data(), fds.size(), std::max(0, static_cast<int>(std::ceil(wait_s * 1e3))));
+  }
+  const auto& c = loop.stand().counts();
+  std::uint64_t overflow = 0;
+  for (const socketcan::Socket& s : sockets) overflow += s.stats().tx_overflow;
+  std::fprintf(stderr,
+               "turncal-sim: stopped at %.3f s simulated; host frames %llu (undecodable %llu, "
+               "refused commands %llu); send queue overflow %llu\n",
+               loop.next_time(), static_cast<unsigned long long>(c.host_frames),
+               static_cast<unsigned long long>(c.host_undecodable),
+               static_cast<unsigned long long>(c.refused),
+               static_cast<unsigned long long>(overflow));
   return 0;
 }
 
@@ -198,7 +317,7 @@ int main(int argc, char** argv) {
   Options o;
   std::string err;
   if (!parse(argc, argv, o, err)) return usage(err.empty() ? nullptr : err.c_str());
-  if (!o.offline) return usage("only --offline is built so far");
+  if (!o.offline) return live(o);
   if (o.out.empty() || o.truth.empty()) return usage("--offline needs --out and --truth");
   return offline(o);
 }
