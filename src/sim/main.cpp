@@ -86,13 +86,25 @@ bool parse(int argc, char** argv, Options& o, std::string& err) {
     };
     if (a == "--offline") {
       o.offline = true;
-    } else if (a == "--out" || a == "--truth" || a == "--profile" || a == "--config") {
+    } else if (a == "--scripted-host") {
+      o.scripted_host = true;
+    } else if (a == "--out" || a == "--truth" || a == "--profile" || a == "--config" ||
+               a == "--ins-interface" || a == "--table-interface") {
       const char* v = value();
       if (v == nullptr) return false;
-      (a == "--out"       ? o.out
-       : a == "--truth"   ? o.truth
-       : a == "--profile" ? o.profile
-                          : o.config) = v;
+      std::string& dst = a == "--out"             ? o.out
+                         : a == "--truth"         ? o.truth
+                         : a == "--profile"       ? o.profile
+                         : a == "--config"        ? o.config
+                         : a == "--ins-interface" ? o.ins_interface
+                                                  : o.table_interface;
+      dst = v;
+    } else if (a == "--speed") {
+      if (!number(o.speed)) return false;
+      if (!(o.speed > 0) || o.speed > 10000) {
+        err = "--speed: expected a factor above 0, at most 10000";
+        return false;
+      }
     } else if (a == "--seed") {
       double s = 0;
       if (!number(s) || s < 0 || s != std::floor(s)) {
@@ -280,8 +292,7 @@ int live(const Options& o) {
       if (!got) return fail(got.error());
       for (const can::TimedFrame& f : rx.frames) from_bus.push_back(f.frame);
     }
-    const double target =
-        std::chrono::duration<double>(Clock::now() - wall0).count() * o.speed;
+    const double target = std::chrono::duration<double>(Clock::now() - wall0).count() * o.speed;
     while (loop.next_time() <= target && !loop.done()) {
       loop.tick(from_bus, frames);
       from_bus.clear();

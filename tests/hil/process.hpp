@@ -1,0 +1,94 @@
+// Child processes, temporary folders and log files for the hil tier.
+#pragma once
+
+#include <fcntl.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "turncal/can/candump.hpp"
+
+namespace hil {
+
+namespace fs = std::filesystem;
+using namespace std::chrono_literals;
+
+/// A child process (fork + exec), its stdout optionally into a file.
+class Child {
+ public:
+  Child(std::vector<std::string> argv, const fs::path& cwd, const fs::path& out = {}) {
+    pid_ = ::fork();
+    if (pid_ == 0) {
+      if (::chdir(cwd.c_str()) != 0) ::_exit(126);
+      if (!out.empty()) {
+        const int fd = ::open(out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        if (fd < 0 || ::dup2(fd, 1) < 0) ::_exit(126);
+      }
+      std::vector<char*> args;
+      for (auto& a : argv) args.push_back(a.data());
+      args.push_back(nullptr);
+      ::execvp(args[0], args.data());
+      ::_exit(127);
+    }
+  }
+  Child(const Child&) = delete;
+  Child& operator=(const Child&) = delete;
+  /// Asks it to stop (SIGTERM).
+  void terminate() {
+    if (pid_ > 0) ::kill(pid_, SIGTERM);
+  }
+  ~Child() {
+    if (pid_ > 0) {
+      ::kill(pid_, SIGKILL);
+      ::waitpid(pid_, nullptr, 0);
+    }
+  }
+  /// Exit status, or -1 when it did not end within `timeout` (then killed).
+  int wait(std::chrono::milliseconds timeout) {
+    const auto end = std::chrono::steady_clock::now() + timeout;
+    int status = 0;
+    while (std::chrono::steady_clock::now() < end) {
+      const pid_t r = ::waitpid(pid_, &status, WNOHANG);
+      if (r == pid_) {
+        pid_ = -1;
+        return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+      }
+      std::this_thread::sleep_for(10ms);
+    }
+    return -1;
+  }
+
+ private:
+  pid_t pid_ = -1;
+};
+
+struct TempDir {
+  fs::path path;
+  TempDir() {
+    char tmpl[] = "/tmp/turncal-hil.XXXXXX";
+    path = ::mkdtemp(tmpl);
+  }
+  ~TempDir() { fs::remove_all(path); }
+};
+
+inline std::vector<turncal::can::LogRecord> read_log(const fs::path& p) {
+  std::vector<turncal::can::LogRecord> out;
+  auto rd = turncal::can::LogReader::open(p.string());
+  if (!rd.ok()) throw std::runtime_error(rd.error().describe());
+  for (;;) {
+    auto r = rd->next();
+    if (!r.ok()) throw std::runtime_error(r.error().describe());
+    if (!r->has_value()) break;
+    out.push_back(std::move(**r));
+  }
+  return out;
+}
+
+}  // namespace hil
