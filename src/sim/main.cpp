@@ -23,6 +23,7 @@
 #include <fstream>
 #include <random>
 #include <string>
+#include <vector>
 
 #include "turncal/can/candump.hpp"
 #include "turncal/config.hpp"
@@ -50,7 +51,101 @@ struct Options {
   std::uint64_t seed = 1;
   double heading_offset_deg = 0;
   double start_time_s = 1767225600;  // 2026-01-01T00:00:00Z: runs are reproducible
+  std::vector<std::string> faults;   // NAME=V[:V...]
+  std::string ins_clock, table_clock;  // OFFSET_S:PPM
+  std::string truth_in;               // errors given in a JSON file
 };
+
+constexpr const char* kFaultHelp =
+    "faults (--fault NAME=VALUE, repeatable; times are stand seconds from the start):\n"
+    "  ins-drop=FRACTION          INS velocity frames dropped at random\n"
+    "  ins-burst=AT:SECONDS       every INS frame dropped for a while\n"
+    "  ins-silent=AT              the INS sends nothing from then on\n"
+    "  ins-fault=AT               the INS goes to fault mode (3)\n"
+    "  encoder-silent=AT          no TBL_Encoder from then on\n"
+    "  table-stall=SECONDS        the next move stalls this long after it starts\n"
+    "  table-overshoot=DEG        moves pass their target by DEG, then come back\n"
+    "  table-fault=AT             a drive fault: quick stop, state 4, fault 3\n"
+    "  garbage=HZ                 frames of wrong length and of unknown IDs\n"
+    "  flood=AT:SECONDS[:HZ]      a flood of unknown frames (default 5000 Hz)\n"
+    "  clock-jump=ins|table:AT:S  a device clock jumps by S seconds\n";
+
+/// Numbers separated by ':'.
+bool numbers(const std::string& text, std::vector<double>& out) {
+  out.clear();
+  std::size_t pos = 0;
+  while (pos <= text.size()) {
+    const std::size_t end = std::min(text.find(':', pos), text.size());
+    const std::string part = text.substr(pos, end - pos);
+    char* stop = nullptr;
+    const double v = std::strtod(part.c_str(), &stop);
+    if (part.empty() || *stop != '\0' || !std::isfinite(v)) return false;
+    out.push_back(v);
+    pos = end + 1;
+  }
+  return true;
+}
+
+Status apply_fault(const std::string& spec, stand::StandSetup& s) {
+  const std::size_t eq = spec.find('=');
+  const std::string name = spec.substr(0, eq);
+  std::string value = eq == std::string::npos ? "" : spec.substr(eq + 1);
+  stand::DeviceClock* clock = nullptr;
+  if (name == "clock-jump") {
+    const std::size_t c = value.find(':');
+    const std::string dev = value.substr(0, c);
+    clock = dev == "ins" ? &s.ins_clock : dev == "table" ? &s.table_clock : nullptr;
+    if (clock == nullptr || c == std::string::npos)
+      return make_error("--fault clock-jump=ins|table:AT:SECONDS, not '" + value + "'");
+    value = value.substr(c + 1);
+  }
+  std::vector<double> v;
+  if (!numbers(value, v)) return make_error("--fault " + spec + ": expected numbers after '='");
+  auto want = [&](std::size_t lo, std::size_t hi) {
+    return v.size() >= lo && v.size() <= hi;
+  };
+  auto& f = s.faults;
+  if (name == "ins-drop" && want(1, 1) && v[0] >= 0 && v[0] <= 1) {
+    f.ins_drop_rate = v[0];
+  } else if (name == "ins-burst" && want(2, 2)) {
+    f.ins_burst_at_s = v[0];
+    f.ins_burst_s = v[1];
+  } else if (name == "ins-silent" && want(1, 1)) {
+    f.ins_silent_at_s = v[0];
+  } else if (name == "ins-fault" && want(1, 1)) {
+    s.ins.fault_at_s = v[0];
+  } else if (name == "encoder-silent" && want(1, 1)) {
+    f.encoder_silent_at_s = v[0];
+  } else if (name == "table-stall" && want(1, 1)) {
+    s.table_faults.stall_after_s = v[0];
+  } else if (name == "table-overshoot" && want(1, 1) && v[0] >= 0) {
+    s.table_faults.overshoot_rad = v[0] * kDeg;
+  } else if (name == "table-fault" && want(1, 1)) {
+    s.table_faults.drive_fault_at_s = v[0];
+  } else if (name == "garbage" && want(1, 1) && v[0] >= 0) {
+    f.garbage_rate_hz = v[0];
+  } else if (name == "flood" && want(2, 3)) {
+    f.flood_at_s = v[0];
+    f.flood_s = v[1];
+    if (v.size() == 3) f.flood_rate_hz = v[2];
+  } else if (clock != nullptr && want(2, 2)) {
+    clock->jump_at_s = v[0];
+    clock->jump_s = v[1];
+  } else {
+    return make_error("--fault " + spec + ": unknown fault or wrong values\n" + kFaultHelp);
+  }
+  return Status{Ok{}};
+}
+
+Status apply_clock(const std::string& opt, const std::string& spec, stand::DeviceClock& c) {
+  std::vector<double> v;
+  if (spec.empty()) return Status{Ok{}};
+  if (!numbers(spec, v) || v.size() != 2)
+    return make_error(opt + ": expected OFFSET_SECONDS:RATE_PPM, not '" + spec + "'");
+  c.offset_s = v[0];
+  c.rate_ppm = v[1];
+  return Status{Ok{}};
+}
 
 int usage(const char* why) {
   if (why != nullptr) std::fprintf(stderr, "turncal-sim: %s\n", why);
@@ -59,7 +154,10 @@ int usage(const char* why) {
                "       turncal-sim --offline --out RUN.log --truth TRUTH.json [common]\n"
                "common: [--profile PLAN.toml] [--config turncal.toml] [--seed N]\n"
                "        [--heading-offset DEG] [--ins-interface IF] [--table-interface IF]\n"
-               "        [--start-time UNIX_S] (offline only)\n");
+               "        [--fault NAME=VALUE]... [--ins-clock OFFSET_S:PPM]\n"
+               "        [--table-clock OFFSET_S:PPM] [--truth-in ERRORS.json]\n"
+               "        [--start-time UNIX_S] (offline only)\n%s",
+               kFaultHelp);
   return 2;
 }
 
@@ -88,6 +186,14 @@ bool parse(int argc, char** argv, Options& o, std::string& err) {
       o.offline = true;
     } else if (a == "--scripted-host") {
       o.scripted_host = true;
+    } else if (a == "--fault" || a == "--ins-clock" || a == "--table-clock" ||
+               a == "--truth-in") {
+      const char* v = value();
+      if (v == nullptr) return false;
+      if (a == "--fault")
+        o.faults.emplace_back(v);
+      else
+        (a == "--ins-clock" ? o.ins_clock : a == "--table-clock" ? o.table_clock : o.truth_in) = v;
     } else if (a == "--out" || a == "--truth" || a == "--profile" || a == "--config" ||
                a == "--ins-interface" || a == "--table-interface") {
       const char* v = value();
@@ -185,6 +291,43 @@ nlohmann::json truth_json(const sim::Config& c, const Plan& plan, const Options&
                 {"velocity_mps", c.noise.velocity_sigma}}}};
 }
 
+/// Errors given in a file, in the truth file's own form ("errors": model.md's
+/// names; "start": the start errors); what it leaves out stays as drawn.
+Status read_truth(const std::string& path, sim::Config& c) {
+  std::ifstream in(path);
+  if (!in) return make_error("cannot open the errors file", SourcePos{path, 0, 0});
+  nlohmann::json j;
+  try {
+    in >> j;
+  } catch (const nlohmann::json::exception& e) {
+    return make_error(e.what(), SourcePos{path, 0, 0});
+  }
+  const nlohmann::json e = j.value("errors", nlohmann::json::object());
+  for (const auto& [key, val] : e.items()) {
+    std::size_t k = 0;
+    while (k < est::kParamNames.size() && est::kParamNames[k] != key) ++k;
+    if (key == "df_eff_1" || key == "df_eff_2") continue;  // derived
+    if (k == est::kParamNames.size())
+      return make_error("unknown error '" + key + "' (model.md's names)", SourcePos{path, 0, 0});
+    if (!val.is_number())
+      return make_error("error '" + key + "': expected a number", SourcePos{path, 0, 0});
+    const double v = val.get<double>();
+    const int i = static_cast<int>(k);
+    if (i < 3) c.errors.nu0(i) = v;
+    else if (i < 12) c.errors.theta((i - 3) / 3, (i - 3) % 3) = v;
+    else if (i < 14) c.errors.df0(i - 12) = v;
+    else if (i < 16) c.errors.g(i - 14) = v;
+    else c.errors.r(i - 16) = v;
+  }
+  const nlohmann::json st = j.value("start", nlohmann::json::object());
+  c.start.v0(0) = st.value("v0_east_mps", c.start.v0(0));
+  c.start.v0(1) = st.value("v0_north_mps", c.start.v0(1));
+  c.start.dr_e_m = st.value("dr_east_m", c.start.dr_e_m);
+  c.start.dr_n_m = st.value("dr_north_m", c.start.dr_n_m);
+  c.start.dpsi0_rad = st.value("dpsi0_rad", c.start.dpsi0_rad);
+  return Status{Ok{}};
+}
+
 /// What both modes need: the plan, the stand's configuration and the
 /// stand's setup with the truth drawn from the seed.
 struct World {
@@ -214,6 +357,10 @@ Result<World> load_world(const Options& o) {
       setup.table_limits.max_rate_rps = std::max(setup.table_limits.max_rate_rps, t.max_rate_rps);
   }
   setup.seed = o.seed;
+  if (!o.truth_in.empty()) TURNCAL_TRY(read_truth(o.truth_in, setup.ins.sim));
+  for (const std::string& f : o.faults) TURNCAL_TRY(apply_fault(f, setup));
+  TURNCAL_TRY(apply_clock("--ins-clock", o.ins_clock, setup.ins_clock));
+  TURNCAL_TRY(apply_clock("--table-clock", o.table_clock, setup.table_clock));
   if (!o.truth.empty()) {
     std::ofstream tj(o.truth);
     tj << truth_json(setup.ins.sim, w.plan, o).dump(2) << "\n";

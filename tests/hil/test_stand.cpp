@@ -59,7 +59,7 @@ void write_file(const hil::fs::path& p, const std::string& text) {
 TEST_SUITE("virtual stand") {
   TEST_CASE("a live run with the scripted host carries the frames of the offline run") {
     // Given the same plan and seed, turncal-sim --offline writes a log and a
-    // live turncal-sim --speed 10 --scripted-host runs on vcan while
+    // live turncal-sim --speed 5 --scripted-host runs on vcan while
     // candump -l captures the bus; the two carry the same frames in the
     // same order (receive timestamps aside).
     TempDir dir;
@@ -84,9 +84,10 @@ TEST_SUITE("virtual stand") {
 
     const hil::fs::path cap = dir.path / "capture";
     hil::fs::create_directory(cap);
-    Child dump({"candump", "-l", hil::if0()}, cap);
+    // a large receive buffer: candump must not lose frames when the machine is busy
+    Child dump({"candump", "-l", "-r", "4194304", hil::if0()}, cap);
     std::this_thread::sleep_for(700ms);  // candump binds before the stand talks
-    std::vector<std::string> live = {kSim, "--speed", "10", "--scripted-host"};
+    std::vector<std::string> live = {kSim, "--speed", "5", "--scripted-host"};
     live.insert(live.end(), common.begin(), common.end());
     Child sim(live, dir.path);
     REQUIRE(sim.wait(60000ms) == 0);
@@ -114,7 +115,8 @@ TEST_SUITE("virtual stand") {
                "--table-interface", hil::if1(), "--seed", "2"},
               "/tmp");
     auto s = hil::open(hil::if1());
-    std::this_thread::sleep_for(500ms);
+    // the stand is up once it talks; commands sent before would be lost
+    REQUIRE(hil::receive(s, 1, 10000ms).frames.size() == 1);
     std::uint8_t seq = 0, hb = 0;
     auto table = [&](double code, double target = 0, double rate = 0) {
       REQUIRE(s.send(c.frame(Role::TableCommand, {{Role::TableCommand, code},
@@ -203,5 +205,73 @@ TEST_SUITE("virtual stand") {
     REQUIRE(stop_ns != 0);
     sim.terminate();
     CHECK(sim.wait(5000ms) == 0);
+  }
+}
+
+TEST_SUITE("virtual stand") {
+  TEST_CASE("faults asked for on the command line show on the bus") {
+    // encoder silent from 2.5 s; table clock jumps 0.5 s at 1 s; a drive
+    // fault at 2 s; the INS in fault mode from 1.5 s; garbage at 20 Hz.
+    const Codec c;
+    Child sim({kSim, "--config", kSrc + "/config/turncal.toml", "--ins-interface", hil::if1(),
+               "--table-interface", hil::if1(), "--fault", "encoder-silent=2.5", "--fault",
+               "clock-jump=table:1:0.5", "--fault", "table-fault=2", "--fault", "ins-fault=1.5",
+               "--fault", "garbage=20"},
+              "/tmp");
+    auto s = hil::open(hil::if1());
+    std::vector<can::TimedFrame> got;
+    const auto end = std::chrono::steady_clock::now() + 3500ms;
+    while (std::chrono::steady_clock::now() < end) {
+      auto rx = hil::receive(s, 1000000, 20ms);
+      got.insert(got.end(), rx.frames.begin(), rx.frames.end());
+    }
+    sim.terminate();
+    CHECK(sim.wait(5000ms) == 0);
+    REQUIRE(got.size() > 100);
+    // stand time of a frame: from the first encoder sample (stand time 0)
+    std::int64_t t0 = -1;
+    for (const auto& f : got)
+      if (!std::isnan(c.value(f.frame, Role::EncoderAngle))) {
+        t0 = f.time_ns;
+        break;
+      }
+    REQUIRE(t0 >= 0);
+    auto at = [&](const can::TimedFrame& f) { return static_cast<double>(f.time_ns - t0) * 1e-9; };
+    double last_encoder = 0, largest_tag_step = 0, prev_tag = -1;
+    double ins_fault_at = -1, table_fault_at = -1;
+    std::size_t bad_len = 0, unknown = 0;
+    for (const auto& f : got) {
+      const can::Message* m = nullptr;
+      std::vector<double> v(16);
+      const auto st = c.codec->decode(f.frame, v, &m);
+      if (st == can::DecodeStatus::LengthMismatch) ++bad_len;
+      if (st == can::DecodeStatus::UnknownId) ++unknown;
+      if (st != can::DecodeStatus::Ok) continue;
+      if (m == c.roles[Role::EncoderAngle].message) {
+        last_encoder = at(f);
+        const double tag = v[c.roles[Role::EncoderTimeTag].signal_index];
+        if (prev_tag >= 0) largest_tag_step = std::max(largest_tag_step, tag - prev_tag);
+        prev_tag = tag;
+      }
+      if (m == c.roles[Role::InsMode].message && ins_fault_at < 0 &&
+          v[c.roles[Role::InsMode].signal_index] == 3)
+        ins_fault_at = at(f);
+      if (m == c.roles[Role::TableState].message && table_fault_at < 0 &&
+          v[c.roles[Role::TableState].signal_index] == 4) {
+        table_fault_at = at(f);
+        CHECK(v[c.roles[Role::TableFault].signal_index] == 3);
+      }
+    }
+    MESSAGE("encoder last at " << last_encoder << " s; INS fault at " << ins_fault_at
+                               << " s; table fault at " << table_fault_at << " s; garbage "
+                               << bad_len << " + " << unknown);
+    // wall-clock tolerances: the stand runs in 1 ms ticks, the host's view
+    // jitters by scheduling (50 ms allowed)
+    CHECK(last_encoder == doctest::Approx(2.5).epsilon(0.02));
+    CHECK(ins_fault_at == doctest::Approx(1.5).epsilon(0.05));
+    CHECK(table_fault_at == doctest::Approx(2.0).epsilon(0.05));
+    CHECK(largest_tag_step == doctest::Approx(0.5e6 + 5e3).epsilon(1e-3));
+    CHECK(bad_len >= 20);
+    CHECK(unknown >= 20);
   }
 }
