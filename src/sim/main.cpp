@@ -50,10 +50,10 @@ struct Options {
   std::string config = std::string(TURNCAL_DATA_DIR) + "/turncal.toml";
   std::uint64_t seed = 1;
   double heading_offset_deg = 0;
-  double start_time_s = 1767225600;  // 2026-01-01T00:00:00Z: runs are reproducible
-  std::vector<std::string> faults;   // NAME=V[:V...]
+  double start_time_s = 1767225600;    // 2026-01-01T00:00:00Z: runs are reproducible
+  std::vector<std::string> faults;     // NAME=V[:V...]
   std::string ins_clock, table_clock;  // OFFSET_S:PPM
-  std::string truth_in;               // errors given in a JSON file
+  std::string truth_in;                // errors given in a JSON file
 };
 
 constexpr const char* kFaultHelp =
@@ -101,9 +101,7 @@ Status apply_fault(const std::string& spec, stand::StandSetup& s) {
   }
   std::vector<double> v;
   if (!numbers(value, v)) return make_error("--fault " + spec + ": expected numbers after '='");
-  auto want = [&](std::size_t lo, std::size_t hi) {
-    return v.size() >= lo && v.size() <= hi;
-  };
+  auto want = [&](std::size_t lo, std::size_t hi) { return v.size() >= lo && v.size() <= hi; };
   auto& f = s.faults;
   if (name == "ins-drop" && want(1, 1) && v[0] >= 0 && v[0] <= 1) {
     f.ins_drop_rate = v[0];
@@ -186,8 +184,7 @@ bool parse(int argc, char** argv, Options& o, std::string& err) {
       o.offline = true;
     } else if (a == "--scripted-host") {
       o.scripted_host = true;
-    } else if (a == "--fault" || a == "--ins-clock" || a == "--table-clock" ||
-               a == "--truth-in") {
+    } else if (a == "--fault" || a == "--ins-clock" || a == "--table-clock" || a == "--truth-in") {
       const char* v = value();
       if (v == nullptr) return false;
       if (a == "--fault")
@@ -313,11 +310,16 @@ Status read_truth(const std::string& path, sim::Config& c) {
       return make_error("error '" + key + "': expected a number", SourcePos{path, 0, 0});
     const double v = val.get<double>();
     const int i = static_cast<int>(k);
-    if (i < 3) c.errors.nu0(i) = v;
-    else if (i < 12) c.errors.theta((i - 3) / 3, (i - 3) % 3) = v;
-    else if (i < 14) c.errors.df0(i - 12) = v;
-    else if (i < 16) c.errors.g(i - 14) = v;
-    else c.errors.r(i - 16) = v;
+    if (i < 3)
+      c.errors.nu0(i) = v;
+    else if (i < 12)
+      c.errors.theta((i - 3) / 3, (i - 3) % 3) = v;
+    else if (i < 14)
+      c.errors.df0(i - 12) = v;
+    else if (i < 16)
+      c.errors.g(i - 14) = v;
+    else
+      c.errors.r(i - 16) = v;
   }
   const nlohmann::json st = j.value("start", nlohmann::json::object());
   c.start.v0(0) = st.value("v0_east_mps", c.start.v0(0));
