@@ -53,6 +53,7 @@ struct Options {
   double start_time_s = 1767225600;    // 2026-01-01T00:00:00Z: runs are reproducible
   std::vector<std::string> faults;     // NAME=V[:V...]
   std::string ins_clock, table_clock;  // OFFSET_S:PPM
+  std::string angle_limits;            // MIN_DEG:MAX_DEG
   std::string truth_in;                // errors given in a JSON file
 };
 
@@ -154,6 +155,7 @@ int usage(const char* why) {
                "        [--heading-offset DEG] [--ins-interface IF] [--table-interface IF]\n"
                "        [--fault NAME=VALUE]... [--ins-clock OFFSET_S:PPM]\n"
                "        [--table-clock OFFSET_S:PPM] [--truth-in ERRORS.json]\n"
+               "        [--angle-limits MIN_DEG:MAX_DEG] (the table's soft limits)\n"
                "        [--start-time UNIX_S] (offline only)\n%s",
                kFaultHelp);
   return 2;
@@ -184,13 +186,17 @@ bool parse(int argc, char** argv, Options& o, std::string& err) {
       o.offline = true;
     } else if (a == "--scripted-host") {
       o.scripted_host = true;
-    } else if (a == "--fault" || a == "--ins-clock" || a == "--table-clock" || a == "--truth-in") {
+    } else if (a == "--fault" || a == "--ins-clock" || a == "--table-clock" || a == "--truth-in" ||
+               a == "--angle-limits") {
       const char* v = value();
       if (v == nullptr) return false;
       if (a == "--fault")
         o.faults.emplace_back(v);
       else
-        (a == "--ins-clock" ? o.ins_clock : a == "--table-clock" ? o.table_clock : o.truth_in) = v;
+        (a == "--ins-clock"     ? o.ins_clock
+         : a == "--table-clock" ? o.table_clock
+         : a == "--truth-in"    ? o.truth_in
+                                : o.angle_limits) = v;
     } else if (a == "--out" || a == "--truth" || a == "--profile" || a == "--config" ||
                a == "--ins-interface" || a == "--table-interface") {
       const char* v = value();
@@ -363,6 +369,14 @@ Result<World> load_world(const Options& o) {
   for (const std::string& f : o.faults) TURNCAL_TRY(apply_fault(f, setup));
   TURNCAL_TRY(apply_clock("--ins-clock", o.ins_clock, setup.ins_clock));
   TURNCAL_TRY(apply_clock("--table-clock", o.table_clock, setup.table_clock));
+  if (!o.angle_limits.empty()) {
+    std::vector<double> v;
+    if (!numbers(o.angle_limits, v) || v.size() != 2 || !(v[0] < v[1]))
+      return make_error("--angle-limits: expected MIN_DEG:MAX_DEG with MIN < MAX, not '" +
+                        o.angle_limits + "'");
+    setup.table_limits.angle_min_rad = v[0] * kDeg;
+    setup.table_limits.angle_max_rad = v[1] * kDeg;
+  }
   if (!o.truth.empty()) {
     std::ofstream tj(o.truth);
     tj << truth_json(setup.ins.sim, w.plan, o).dump(2) << "\n";

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <fstream>
 #include <map>
+#include <optional>
 
 #include "hil.hpp"
 #include "process.hpp"
@@ -53,6 +54,73 @@ struct Codec {
 void write_file(const hil::fs::path& p, const std::string& text) {
   std::ofstream(p) << text;
 }
+
+/// The host's side of the bus: a socket on the INS interface and one on the
+/// table's (the same when they are one), commands, heartbeat, collecting.
+struct HostBus {
+  const Codec& c;
+  socketcan::Socket ins;
+  std::optional<socketcan::Socket> table_own;  // when the table has its own interface
+  std::uint8_t seq = 0, hb = 0;
+  HostBus(const Codec& codec, const std::string& ins_if, const std::string& table_if)
+      : c(codec), ins(hil::open(ins_if)) {
+    if (table_if != ins_if) table_own.emplace(hil::open(table_if));
+  }
+  socketcan::Socket& table_sock() { return table_own ? *table_own : ins; }
+  void send(socketcan::Socket& s, const can::Frame& f) { REQUIRE(s.send(f).ok()); }
+  void table(double code, double target = 0, double rate = 0) {
+    send(table_sock(), c.frame(Role::TableCommand, {{Role::TableCommand, code},
+                                                    {Role::TableCommandSeq, ++seq},
+                                                    {Role::TableCommandTarget, target},
+                                                    {Role::TableCommandRateLimit, rate}}));
+  }
+  void align(double seconds) {
+    send(ins, c.frame(Role::InsCommand, {{Role::InsCommand, 1},
+                                         {Role::InsCommandAlignDuration, seconds},
+                                         {Role::InsCommandHeading, 0},
+                                         {Role::InsCommandSeq, ++seq}}));
+  }
+  void heartbeat() {
+    send(table_sock(), c.frame(Role::HeartbeatCounter,
+                               {{Role::HeartbeatCounter, hb++}, {Role::HeartbeatState, 1}}));
+  }
+  /// Waits until the stand talks on every interface: commands sent before
+  /// its sockets are bound would be lost.
+  void wait_for_stand() {
+    REQUIRE_FALSE(hil::receive(ins, 1, 10000ms).frames.empty());
+    if (table_own) REQUIRE_FALSE(hil::receive(*table_own, 1, 10000ms).frames.empty());
+  }
+  struct Got {
+    std::vector<can::TimedFrame> frames;
+    std::vector<bool> on_ins;  // received on the INS interface
+  };
+  /// Collects for `d`, sending a heartbeat every 100 ms if asked.
+  Got collect(std::chrono::milliseconds d, bool beat) {
+    Got got;
+    const auto end = std::chrono::steady_clock::now() + d;
+    auto next_beat = std::chrono::steady_clock::now();
+    while (std::chrono::steady_clock::now() < end) {
+      if (beat && std::chrono::steady_clock::now() >= next_beat) {
+        heartbeat();
+        next_beat += 100ms;
+      }
+      for (socketcan::Socket* s : {&ins, table_own ? &*table_own : nullptr}) {
+        if (s == nullptr) continue;
+        auto rx = hil::receive(*s, 1000000, 10ms);
+        got.frames.insert(got.frames.end(), rx.frames.begin(), rx.frames.end());
+        got.on_ins.insert(got.on_ins.end(), rx.frames.size(), s == &ins);
+      }
+    }
+    return got;
+  }
+  /// The last value of a role among the frames; NaN if none.
+  double last(const Got& g, Role r) const {
+    double v = NAN;
+    for (const auto& f : g.frames)
+      if (const double x = c.value(f.frame, r); !std::isnan(x)) v = x;
+    return v;
+  }
+};
 
 }  // namespace
 
@@ -114,65 +182,25 @@ TEST_SUITE("virtual stand") {
     Child sim({kSim, "--config", kSrc + "/config/turncal.toml", "--ins-interface", hil::if1(),
                "--table-interface", hil::if1(), "--seed", "2"},
               "/tmp");
-    auto s = hil::open(hil::if1());
-    // the stand is up once it talks; commands sent before would be lost
-    REQUIRE_FALSE(hil::receive(s, 1, 10000ms).frames.empty());
-    std::uint8_t seq = 0, hb = 0;
-    auto table = [&](double code, double target = 0, double rate = 0) {
-      REQUIRE(s.send(c.frame(Role::TableCommand, {{Role::TableCommand, code},
-                                                  {Role::TableCommandSeq, ++seq},
-                                                  {Role::TableCommandTarget, target},
-                                                  {Role::TableCommandRateLimit, rate}}))
-                  .ok());
-    };
-    auto heartbeat = [&] {
-      REQUIRE(s.send(c.frame(Role::HeartbeatCounter,
-                             {{Role::HeartbeatCounter, hb++}, {Role::HeartbeatState, 1}}))
-                  .ok());
-    };
-    // Collects for `d`, sending a heartbeat every 100 ms if asked.
-    auto collect = [&](std::chrono::milliseconds d, bool beat) {
-      std::vector<can::TimedFrame> got;
-      const auto end = std::chrono::steady_clock::now() + d;
-      auto next_beat = std::chrono::steady_clock::now();
-      while (std::chrono::steady_clock::now() < end) {
-        if (beat && std::chrono::steady_clock::now() >= next_beat) {
-          heartbeat();
-          next_beat += 100ms;
-        }
-        auto rx = hil::receive(s, 1000000, 20ms);
-        got.insert(got.end(), rx.frames.begin(), rx.frames.end());
-      }
-      return got;
-    };
-    auto last = [&](const std::vector<can::TimedFrame>& fs, Role r) {
-      double v = NAN;
-      for (const auto& f : fs)
-        if (const double x = c.value(f.frame, r); !std::isnan(x)) v = x;
-      return v;
-    };
-
-    table(4);  // enable
-    auto fs = collect(300ms, true);
-    CHECK(last(fs, Role::TableAck) == seq);
-    CHECK(last(fs, Role::TableState) == 1);  // holding
-    table(2, 90, 45);                        // rate above the table's 30 deg/s
-    fs = collect(300ms, true);
-    CHECK(last(fs, Role::TableAck) == seq - 1);
-    CHECK(last(fs, Role::TableFault) == 4);  // refused
+    HostBus bus(c, hil::if1(), hil::if1());
+    bus.wait_for_stand();
+    bus.table(4);  // enable
+    auto fs = bus.collect(300ms, true);
+    CHECK(bus.last(fs, Role::TableAck) == bus.seq);
+    CHECK(bus.last(fs, Role::TableState) == 1);  // holding
+    bus.table(2, 90, 45);                        // rate above the table's 30 deg/s
+    fs = bus.collect(300ms, true);
+    CHECK(bus.last(fs, Role::TableAck) == bus.seq - 1);
+    CHECK(bus.last(fs, Role::TableFault) == 4);  // refused
 
     // alignment of 2 s, then navigating: velocity pairs at 100 Hz
-    REQUIRE(s.send(c.frame(Role::InsCommand, {{Role::InsCommand, 1},
-                                              {Role::InsCommandAlignDuration, 2},
-                                              {Role::InsCommandHeading, 0},
-                                              {Role::InsCommandSeq, ++seq}}))
-                .ok());
-    fs = collect(1000ms, true);
-    CHECK(last(fs, Role::InsMode) == 1);
-    fs = collect(3000ms, true);
-    CHECK(last(fs, Role::InsMode) == 2);
+    bus.align(2);
+    fs = bus.collect(1000ms, true);
+    CHECK(bus.last(fs, Role::InsMode) == 1);
+    fs = bus.collect(3000ms, true);
+    CHECK(bus.last(fs, Role::InsMode) == 2);
     std::map<std::string, std::vector<std::int64_t>> times;
-    for (const auto& f : fs)
+    for (const auto& f : fs.frames)
       if (const can::Message* m = c.codec->message_for(f.frame))
         times[m->name].push_back(f.time_ns);
     auto rate = [&](const std::string& name) {
@@ -191,18 +219,76 @@ TEST_SUITE("virtual stand") {
     CHECK(static_cast<double>(times["INS_VelN"].size()) ==
           doctest::Approx(static_cast<double>(times["INS_VelE"].size())).epsilon(0.01));
 
-    // a move, then the host falls silent: quick stop within 500 ms + a status period
-    table(2, 180, 30);
-    fs = collect(1000ms, true);
-    CHECK(last(fs, Role::TableState) == 2);  // moving
-    fs = collect(1000ms, false);
-    std::int64_t stop_ns = 0;
-    for (const auto& f : fs)
-      if (c.value(f.frame, Role::TableState) == 5 && stop_ns == 0) {
-        stop_ns = f.time_ns;
+    // a move, then the host falls silent: quick stop, state 5, fault 1
+    bus.table(2, 180, 30);
+    fs = bus.collect(1000ms, true);
+    CHECK(bus.last(fs, Role::TableState) == 2);  // moving
+    fs = bus.collect(1000ms, false);
+    bool stopped = false;
+    for (const auto& f : fs.frames)
+      if (c.value(f.frame, Role::TableState) == 5 && !stopped) {
+        stopped = true;
         CHECK(c.value(f.frame, Role::TableFault) == 1);
       }
-    REQUIRE(stop_ns != 0);
+    CHECK(stopped);
+    sim.terminate();
+    CHECK(sim.wait(5000ms) == 0);
+  }
+
+  TEST_CASE("two interfaces: each node on its own; absolute moves, stops, soft limits, drops") {
+    const Codec c;
+    Child sim({kSim, "--config", kSrc + "/config/turncal.toml", "--ins-interface", hil::if0(),
+               "--table-interface", hil::if1(), "--angle-limits", "-200:200", "--fault",
+               "table-overshoot=5", "--fault", "ins-drop=0.2"},
+              "/tmp");
+    HostBus bus(c, hil::if0(), hil::if1());
+    bus.wait_for_stand();
+    bus.align(1);
+    bus.table(4);
+    auto fs = bus.collect(300ms, true);
+    bus.table(1, 100, 30);  // move absolute: overshoots to 105, back to 100
+    fs = bus.collect(6000ms, true);
+    CHECK(bus.last(fs, Role::TableState) == 3);  // in position
+    CHECK(bus.last(fs, Role::TableAck) == bus.seq);
+    double most = 0;
+    std::size_t ins_frames = 0, misplaced = 0, vel = 0;
+    for (std::size_t i = 0; i < fs.frames.size(); ++i) {
+      const can::Message* m = c.codec->message_for(fs.frames[i].frame);
+      if (m == nullptr) continue;
+      const bool ins_msg = m->name.rfind("INS_", 0) == 0;
+      if (ins_msg != fs.on_ins[i]) ++misplaced;
+      if (ins_msg) ++ins_frames;
+      if (m->name == "INS_VelE" || m->name == "INS_VelN") ++vel;
+      if (const double a = c.value(fs.frames[i].frame, Role::EncoderAngle); !std::isnan(a))
+        most = std::max(most, a);
+    }
+    CHECK(misplaced == 0);
+    CHECK(ins_frames > 0);
+    CHECK(most == doctest::Approx(105).epsilon(0.001));
+    // 6 s of velocity pairs (1200 frames) with 20% dropped: 960, sd 14;
+    // the window's ends blur by a few frames
+    CHECK(static_cast<double>(vel) == doctest::Approx(960).epsilon(0.08));
+    bus.table(1, 300, 30);  // beyond the soft limit: refused
+    fs = bus.collect(300ms, true);
+    CHECK(bus.last(fs, Role::TableFault) == 4);
+    CHECK(bus.last(fs, Role::TableAck) == bus.seq - 1);
+    bus.table(2, -90, 30);  // then a controlled stop after 1 s
+    bus.collect(1000ms, true);
+    bus.table(0);
+    fs = bus.collect(1500ms, true);
+    CHECK(bus.last(fs, Role::TableState) == 3);
+    const double stopped_at = bus.last(fs, Role::EncoderAngle);
+    CHECK(stopped_at > 10);   // short of the 10 deg target (100 - 90)
+    CHECK(stopped_at < 100);  // but it moved
+    bus.table(2, -50, 30);    // and a quick stop
+    bus.collect(700ms, true);
+    bus.table(3);
+    fs = bus.collect(500ms, true);
+    CHECK(bus.last(fs, Role::TableState) == 5);
+    CHECK(bus.last(fs, Role::TableAck) == bus.seq);
+    bus.table(4);
+    fs = bus.collect(300ms, true);
+    CHECK(bus.last(fs, Role::TableState) == 1);
     sim.terminate();
     CHECK(sim.wait(5000ms) == 0);
   }
