@@ -2,10 +2,36 @@
 
 #include <algorithm>
 #include <cmath>
+#include <random>
 
 namespace turncal::stand {
 namespace {
 constexpr double kDeg = 0.017453292519943295;
+}
+
+sim::Config draw_truth(const Plan& plan, std::uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> n(0, 1);
+  sim::Config c;
+  c.latitude_rad = plan.site.latitude_rad;
+  c.height_m = plan.site.height_m;
+  const auto& p = plan.priors.params;
+  for (int i = 0; i < 3; ++i) c.errors.nu0(i) = p[static_cast<std::size_t>(i)] * n(rng);
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j)
+      c.errors.theta(i, j) = p[static_cast<std::size_t>(3 + 3 * i + j)] * n(rng);
+  for (int i = 0; i < 2; ++i) c.errors.df0(i) = p[static_cast<std::size_t>(12 + i)] * n(rng);
+  for (int i = 0; i < 2; ++i) c.errors.g(i) = p[static_cast<std::size_t>(14 + i)] * n(rng);
+  for (int i = 0; i < 2; ++i) c.errors.r(i) = p[static_cast<std::size_t>(16 + i)] * n(rng);
+  c.start.v0 = Eigen::Vector2d(plan.priors.v0_mps * n(rng), plan.priors.v0_mps * n(rng));
+  c.start.dr_e_m = plan.priors.position_m * n(rng);
+  c.start.dr_n_m = plan.priors.position_m * n(rng);
+  c.start.dpsi0_rad = plan.priors.heading_rad * n(rng);
+  c.noise.arw = plan.arw;
+  c.noise.vrw = plan.vrw;
+  c.noise.velocity_sigma = plan.sigma_z;
+  c.seed = rng();
+  return c;
 }
 
 ScriptedHost::ScriptedHost(const Plan& plan, const RoleMap& roles, double heading_offset_rad)
@@ -13,10 +39,7 @@ ScriptedHost::ScriptedHost(const Plan& plan, const RoleMap& roles, double headin
 
 can::Frame ScriptedHost::frame(Role any,
                                std::initializer_list<std::pair<Role, double>> values) const {
-  const can::Message& m = *roles_[any].message;
-  std::vector<double> v(m.signals.size(), 0.0);
-  for (const auto& [r, x] : values) v[roles_[r].signal_index] = x;
-  return can::FrameCodec::encode(m, v);
+  return roles_.encode(any, values);
 }
 
 void ScriptedHost::step(double t, const VirtualStand& stand, std::vector<StandFrame>& out) {

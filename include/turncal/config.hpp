@@ -5,6 +5,7 @@
 #include <array>
 #include <cstdint>
 #include <filesystem>
+#include <initializer_list>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -96,6 +97,11 @@ struct RoleMap {
   /// IDs (with the extended flag) of the messages turncal receives on the
   /// INS interface (ins = true) or the table interface.
   [[nodiscard]] std::vector<std::pair<std::uint32_t, bool>> receive_ids(bool ins) const;
+  /// A frame of the message that carries `any` (one of its roles), with
+  /// the given role signals set (physical values, DBC units) and every
+  /// other signal 0.
+  [[nodiscard]] can::Frame encode(Role any,
+                                  std::initializer_list<std::pair<Role, double>> values) const;
 };
 
 /// Merges the DBC files of a configuration into one database; a message

@@ -252,6 +252,13 @@ Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
   return map;
 }
 
+can::Frame RoleMap::encode(Role any, std::initializer_list<std::pair<Role, double>> values) const {
+  const can::Message& m = *(*this)[any].message;
+  std::vector<double> v(m.signals.size(), 0.0);
+  for (const auto& [r, x] : values) v[(*this)[r].signal_index] = x;
+  return can::FrameCodec::encode(m, v);
+}
+
 std::vector<std::pair<std::uint32_t, bool>> RoleMap::receive_ids(bool ins) const {
   std::vector<std::pair<std::uint32_t, bool>> out;
   for (std::size_t i = 0; i < kRoleCount; ++i) {

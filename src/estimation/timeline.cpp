@@ -15,17 +15,6 @@ struct ResolvedTurn {
   TurnIntegrals closed_form{0, 0};  // used when source is ClosedForm
 };
 
-double interp(std::span<const AngleSample> enc, double t) {
-  auto it = std::lower_bound(enc.begin(), enc.end(), t,
-                             [](const AngleSample& s, double v) { return s.t_s < v; });
-  if (it == enc.begin()) return it->psi_rad;
-  if (it == enc.end()) return enc.back().psi_rad;
-  const AngleSample& b = *it;
-  const AngleSample& a = *(it - 1);
-  const double f = (t - a.t_s) / (b.t_s - a.t_s);
-  return a.psi_rad + f * (b.psi_rad - a.psi_rad);
-}
-
 std::string at_turn(std::size_t i, const TurnWindow& w) {
   return "turn " + std::to_string(i + 1) + " (" + std::to_string(w.t_start_s) + " s to " +
          std::to_string(w.t_end_s) + " s)";
@@ -54,9 +43,9 @@ Result<std::vector<ResolvedTurn>> resolve_turns(const TimelineInput& in) {
       for (auto it = first - 1; it != last && covered; ++it)
         covered = (it + 1)->t_s - it->t_s <= in.max_encoder_gap_s;
     if (covered) {
-      r.samples.push_back({t1, interp(enc, t1)});
+      r.samples.push_back({t1, psi_at(enc, t1)});
       for (auto it = first; it != last; ++it) r.samples.push_back(*it);
-      r.samples.push_back({t2, interp(enc, t2)});
+      r.samples.push_back({t2, psi_at(enc, t2)});
     } else {
       // The closed form: the angle from the hold before and the encoder
       // after the turn if it speaks again before the next turn, else the
@@ -150,6 +139,17 @@ Result<TimelineReport> for_each_step(const TimelineInput& in,
 Result<std::vector<HoldSpan>> hold_spans(const TimelineInput& in) {
   TURNCAL_ASSIGN(turns, resolve_turns(in));
   return holds_of(in, turns);
+}
+
+double psi_at(std::span<const AngleSample> enc, double t) {
+  auto it = std::lower_bound(enc.begin(), enc.end(), t,
+                             [](const AngleSample& s, double v) { return s.t_s < v; });
+  if (it == enc.begin()) return it->psi_rad;
+  if (it == enc.end()) return enc.back().psi_rad;
+  const AngleSample& b = *it;
+  const AngleSample& a = *(it - 1);
+  const double f = (t - a.t_s) / (b.t_s - a.t_s);
+  return a.psi_rad + f * (b.psi_rad - a.psi_rad);
 }
 
 }  // namespace turncal::est

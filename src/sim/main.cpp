@@ -236,32 +236,6 @@ bool parse(int argc, char** argv, Options& o, std::string& err) {
   return true;
 }
 
-/// Errors drawn from the plan's priors.
-sim::Config draw_truth(const Plan& plan, std::uint64_t seed) {
-  std::mt19937_64 rng(seed);
-  std::normal_distribution<double> n(0, 1);
-  sim::Config c;
-  c.latitude_rad = plan.site.latitude_rad;
-  c.height_m = plan.site.height_m;
-  const auto& p = plan.priors.params;
-  for (int i = 0; i < 3; ++i) c.errors.nu0(i) = p[static_cast<std::size_t>(i)] * n(rng);
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j)
-      c.errors.theta(i, j) = p[static_cast<std::size_t>(3 + 3 * i + j)] * n(rng);
-  for (int i = 0; i < 2; ++i) c.errors.df0(i) = p[static_cast<std::size_t>(12 + i)] * n(rng);
-  for (int i = 0; i < 2; ++i) c.errors.g(i) = p[static_cast<std::size_t>(14 + i)] * n(rng);
-  for (int i = 0; i < 2; ++i) c.errors.r(i) = p[static_cast<std::size_t>(16 + i)] * n(rng);
-  c.start.v0 = Eigen::Vector2d(plan.priors.v0_mps * n(rng), plan.priors.v0_mps * n(rng));
-  c.start.dr_e_m = plan.priors.position_m * n(rng);
-  c.start.dr_n_m = plan.priors.position_m * n(rng);
-  c.start.dpsi0_rad = plan.priors.heading_rad * n(rng);
-  c.noise.arw = plan.arw;
-  c.noise.vrw = plan.vrw;
-  c.noise.velocity_sigma = plan.sigma_z;
-  c.seed = rng();
-  return c;
-}
-
 nlohmann::json truth_json(const sim::Config& c, const Plan& plan, const Options& o) {
   using nlohmann::json;
   json e = json::object();
@@ -356,7 +330,7 @@ Result<World> load_world(const Options& o) {
   TURNCAL_ASSIGN(db, load_databases(w.cfg.can));
   w.db = std::move(db);
   stand::StandSetup& setup = w.setup;
-  setup.ins.sim = draw_truth(w.plan, o.seed);
+  setup.ins.sim = stand::draw_truth(w.plan, o.seed);
   setup.ins.heading_offset_rad = o.heading_offset_deg * kDeg;
   setup.table_angle0_rad = w.plan.start_angle_rad;
   if (!w.plan.profile.turns.empty()) {

@@ -20,10 +20,7 @@ struct Host {
   std::uint8_t seq = 0;
   explicit Host(can::Database d, RoleMap r) : db(std::move(d)), roles(r), codec(db) {}
   can::Frame frame(Role any, std::initializer_list<std::pair<Role, double>> values) {
-    const can::Message& m = *roles[any].message;
-    std::vector<double> v(m.signals.size(), 0.0);
-    for (const auto& [r, x] : values) v[roles[r].signal_index] = x;
-    return can::FrameCodec::encode(m, v);
+    return roles.encode(any, values);
   }
   can::Frame table(TableCommandCode c, double target_deg = 0, double rate_dps = 0) {
     return frame(Role::TableCommand, {{Role::TableCommand, static_cast<double>(c)},

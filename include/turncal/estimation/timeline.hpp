@@ -65,6 +65,10 @@ struct TimelineReport {
 Result<TimelineReport> for_each_step(const TimelineInput& in,
                                      const std::function<void(const TimelineStep&)>& fn);
 
+/// psi at t, linear between encoder samples (ascending in t, not empty);
+/// the end samples held beyond the ends.
+double psi_at(std::span<const AngleSample> enc, double t);
+
 /// The holds of the run and their orientations, as for_each_step sees them.
 Result<std::vector<HoldSpan>> hold_spans(const TimelineInput& in);
 

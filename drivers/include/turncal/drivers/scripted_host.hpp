@@ -17,6 +17,10 @@
 
 namespace turncal::stand {
 
+/// The injected errors of a virtual INS drawn from the plan's priors (the
+/// noise and the simulation's own seed too): the truth of a simulated run.
+sim::Config draw_truth(const Plan& plan, std::uint64_t seed);
+
 class ScriptedHost {
  public:
   /// `roles` must outlive the host. heading_offset: the stand's mounting

@@ -1,0 +1,114 @@
+// One run of the experiment, pure: received frames and the passing of time
+// in, frames to send out. It joins the ingest (frames into samples), the
+// sequencer (the state machine), the record (what the estimator needs) and
+// the command encoding; the daemon puts it on sockets and timers, the
+// replay feeds it a log, the tests a virtual stand. Estimation and the
+// report are left to the caller (a worker thread in the daemon), which
+// hands back the outcome.
+//
+// Time: the stand's seconds. Kernel receive times (ns) are cut to
+// microseconds, as a candump log keeps them, and then scaled about the
+// run's epoch by `time_scale` (1 on a real stand; N for a virtual stand
+// running N times faster than real time), so a replay of the log sees
+// exactly the times the live run saw.
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "turncal/can/frame.hpp"
+#include "turncal/config.hpp"
+#include "turncal/plan.hpp"
+#include "turncal/run/ingest.hpp"
+#include "turncal/run/record.hpp"
+#include "turncal/run/sequencer.hpp"
+
+namespace turncal::run {
+
+struct OutFrame {
+  bool ins_side;  ///< for the INS interface (else the table's)
+  can::Frame frame;
+};
+
+/// Kernel time into stand time.
+struct TimeBase {
+  std::int64_t epoch_us = 0;  ///< the run's origin, us since the Unix epoch
+  double scale = 1;
+  [[nodiscard]] double stand_s(std::int64_t time_ns) const {
+    const std::int64_t us = time_ns / 1000;
+    return static_cast<double>(epoch_us) * 1e-6 + static_cast<double>(us - epoch_us) * 1e-6 * scale;
+  }
+};
+
+/// The last of what the operator wants to watch.
+struct Live {
+  double ve = NAN, vn = NAN;  ///< m/s
+  double table_angle_rad = NAN;
+  double table_rate_rps = NAN;
+  int ins_mode = -1;
+  int table_state = -1;
+};
+
+class Engine {
+ public:
+  /// `db` and `roles` must outlive it.
+  Engine(const can::Database& db, const RoleMap& roles, Plan plan, SequencerSettings seq,
+         BuildSettings build, TimeBase time);
+
+  void start(std::int64_t now_ns, std::vector<OutFrame>& out);
+  void abort(std::int64_t now_ns, const std::string& reason, std::vector<OutFrame>& out);
+  void signal(std::int64_t now_ns, const std::string& name, std::vector<OutFrame>& out);
+  void end_of_input(std::int64_t now_ns, std::vector<OutFrame>& out);
+  /// A received frame (or one of ours, as a recording has it).
+  void on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out);
+  /// Deadlines and lost streams; call often (10 Hz or more).
+  void tick(std::int64_t now_ns, std::vector<OutFrame>& out);
+  /// The host heartbeat (can-icd.md), rolling counter and host state.
+  OutFrame heartbeat();
+
+  /// The record is complete and estimation is due: the input, once. The
+  /// record holds every sample received from the start up to t0 +
+  /// duration + 1 s (host time), whatever the ticks: the first frame past
+  /// that (or the end of the input, or 2 s of silence) completes it, so a
+  /// replay of the log builds the very same input.
+  [[nodiscard]] bool estimation_due() const { return estimation_due_ && record_complete_; }
+  Result<BuiltInput> take_estimation_input();
+  void estimation_done(std::int64_t now_ns, bool ok, const std::string& error,
+                       std::vector<OutFrame>& out);
+  [[nodiscard]] bool report_due() const { return report_due_; }
+  void report_written(std::int64_t now_ns, bool ok, const std::string& error,
+                      std::vector<OutFrame>& out);
+
+  [[nodiscard]] const Sequencer& sequencer() const { return seq_; }
+  [[nodiscard]] const Ingest& ingest() const { return ingest_; }
+  [[nodiscard]] const Record& record() const { return record_; }
+  [[nodiscard]] const Plan& plan() const { return plan_; }
+  [[nodiscard]] const Live& live() const { return live_; }
+  [[nodiscard]] const TimeBase& time_base() const { return time_; }
+  [[nodiscard]] double stand_s(std::int64_t ns) const { return time_.stand_s(ns); }
+  /// Tables of the commands we sent, counted.
+  [[nodiscard]] std::uint64_t commands_sent() const { return commands_sent_; }
+
+ private:
+  void feed(const Event& e, std::vector<OutFrame>& out);
+  const RoleMap& roles_;
+  Plan plan_;
+  BuildSettings build_;
+  TimeBase time_;
+  Ingest ingest_;
+  Sequencer seq_;
+  Record record_;
+  Live live_;
+  std::vector<Command> cmds_;
+  bool estimation_due_ = false;
+  bool record_complete_ = false;
+  double last_frame_s_ = NAN;
+  [[nodiscard]] double record_end_s() const;
+  bool report_due_ = false;
+  std::uint8_t heartbeat_counter_ = 0;
+  std::uint64_t commands_sent_ = 0;
+};
+
+}  // namespace turncal::run

@@ -1,0 +1,180 @@
+// Received frames into typed samples (style.md, 1-3): decoded by the DBC
+// and the roles, device time tags unwrapped into seconds, the table's
+// wrapping angle into a multi-turn angle, and the device clocks fitted
+// against the host's receive time so that everything lands on the INS
+// clock, the experiment's timeline (can-icd.md). Per-role health: rate,
+// drops, age, stale. Pure: no sockets, no clocks; the daemon, the replay
+// and the tests feed it the same way.
+#pragma once
+
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "turncal/can/dbc.hpp"
+#include "turncal/can/frame.hpp"
+#include "turncal/config.hpp"
+
+namespace turncal::run {
+
+/// A wrapping unsigned microsecond time tag (u32 in the ICD) into
+/// seconds on a continuous device clock. A step back of more than half the
+/// range is a wrap; a smaller step back is taken as it is (out of order).
+class TagUnwrap {
+ public:
+  explicit TagUnwrap(double range_us = 4294967296.0) : range_(range_us) {}
+  double operator()(double tag_us);
+
+ private:
+  double range_;
+  bool have_ = false;
+  double last_ = 0;
+  double wraps_ = 0;
+};
+
+/// A wrapping angle (rad) into a continuous multi-turn angle: each step
+/// taken as the shortest way round.
+class AngleUnwrap {
+ public:
+  double operator()(double angle_rad);
+
+ private:
+  bool have_ = false;
+  double last_ = 0;
+  double turns_ = 0;
+};
+
+/// Least-squares line host = a + b device, updated one sample at a time
+/// (Welford's co-moments about the first sample, so it keeps full
+/// precision over hours). The receive latency scatters the host times; the
+/// fit averages it out.
+class ClockFit {
+ public:
+  void add(double device_s, double host_s);
+  /// Adds the pair unless, after 50 pairs, it is off the line by more than
+  /// `gate_s` (a clock jump or a stuck frame): then returns false.
+  bool add_checked(double device_s, double host_s, double gate_s = 0.05);
+  [[nodiscard]] std::size_t count() const { return n_; }
+  /// Host time of a device time; with one sample, rate 1.
+  [[nodiscard]] double to_host(double device_s) const;
+  [[nodiscard]] double to_device(double host_s) const;
+  /// Device rate against the host, ppm (device fast: negative slope - 1).
+  [[nodiscard]] double rate_ppm() const;
+  /// host - fitted host, s.
+  [[nodiscard]] double residual(double device_s, double host_s) const {
+    return host_s - to_host(device_s);
+  }
+  /// RMS residual, s.
+  [[nodiscard]] double rms_s() const;
+
+ private:
+  [[nodiscard]] double slope() const;
+  std::size_t n_ = 0;
+  double x0_ = 0, y0_ = 0;              // first sample: the origin
+  double mx_ = 0, my_ = 0;              // means about the origin
+  double cxx_ = 0, cxy_ = 0, cyy_ = 0;  // co-moments
+};
+
+/// A velocity sample: the pair INS_VelE and INS_VelN of one time tag.
+struct VelocitySample {
+  double t_ins_s;  ///< INS clock, unwrapped
+  double host_s;   ///< receive time of the later frame of the pair
+  double ve, vn;   ///< m/s
+};
+struct InsStatusSample {
+  double t_ins_s;
+  double host_s;
+  int mode;  ///< 0 idle, 1 aligning, 2 navigating, 3 fault
+  double align_remaining_s;
+};
+struct EncoderSample {
+  double t_table_s;  ///< table clock, unwrapped
+  double host_s;
+  double angle_rad;  ///< multi-turn, counter-clockwise seen from above
+};
+struct TableStatusSample {
+  double host_s;
+  int state;  ///< 0 disabled .. 5 quick-stopped (can-icd.md)
+  int ack;
+  int fault;
+  std::string fault_name;  ///< from the DBC's value table, or "fault N"
+  double rate_rps;
+};
+/// A host frame seen on the bus (ours in a recording, or another host's).
+struct HostCommandSample {
+  double host_s;
+  Role role;  ///< InsCommand, TableCommand or HeartbeatCounter
+  std::vector<double> values;
+};
+using Sample = std::variant<std::monostate, VelocitySample, InsStatusSample, EncoderSample,
+                            TableStatusSample, HostCommandSample>;
+
+/// What the host hears of one kind of frame.
+struct StreamHealth {
+  std::string name;
+  double nominal_hz = 0;      ///< learned from the time tags or the first receive intervals
+  std::uint64_t frames = 0;   ///< received
+  std::uint64_t dropped = 0;  ///< gaps in the device's time tags
+  double first_host_s = NAN;
+  double last_host_s = NAN;
+  /// Not seen for 10 nominal periods (or never seen).
+  [[nodiscard]] bool stale(double now_s) const;
+  [[nodiscard]] double age_s(double now_s) const { return now_s - last_host_s; }
+  /// Mean rate since the first frame, Hz.
+  [[nodiscard]] double rate_hz() const;
+};
+
+enum Stream : std::uint8_t { kVelocity, kInsStatus, kEncoder, kTableStatus, kStreams };
+
+struct IngestCounters {
+  std::uint64_t frames = 0;
+  std::uint64_t unknown_id = 0;      ///< no message in the DBC
+  std::uint64_t malformed = 0;       ///< wrong length, or a role signal not a number
+  std::uint64_t ignored = 0;         ///< known, but no role of turncal's
+  std::uint64_t clock_outliers = 0;  ///< time tags off their clock fit by over 50 ms
+  std::uint64_t half_pairs = 0;      ///< a velocity frame whose other half never came
+};
+
+class Ingest {
+ public:
+  /// `db` and `roles` must outlive it.
+  Ingest(const can::Database& db, const RoleMap& roles);
+  /// One received frame; host time from its receive timestamp, truncated
+  /// to microseconds as a candump log keeps it, so that a replay of the
+  /// log sees exactly what the live run saw.
+  Sample on_frame(const can::TimedFrame& f);
+  [[nodiscard]] const StreamHealth& health(Stream s) const { return health_[s]; }
+  [[nodiscard]] const IngestCounters& counters() const { return counters_; }
+  [[nodiscard]] const ClockFit& ins_clock() const { return ins_clock_; }
+  [[nodiscard]] const ClockFit& table_clock() const { return table_clock_; }
+  /// INS clock time of a table clock time, through the host's timeline.
+  [[nodiscard]] double table_to_ins(double t_table_s) const {
+    return ins_clock_.to_device(table_clock_.to_host(t_table_s));
+  }
+  /// Host time of microseconds resolution, s.
+  static double host_seconds(std::int64_t time_ns) {
+    return static_cast<double>(time_ns / 1000) * 1e-6;
+  }
+
+ private:
+  void saw(Stream s, double host_s, double device_s);
+  void clock_sample(ClockFit& fit, double device_s, double host_s);
+  const RoleMap& roles_;
+  can::FrameCodec codec_;
+  std::vector<double> values_;
+  TagUnwrap vel_tag_, status_tag_, enc_tag_;
+  AngleUnwrap angle_;
+  ClockFit ins_clock_, table_clock_;
+  // the half of a velocity pair waiting for its other half
+  bool half_pending_ = false;
+  bool half_is_east_ = false;
+  double half_tag_ = 0, half_value_ = 0;
+  std::array<StreamHealth, kStreams> health_;
+  std::array<double, kStreams> last_device_s_{NAN, NAN, NAN, NAN};
+  IngestCounters counters_;
+};
+
+}  // namespace turncal::run

@@ -1,0 +1,238 @@
+// The experiment as a pure state machine (style.md, 7): events in (time,
+// device states, health, operator requests), commands out. Time is the
+// host's, injected in every event; timers, sockets and the heartbeat live
+// in the daemon. Two modes: command (drives the table and the INS through
+// the profile) and observe (follows a stand that someone else drives, or a
+// recording: phases from the INS mode and the encoder).
+//
+//   idle -> prepare -> align -> hold 1 -> turn 1 -> hold 2 ... -> estimate -> report -> done
+//
+// and from every state: aborted (operator, signal) or failed (a fault, a
+// timeout), each with its reason. In command mode the table is sent a quick
+// stop on abort, on every fault and on a signal while it moves.
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <variant>
+#include <vector>
+
+#include "turncal/profile.hpp"
+
+namespace turncal::run {
+
+enum class Phase : std::uint8_t {
+  Idle,
+  Prepare,  ///< table enabled, moved to the start angle
+  Align,    ///< INS aligning
+  Hold,     ///< still, navigating
+  Turn,
+  Estimate,  ///< the record is complete; estimation runs
+  Report,    ///< estimation done; the report is written
+  Done,
+  Aborted,
+  Failed,
+};
+const char* to_string(Phase p);
+[[nodiscard]] inline bool finished(Phase p) {
+  return p == Phase::Done || p == Phase::Aborted || p == Phase::Failed;
+}
+
+/// Limits of the stand (turncal.toml [stand]); every table command is
+/// checked against them before it goes out.
+struct TableLimits {
+  double max_rate_rps = 0.6;  ///< rad/s
+  double max_accel_rps2 = 0.6;
+  double angle_min_rad = -1e9;  ///< multi-turn angle, as the host unwraps it
+  double angle_max_rad = 1e9;
+};
+
+struct SequencerSettings {
+  Profile profile;             ///< holds and turns, times from t0
+  double start_angle_rad = 0;  ///< table angle at t0
+  double heading_offset_rad = 0;
+  TableLimits limits;
+  bool observe = false;
+  double ack_timeout_s = 1.0;           ///< a table command unacknowledged this long is a fault
+  double enable_timeout_s = 5.0;        ///< from enable to the table holding
+  double align_start_s = 3.0;           ///< from the INS command to the INS aligning
+  double align_margin_s = 30.0;         ///< beyond the alignment length, to navigating
+  double turn_margin_s = 10.0;          ///< beyond the planned turn time, to in position
+  double start_tolerance_rad = 1.7e-4;  ///< closer than this to the start angle: no move (0.01 deg)
+  double prepare_rate_rps = 10 * 0.017453292519943295;  ///< rate of the move to the start angle
+  double grace_s = 1.0;  ///< after the start and after t0: a stream not yet heard is not lost
+  /// Observe mode: the table has left its hold when it is this far from
+  /// it (0.05 deg), and is at rest again after still_time_s within a tenth.
+  double motion_threshold_rad = 8.7e-4;
+  double still_time_s = 1.0;
+  /// Sequence numbers go on from these (the last ones the devices saw), so
+  /// a stale acknowledgement of an earlier run is never taken for ours.
+  std::uint8_t table_seq_base = 0;
+  std::uint8_t ins_seq_base = 0;
+};
+
+/// Checks the profile against the limits before any command goes out;
+/// empty when it fits, else why not.
+std::string check_plan(const SequencerSettings& s);
+
+// ---- events (host time t_s on each) ----
+struct Tick {
+  double t_s;
+  bool velocity_stale = false;  ///< INS velocity not seen for 10 periods
+  bool ins_status_stale = false;
+  bool encoder_stale = false;
+  bool table_status_stale = false;
+};
+struct InsModeEvent {
+  double t_s;
+  int mode;  ///< 0 idle, 1 aligning, 2 navigating, 3 fault
+};
+struct TableStatusEvent {
+  double t_s;
+  int state;  ///< 0 disabled, 1 holding, 2 moving, 3 in position, 4 fault, 5 quick-stopped
+  int ack;
+  int fault;
+  std::string fault_name;
+};
+struct EncoderEvent {
+  double t_s;
+  double angle_rad;  ///< multi-turn
+};
+struct StartRequest {
+  double t_s;
+};
+struct AbortRequest {
+  double t_s;
+  std::string reason;
+};
+/// SIGTERM or SIGINT: stop the table if it moves, then finish.
+struct SignalEvent {
+  double t_s;
+  std::string name;
+};
+/// The recording ended (observe mode on a log).
+struct EndOfInput {
+  double t_s;
+};
+struct EstimationDone {
+  double t_s;
+  bool ok;
+  std::string error;
+};
+struct ReportWritten {
+  double t_s;
+  bool ok;
+  std::string error;
+};
+using Event = std::variant<Tick, InsModeEvent, TableStatusEvent, EncoderEvent, StartRequest,
+                           AbortRequest, SignalEvent, EndOfInput, EstimationDone, ReportWritten>;
+
+// ---- commands ----
+enum class TableCode : std::uint8_t {
+  ControlledStop = 0,
+  MoveAbsolute = 1,
+  MoveRelative = 2,
+  QuickStop = 3,
+  Enable = 4,
+  Disable = 5
+};
+struct TableCommand {
+  TableCode code;
+  std::uint8_t seq;
+  double target_rad = 0;
+  double rate_rps = 0;
+};
+struct InsCommand {
+  int code;  ///< 1 start alignment, 2 go idle
+  std::uint8_t seq;
+  double align_s = 0;
+  double heading_rad = 0;  ///< of axis z2, clockwise from North, in [0, 2 pi)
+};
+struct RunEstimation {};
+struct WriteReport {};
+using Command = std::variant<TableCommand, InsCommand, RunEstimation, WriteReport>;
+
+/// What the report says about the run's course.
+struct PhaseMark {
+  Phase phase;
+  int index;  ///< hold or turn number, from 1; 0 otherwise
+  double t_s;
+};
+struct Course {
+  std::vector<PhaseMark> marks;
+  double t0_s = NAN;   ///< host time the INS was first seen navigating
+  std::string reason;  ///< why it aborted or failed
+  bool quick_stop_sent = false;
+  bool quick_stop_acked = false;
+  std::vector<double> turn_commanded_s;  ///< host time of each turn command (observe: its start)
+  double heading_given_rad = NAN;        ///< in the INS command
+};
+
+class Sequencer {
+ public:
+  explicit Sequencer(SequencerSettings s);
+  /// Feeds one event; the commands it calls for are appended to `out`.
+  void step(const Event& e, std::vector<Command>& out);
+  [[nodiscard]] Phase phase() const { return phase_; }
+  /// Hold or turn number, from 1.
+  [[nodiscard]] int index() const { return index_; }
+  [[nodiscard]] const Course& course() const { return course_; }
+  [[nodiscard]] const SequencerSettings& settings() const { return s_; }
+  /// Planned time left to the end of the record, s (NaN before t0).
+  [[nodiscard]] double remaining_s(double t_s) const;
+  /// The host state for the heartbeat: 0 idle, 1 running, 2 aborting.
+  [[nodiscard]] int host_state() const;
+  /// True while a table motion this sequencer asked for may be under way.
+  [[nodiscard]] bool table_may_move() const { return may_move_; }
+  /// The last table angle seen (multi-turn), NaN before any.
+  [[nodiscard]] double table_angle() const { return angle_; }
+
+ private:
+  void enter(Phase p, double t, int index = 0);
+  void fail(double t, const std::string& why, std::vector<Command>& out, bool aborted = false);
+  void table(TableCode code, double t, std::vector<Command>& out, double target = 0,
+             double rate = 0);
+  void on_tick(const Tick& e, std::vector<Command>& out);
+  void on_table(const TableStatusEvent& e, std::vector<Command>& out);
+  void on_ins(const InsModeEvent& e, std::vector<Command>& out);
+  void on_encoder(const EncoderEvent& e, std::vector<Command>& out);
+  void observe_motion(double t);
+  void start_turn(double t, std::vector<Command>& out);
+  void after_turn(double t);
+  void prepare_move(double t, std::vector<Command>& out);
+  void begin_align(double t, std::vector<Command>& out);
+  void navigating(double t);
+
+  SequencerSettings s_;
+  Phase phase_ = Phase::Idle;
+  int index_ = 0;
+  double entered_ = 0;
+  Course course_;
+  double run_start_ = NAN;
+  std::uint8_t seq_ = 0, ins_seq_ = 0;
+  std::optional<std::uint8_t> awaiting_ack_;
+  double ack_deadline_ = 0;
+  std::string awaiting_what_;
+  double phase_deadline_ = INFINITY;
+  std::string waiting_for_;  ///< what the phase deadline is for
+  std::string last_fault_;   ///< the table's fault name, empty for none
+  bool may_move_ = false;
+  bool enabled_ = false;
+  bool prepare_moving_ = false;
+  bool seen_aligning_ = false;
+  bool stopping_ = false;  ///< a quick stop is out; finish when it is acknowledged
+  Phase stop_then_ = Phase::Failed;
+  double stop_deadline_ = 0;
+  int ins_mode_ = -1;
+  int table_state_ = -1;
+  double angle_ = NAN, angle_t_ = NAN;
+  // observe mode
+  double last_moving_t_ = NAN;
+  double hold_angle_ = NAN;
+  double moving_ref_ = NAN;
+  std::size_t next_turn_ = 0;
+};
+
+}  // namespace turncal::run

@@ -1,0 +1,137 @@
+#include "turncal/run/engine.hpp"
+
+#include <cmath>
+#include <limits>
+#include <numbers>
+
+namespace turncal::run {
+
+namespace {
+constexpr double kDeg = std::numbers::pi / 180;
+}
+
+Engine::Engine(const can::Database& db, const RoleMap& roles, Plan plan, SequencerSettings seq,
+               BuildSettings build, TimeBase time)
+    : roles_(roles),
+      plan_(std::move(plan)),
+      build_(build),
+      time_(time),
+      ingest_(db, roles),
+      seq_(std::move(seq)) {}
+
+void Engine::feed(const Event& e, std::vector<OutFrame>& out) {
+  cmds_.clear();
+  seq_.step(e, cmds_);
+  for (const Command& c : cmds_) {
+    if (const auto* t = std::get_if<TableCommand>(&c)) {
+      out.push_back({false, roles_.encode(Role::TableCommand,
+                                          {{Role::TableCommand, static_cast<double>(t->code)},
+                                           {Role::TableCommandSeq, t->seq},
+                                           {Role::TableCommandTarget, t->target_rad / kDeg},
+                                           {Role::TableCommandRateLimit, t->rate_rps / kDeg}})});
+      ++commands_sent_;
+    } else if (const auto* i = std::get_if<InsCommand>(&c)) {
+      out.push_back(
+          {true, roles_.encode(Role::InsCommand, {{Role::InsCommand, i->code},
+                                                  {Role::InsCommandAlignDuration, i->align_s},
+                                                  {Role::InsCommandHeading, i->heading_rad / kDeg},
+                                                  {Role::InsCommandSeq, i->seq}})});
+      ++commands_sent_;
+    } else if (std::holds_alternative<RunEstimation>(c)) {
+      estimation_due_ = true;
+    } else if (std::holds_alternative<WriteReport>(c)) {
+      report_due_ = true;
+    }
+  }
+}
+
+void Engine::start(std::int64_t now_ns, std::vector<OutFrame>& out) {
+  feed(StartRequest{stand_s(now_ns)}, out);
+}
+
+void Engine::abort(std::int64_t now_ns, const std::string& reason, std::vector<OutFrame>& out) {
+  feed(AbortRequest{stand_s(now_ns), reason}, out);
+}
+
+void Engine::signal(std::int64_t now_ns, const std::string& name, std::vector<OutFrame>& out) {
+  feed(SignalEvent{stand_s(now_ns), name}, out);
+}
+
+void Engine::end_of_input(std::int64_t now_ns, std::vector<OutFrame>& out) {
+  record_complete_ = true;
+  feed(EndOfInput{stand_s(now_ns)}, out);
+}
+
+void Engine::on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out) {
+  can::TimedFrame scaled = f;
+  const double t = stand_s(f.time_ns);
+  scaled.time_ns = static_cast<std::int64_t>(std::llround(t * 1e6)) * 1000;
+  const Sample s = ingest_.on_frame(scaled);
+  last_frame_s_ = t;
+  if (t > record_end_s()) record_complete_ = true;
+  if (std::holds_alternative<std::monostate>(s)) return;
+  const Phase p = seq_.phase();
+  const bool running = p == Phase::Prepare || p == Phase::Align || p == Phase::Hold ||
+                       p == Phase::Turn || p == Phase::Estimate;
+  if (running && !record_complete_) record_.add(s);
+  if (const auto* v = std::get_if<VelocitySample>(&s)) {
+    live_.ve = v->ve;
+    live_.vn = v->vn;
+  } else if (const auto* m = std::get_if<InsStatusSample>(&s)) {
+    live_.ins_mode = m->mode;
+    feed(InsModeEvent{m->host_s, m->mode}, out);
+  } else if (const auto* e = std::get_if<EncoderSample>(&s)) {
+    live_.table_angle_rad = e->angle_rad;
+    feed(EncoderEvent{e->host_s, e->angle_rad}, out);
+  } else if (const auto* ts = std::get_if<TableStatusSample>(&s)) {
+    live_.table_state = ts->state;
+    live_.table_rate_rps = ts->rate_rps;
+    feed(TableStatusEvent{ts->host_s, ts->state, ts->ack, ts->fault, ts->fault_name}, out);
+  }
+}
+
+double Engine::record_end_s() const {
+  const double t0 = seq_.course().t0_s;
+  return std::isnan(t0) ? std::numeric_limits<double>::infinity()
+                        : t0 + plan_.profile.duration_s + 1.0;
+}
+
+void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out) {
+  const double t = stand_s(now_ns);
+  // the stand has gone quiet past the end: nothing more will come
+  if (t > record_end_s() + 1.0 && !(last_frame_s_ > t - 1.0)) record_complete_ = true;
+  Tick k{t};
+  k.velocity_stale = ingest_.health(kVelocity).stale(t);
+  k.ins_status_stale = ingest_.health(kInsStatus).stale(t);
+  k.encoder_stale = ingest_.health(kEncoder).stale(t);
+  k.table_status_stale = ingest_.health(kTableStatus).stale(t);
+  feed(k, out);
+}
+
+OutFrame Engine::heartbeat() {
+  return {false,
+          roles_.encode(Role::HeartbeatCounter, {{Role::HeartbeatCounter, heartbeat_counter_++},
+                                                 {Role::HeartbeatState, seq_.host_state()}})};
+}
+
+Result<BuiltInput> Engine::take_estimation_input() {
+  estimation_due_ = false;
+  record_.close();
+  BuildSettings b = build_;
+  const double hz = ingest_.health(kVelocity).nominal_hz;
+  if (hz > 0) b.sample_rate_hz = hz;
+  return build_input(record_, plan_, b);
+}
+
+void Engine::estimation_done(std::int64_t now_ns, bool ok, const std::string& error,
+                             std::vector<OutFrame>& out) {
+  feed(EstimationDone{stand_s(now_ns), ok, error}, out);
+}
+
+void Engine::report_written(std::int64_t now_ns, bool ok, const std::string& error,
+                            std::vector<OutFrame>& out) {
+  report_due_ = false;
+  feed(ReportWritten{stand_s(now_ns), ok, error}, out);
+}
+
+}  // namespace turncal::run

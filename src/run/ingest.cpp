@@ -1,0 +1,208 @@
+#include "turncal/run/ingest.hpp"
+
+#include <algorithm>
+#include <numbers>
+
+namespace turncal::run {
+
+double TagUnwrap::operator()(double tag_us) {
+  if (have_ && tag_us < last_ - range_ / 2) wraps_ += range_;
+  if (have_ && tag_us > last_ + range_ / 2) wraps_ -= range_;  // a late frame from before a wrap
+  have_ = true;
+  last_ = tag_us;
+  return (tag_us + wraps_) * 1e-6;
+}
+
+double AngleUnwrap::operator()(double angle_rad) {
+  constexpr double kTwoPi = 2 * std::numbers::pi;
+  if (have_) {
+    const double step = angle_rad - last_;
+    turns_ -= kTwoPi * std::round(step / kTwoPi);
+  }
+  have_ = true;
+  last_ = angle_rad;
+  return angle_rad + turns_;
+}
+
+void ClockFit::add(double device_s, double host_s) {
+  if (n_ == 0) {
+    x0_ = device_s;
+    y0_ = host_s;
+  }
+  const double x = device_s - x0_, y = host_s - y0_;
+  ++n_;
+  const double n = static_cast<double>(n_);
+  const double dx = x - mx_;
+  mx_ += dx / n;
+  const double dy = y - my_;
+  my_ += dy / n;
+  cxx_ += dx * (x - mx_);
+  cxy_ += dx * (y - my_);
+  cyy_ += dy * (y - my_);
+}
+
+bool ClockFit::add_checked(double device_s, double host_s, double gate_s) {
+  if (n_ > 50 && std::abs(residual(device_s, host_s)) > gate_s) return false;
+  add(device_s, host_s);
+  return true;
+}
+
+double ClockFit::slope() const {
+  // a span too short to tell the rate: take the clocks as equal in rate
+  return n_ < 2 || cxx_ <= 1e-6 * static_cast<double>(n_) ? 1.0 : cxy_ / cxx_;
+}
+
+double ClockFit::to_host(double device_s) const {
+  return y0_ + my_ + slope() * (device_s - x0_ - mx_);
+}
+
+double ClockFit::to_device(double host_s) const {
+  return x0_ + mx_ + (host_s - y0_ - my_) / slope();
+}
+
+double ClockFit::rate_ppm() const {
+  return (1 / slope() - 1) * 1e6;
+}
+
+double ClockFit::rms_s() const {
+  if (n_ < 3) return 0;
+  const double b = slope();
+  const double ss = cyy_ - 2 * b * cxy_ + b * b * cxx_;
+  return std::sqrt(std::max(0.0, ss) / static_cast<double>(n_ - 2));
+}
+
+bool StreamHealth::stale(double now_s) const {
+  if (std::isnan(last_host_s)) return true;
+  const double period = nominal_hz > 0 ? 1 / nominal_hz : 1.0;
+  return now_s - last_host_s > 10 * period;
+}
+
+double StreamHealth::rate_hz() const {
+  const double span = last_host_s - first_host_s;
+  return frames < 2 || !(span > 0) ? 0.0 : static_cast<double>(frames - 1) / span;
+}
+
+Ingest::Ingest(const can::Database& db, const RoleMap& roles)
+    : roles_(roles), codec_(db), values_(64) {
+  health_[kVelocity].name = "ins-velocity";
+  health_[kInsStatus].name = "ins-status";
+  health_[kEncoder].name = "table-encoder";
+  health_[kTableStatus].name = "table-status";
+}
+
+void Ingest::saw(Stream s, double host_s, double device_s) {
+  StreamHealth& h = health_[s];
+  ++h.frames;
+  if (std::isnan(h.first_host_s)) h.first_host_s = host_s;
+  h.last_host_s = host_s;
+  double& last = last_device_s_[s];
+  if (std::isnan(device_s)) {
+    // no device clock (table status): the mean receive rate
+    h.nominal_hz = h.rate_hz();
+    return;
+  }
+  if (!std::isnan(last)) {
+    const double dt = device_s - last;
+    if (dt > 0) {
+      // the nominal period: the shortest interval the device has shown
+      const double hz = 1 / dt;
+      if (hz > h.nominal_hz * 1.02 || h.frames < 3) h.nominal_hz = std::max(h.nominal_hz, hz);
+      const double periods = dt * h.nominal_hz;
+      if (periods > 1.5 && periods < 1e5)
+        h.dropped += static_cast<std::uint64_t>(std::llround(periods)) - 1;
+    }
+  }
+  last = device_s;
+}
+
+void Ingest::clock_sample(ClockFit& fit, double device_s, double host_s) {
+  // a time tag far off the line so far is a clock jump or a stuck frame:
+  // counted, kept out of the fit
+  if (!fit.add_checked(device_s, host_s)) ++counters_.clock_outliers;
+}
+
+Sample Ingest::on_frame(const can::TimedFrame& f) {
+  ++counters_.frames;
+  const double host = host_seconds(f.time_ns);
+  const can::Message* m = nullptr;
+  const can::DecodeStatus st = codec_.decode(f.frame, values_, &m);
+  if (st == can::DecodeStatus::UnknownId) {
+    ++counters_.unknown_id;
+    return {};
+  }
+  if (st != can::DecodeStatus::Ok) {
+    ++counters_.malformed;
+    return {};
+  }
+  auto is = [&](Role r) { return m == roles_[r].message; };
+  auto v = [&](Role r) { return values_[roles_[r].signal_index]; };
+  const bool east = is(Role::InsVelEast), north = is(Role::InsVelNorth);
+  if (east || north) {
+    const double value = v(east ? Role::InsVelEast : Role::InsVelNorth);
+    const double tag = v(east ? Role::InsVelEastTimeTag : Role::InsVelNorthTimeTag);
+    if (!std::isfinite(value) || !std::isfinite(tag)) {
+      ++counters_.malformed;
+      return {};
+    }
+    if (half_pending_ && half_tag_ == tag && half_is_east_ != east) {
+      half_pending_ = false;
+      const double t = vel_tag_(tag);
+      saw(kVelocity, host, t);
+      clock_sample(ins_clock_, t, host);
+      return VelocitySample{t, host, east ? value : half_value_, east ? half_value_ : value};
+    }
+    // a half pair left waiting: its sample is lost (the tag gap counts it as dropped)
+    if (half_pending_) ++counters_.half_pairs;
+    half_pending_ = true;
+    half_is_east_ = east;
+    half_tag_ = tag;
+    half_value_ = value;
+    return {};
+  }
+  if (is(Role::InsMode)) {
+    const double tag = v(Role::InsStatusTimeTag);
+    if (!std::isfinite(tag)) {
+      ++counters_.malformed;
+      return {};
+    }
+    const double t = status_tag_(tag);
+    saw(kInsStatus, host, t);
+    clock_sample(ins_clock_, t, host);
+    return InsStatusSample{t, host, static_cast<int>(v(Role::InsMode)), v(Role::InsAlignRemaining)};
+  }
+  if (is(Role::EncoderAngle)) {
+    const double tag = v(Role::EncoderTimeTag);
+    const double angle = v(Role::EncoderAngle);
+    if (!std::isfinite(tag) || !std::isfinite(angle)) {
+      ++counters_.malformed;
+      return {};
+    }
+    const double t = enc_tag_(tag);
+    saw(kEncoder, host, t);
+    clock_sample(table_clock_, t, host);
+    return EncoderSample{t, host, angle_(angle * std::numbers::pi / 180)};
+  }
+  if (is(Role::TableState)) {
+    saw(kTableStatus, host, NAN);
+    const int fault = static_cast<int>(v(Role::TableFault));
+    std::string name = "fault " + std::to_string(fault);
+    const auto& table = roles_[Role::TableFault].signal->values;
+    if (auto it = table.find(fault); it != table.end()) name = it->second;
+    return TableStatusSample{host,
+                             static_cast<int>(v(Role::TableState)),
+                             static_cast<int>(v(Role::TableAck)),
+                             fault,
+                             name,
+                             v(Role::TableRate) * std::numbers::pi / 180};
+  }
+  for (Role r : {Role::InsCommand, Role::TableCommand, Role::HeartbeatCounter})
+    if (is(r)) {
+      const std::size_t n = m->signals.size();
+      return HostCommandSample{
+          host, r, std::vector<double>(values_.begin(), values_.begin() + static_cast<long>(n))};
+    }
+  ++counters_.ignored;
+  return {};
+}
+
+}  // namespace turncal::run

@@ -1,0 +1,147 @@
+#include "turncal/run/record.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+namespace turncal::run {
+
+void Record::add(const Sample& s) {
+  if (const auto* v = std::get_if<VelocitySample>(&s)) {
+    velocity_.push_back(*v);
+    if (!ins_clock_.add_checked(v->t_ins_s, v->host_s)) ++clock_outliers_;
+    return;
+  }
+  const auto* e = std::get_if<EncoderSample>(&s);
+  if (e == nullptr) return;
+  ++encoder_seen_;
+  if (!table_clock_.add_checked(e->t_table_s, e->host_s)) ++clock_outliers_;
+  if (!encoder_.empty() && e->t_table_s <= encoder_.back().t_table_s) return;  // out of order
+  if (pending_ && e->angle_rad == last_.angle_rad) {
+    last_ = *e;  // the constant run goes on: only its ends are kept
+    return;
+  }
+  if (pending_ && (encoder_.empty() || encoder_.back().t_table_s != last_.t_table_s))
+    encoder_.push_back(last_);
+  encoder_.push_back(*e);
+  last_ = *e;
+  pending_ = true;
+}
+
+void Record::close() {
+  if (pending_ && (encoder_.empty() || encoder_.back().t_table_s != last_.t_table_s))
+    encoder_.push_back(last_);
+}
+
+Result<BuiltInput> build_input(const Record& record, const Plan& plan,
+                               const BuildSettings& settings) {
+  const ClockFit& ins = record.ins_clock();
+  const ClockFit& table = record.table_clock();
+  BuiltInput out;
+  const auto& vel = record.velocity();
+  if (vel.empty()) return Error{"no INS velocity in the record: the INS never navigated"};
+  const auto& enc_raw = record.encoder();
+  if (enc_raw.empty()) return Error{"no table encoder frame in the record"};
+  if (ins.count() == 0 || table.count() == 0)
+    return Error{"no device clock could be fitted (no time-tagged frame of the INS or table)"};
+  const double t0 = vel.front().t_ins_s;
+  out.t0_ins_s = t0;
+  const double duration = plan.profile.duration_s;
+
+  est::EstimationInput& in = out.input;
+  for (const VelocitySample& v : vel) {
+    const double t = v.t_ins_s - t0;
+    if (t > duration + 1e-6) break;
+    in.velocity.push_back({t, v.ve, v.vn});
+  }
+  out.velocity_used = in.velocity.size();
+  const double recorded = in.velocity.back().t_s;
+  if (recorded < duration - 1.0)
+    out.notes.push_back("the record ends " + std::to_string(duration - recorded) +
+                        " s before the planned end: estimated over what there is");
+
+  // encoder onto the INS clock, model sense
+  std::vector<est::AngleSample>& enc = in.timeline.encoder;
+  enc.reserve(enc_raw.size());
+  for (const EncoderSample& e : enc_raw) {
+    const double t = ins.to_device(table.to_host(e.t_table_s)) - t0;
+    if (!enc.empty() && t <= enc.back().t_s) continue;
+    enc.push_back({t, e.angle_rad - settings.heading_offset_rad});
+  }
+
+  // motions: steps above the jitter, merged when close in time
+  struct Span {
+    std::size_t from, to;  // sample indices: last still before, first still after
+  };
+  std::vector<Span> spans;
+  for (std::size_t k = 1; k < enc.size(); ++k) {
+    if (std::abs(enc[k].psi_rad - enc[k - 1].psi_rad) <= settings.jitter_rad) continue;
+    if (!spans.empty() && enc[k - 1].t_s - enc[spans.back().to].t_s <= settings.merge_s)
+      spans.back().to = k;
+    else
+      spans.push_back({k - 1, k});
+  }
+  // each motion padded by still samples on both sides (up to merge_s / 2):
+  // the last steps into rest can be smaller than the jitter
+  for (std::size_t i = 0; i < spans.size(); ++i) {
+    Span& s = spans[i];
+    const std::size_t lo = i == 0 ? 0 : spans[i - 1].to;
+    const std::size_t hi = i + 1 == spans.size() ? enc.size() - 1 : spans[i + 1].from;
+    const double ta = enc[s.from].t_s - settings.merge_s / 2;
+    const double tb = enc[s.to].t_s + settings.merge_s / 2;
+    while (s.from > lo && enc[s.from - 1].t_s >= ta) --s.from;
+    while (s.to < hi && enc[s.to + 1].t_s <= tb) ++s.to;
+  }
+  std::vector<Span> in_run;
+  for (const Span& s : spans) {
+    const double ta = enc[s.from].t_s, tb = enc[s.to].t_s;
+    if (tb <= 0) continue;  // before t0: the move to the start angle
+    if (ta < 0)
+      return Error{"the table moved at t0 (from " + std::to_string(ta) + " s to " +
+                   std::to_string(tb) + " s): the holds are not still"};
+    if (ta >= duration) continue;
+    in_run.push_back(s);
+  }
+  const bool matches_plan = in_run.size() == plan.profile.turns.size();
+  if (!matches_plan)
+    out.notes.push_back("the encoder shows " + std::to_string(in_run.size()) +
+                        " turns, the profile plans " + std::to_string(plan.profile.turns.size()) +
+                        ": turns taken from the encoder alone");
+  for (std::size_t i = 0; i < in_run.size(); ++i) {
+    const Span& s = in_run[i];
+    TurnAchieved a{enc[s.from].t_s, enc[s.to].t_s, enc[s.to].psi_rad - enc[s.from].psi_rad, 0};
+    // peak rate over steps of at least 10 ms (one encoder sample at 200 Hz
+    // is 5 ms: two of them average the quantization out)
+    for (std::size_t k = s.from, j = s.from; k <= s.to; ++k) {
+      while (j < k && enc[k].t_s - enc[j + 1].t_s >= 0.01) ++j;
+      const double dt = enc[k].t_s - enc[j].t_s;
+      if (dt >= 0.01)
+        a.peak_rate_rps = std::max(a.peak_rate_rps, std::abs(enc[k].psi_rad - enc[j].psi_rad) / dt);
+    }
+    est::TurnWindow w{a.t_start_s, a.t_end_s};
+    if (matches_plan) {
+      const TurnSpec& p = plan.profile.turns[i];
+      a.planned_angle_rad = p.angle_rad;
+      w.angle_rad = p.angle_rad;
+      TableMotion m;
+      w.plateau_rate_rps = m.move_by(0, p.angle_rad, p.max_rate_rps, p.max_accel_rps2).peak_rate;
+    }
+    in.timeline.turns.push_back(w);
+    out.turns.push_back(a);
+  }
+
+  in.timeline.site = plan.site;
+  in.timeline.noise = plan.noise();
+  in.timeline.epoch_s = plan.epoch_s;
+  in.timeline.duration_s = std::min(duration, recorded);
+  in.timeline.psi_start_rad = est::psi_at(enc, 0.0);
+  in.priors = plan.priors;
+  in.priors.align_s = plan.profile.align_s;
+  in.sigma_z = plan.sigma_z;
+  in.mean_measurement = plan.mean_measurement;
+  in.sample_rate_hz = settings.sample_rate_hz;
+  in.sharp_ratio = plan.sharp_ratio;
+  in.with_two_stage = settings.two_stage;
+  return out;
+}
+
+}  // namespace turncal::run

@@ -1,0 +1,474 @@
+#include "turncal/run/sequencer.hpp"
+
+#include <cmath>
+#include <cstdio>
+#include <numbers>
+
+namespace turncal::run {
+
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+constexpr double kDeg = kPi / 180;
+
+/// Into [-pi, pi).
+double wrap_pi(double a) {
+  return a - 2 * kPi * std::floor((a + kPi) / (2 * kPi));
+}
+
+std::string deg(double rad) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.3f deg", rad / kDeg);
+  return buf;
+}
+
+// Table states (can-icd.md)
+constexpr int kHolding = 1, kInPosition = 3, kFault = 4, kQuickStopped = 5;
+// INS modes
+constexpr int kAligning = 1, kNavigating = 2, kInsFault = 3;
+
+}  // namespace
+
+const char* to_string(Phase p) {
+  switch (p) {
+    case Phase::Idle:
+      return "idle";
+    case Phase::Prepare:
+      return "prepare";
+    case Phase::Align:
+      return "align";
+    case Phase::Hold:
+      return "hold";
+    case Phase::Turn:
+      return "turn";
+    case Phase::Estimate:
+      return "estimate";
+    case Phase::Report:
+      return "report";
+    case Phase::Done:
+      return "done";
+    case Phase::Aborted:
+      return "aborted";
+    case Phase::Failed:
+      return "failed";
+  }
+  return "?";
+}
+
+Sequencer::Sequencer(SequencerSettings s)
+    : s_(std::move(s)), seq_(s_.table_seq_base), ins_seq_(s_.ins_seq_base) {}
+
+std::string check_plan(const SequencerSettings& s) {
+  const TableLimits& l = s.limits;
+  double angle = s.start_angle_rad;
+  if (!(angle >= l.angle_min_rad && angle <= l.angle_max_rad))
+    return "start angle " + deg(angle) + " is outside the table's angle limits [" +
+           deg(l.angle_min_rad) + ", " + deg(l.angle_max_rad) + "]";
+  double last_start = -1;
+  for (std::size_t i = 0; i < s.profile.turns.size(); ++i) {
+    const TurnSpec& t = s.profile.turns[i];
+    const std::string name = "turn " + std::to_string(i + 1);
+    if (!(t.max_rate_rps > 0) || t.max_rate_rps > l.max_rate_rps * (1 + 1e-9))
+      return name + ": rate " + deg(t.max_rate_rps) + "/s is beyond the limit " +
+             deg(l.max_rate_rps) + "/s";
+    if (!(t.max_accel_rps2 > 0) || t.max_accel_rps2 > l.max_accel_rps2 * (1 + 1e-9))
+      return name + ": acceleration " + deg(t.max_accel_rps2) + "/s^2 is beyond the limit " +
+             deg(l.max_accel_rps2) + "/s^2";
+    angle += t.angle_rad;
+    if (!(angle >= l.angle_min_rad && angle <= l.angle_max_rad))
+      return name + ": end angle " + deg(angle) + " is outside the table's angle limits [" +
+             deg(l.angle_min_rad) + ", " + deg(l.angle_max_rad) + "]";
+    if (t.start_s <= last_start) return name + ": starts before the turn before it";
+    last_start = t.start_s;
+  }
+  if (!s.profile.turns.empty() && s.profile.turns.back().start_s >= s.profile.duration_s)
+    return "the last turn starts after the end of the run";
+  return {};
+}
+
+double Sequencer::remaining_s(double t_s) const {
+  if (std::isnan(course_.t0_s)) return NAN;
+  if (finished(phase_) || phase_ == Phase::Estimate || phase_ == Phase::Report) return 0;
+  return std::max(0.0, course_.t0_s + s_.profile.duration_s - t_s);
+}
+
+int Sequencer::host_state() const {
+  if (stopping_) return 2;
+  if (phase_ == Phase::Idle || finished(phase_)) return 0;
+  return 1;
+}
+
+void Sequencer::enter(Phase p, double t, int index) {
+  phase_ = p;
+  index_ = index;
+  entered_ = t;
+  course_.marks.push_back({p, index, t});
+}
+
+void Sequencer::table(TableCode code, double t, std::vector<Command>& out, double target,
+                      double rate) {
+  ++seq_;
+  out.emplace_back(TableCommand{code, seq_, target, rate});
+  awaiting_ack_ = seq_;
+  ack_deadline_ = t + s_.ack_timeout_s;
+  if (code == TableCode::MoveAbsolute || code == TableCode::MoveRelative) may_move_ = true;
+}
+
+void Sequencer::fail(double t, const std::string& why, std::vector<Command>& out, bool aborted) {
+  if (finished(phase_) || stopping_) return;
+  course_.reason = why;
+  const Phase then = aborted ? Phase::Aborted : Phase::Failed;
+  // Command mode: the table has been sent something, so it may move or be
+  // about to: stop it now and finish when it says so.
+  const bool table_touched = !s_.observe && phase_ != Phase::Idle;
+  if (table_touched) {
+    awaiting_what_ = "quick stop";
+    table(TableCode::QuickStop, t, out);
+    course_.quick_stop_sent = true;
+    stopping_ = true;
+    stop_then_ = then;
+    stop_deadline_ = t + s_.ack_timeout_s;
+    return;
+  }
+  may_move_ = false;
+  enter(then, t);
+}
+
+void Sequencer::step(const Event& e, std::vector<Command>& out) {
+  std::visit(
+      [&](const auto& ev) {
+        using E = std::decay_t<decltype(ev)>;
+        if constexpr (std::is_same_v<E, Tick>) {
+          on_tick(ev, out);
+        } else if constexpr (std::is_same_v<E, TableStatusEvent>) {
+          on_table(ev, out);
+        } else if constexpr (std::is_same_v<E, InsModeEvent>) {
+          on_ins(ev, out);
+        } else if constexpr (std::is_same_v<E, EncoderEvent>) {
+          on_encoder(ev, out);
+        } else if constexpr (std::is_same_v<E, StartRequest>) {
+          if (phase_ != Phase::Idle) return;
+          if (const std::string bad = check_plan(s_); !bad.empty()) {
+            enter(Phase::Prepare, ev.t_s);
+            course_.reason = "refused before any command: " + bad;
+            enter(Phase::Failed, ev.t_s);
+            return;
+          }
+          enter(Phase::Prepare, ev.t_s);
+          run_start_ = ev.t_s;
+          if (!s_.observe) {
+            awaiting_what_ = "enable";
+            table(TableCode::Enable, ev.t_s, out);
+            phase_deadline_ = ev.t_s + s_.enable_timeout_s;
+            waiting_for_ = "the table not holding within " +
+                           std::to_string(static_cast<int>(s_.enable_timeout_s)) + " s of enable";
+          }
+        } else if constexpr (std::is_same_v<E, AbortRequest>) {
+          if (phase_ == Phase::Idle) return;
+          fail(ev.t_s, ev.reason.empty() ? "aborted by the operator" : ev.reason, out, true);
+        } else if constexpr (std::is_same_v<E, SignalEvent>) {
+          if (finished(phase_) || stopping_) return;
+          const std::string why = "stopped by " + ev.name;
+          if (phase_ == Phase::Idle) return;
+          if (may_move_ && !s_.observe) {
+            fail(ev.t_s, why + " while the table moved", out, true);
+          } else {
+            course_.reason = why;
+            enter(Phase::Aborted, ev.t_s);
+          }
+        } else if constexpr (std::is_same_v<E, EndOfInput>) {
+          if (finished(phase_) || phase_ == Phase::Estimate || phase_ == Phase::Report) return;
+          if (phase_ == Phase::Hold && index_ == static_cast<int>(s_.profile.turns.size()) + 1) {
+            // the recording ends in the last hold: estimate what there is
+            enter(Phase::Estimate, ev.t_s);
+            out.emplace_back(RunEstimation{});
+            return;
+          }
+          fail(ev.t_s,
+               std::string("the recording ended during ") + to_string(phase_) +
+                   (index_ > 0 ? " " + std::to_string(index_) : ""),
+               out);
+        } else if constexpr (std::is_same_v<E, EstimationDone>) {
+          if (phase_ != Phase::Estimate) return;
+          if (!ev.ok) {
+            course_.reason = "estimation failed: " + ev.error;
+            enter(Phase::Failed, ev.t_s);
+            return;
+          }
+          enter(Phase::Report, ev.t_s);
+          out.emplace_back(WriteReport{});
+        } else if constexpr (std::is_same_v<E, ReportWritten>) {
+          if (phase_ != Phase::Report) return;
+          if (!ev.ok) {
+            course_.reason = "report not written: " + ev.error;
+            enter(Phase::Failed, ev.t_s);
+            return;
+          }
+          enter(Phase::Done, ev.t_s);
+        }
+      },
+      e);
+}
+
+void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
+  const double t = e.t_s;
+  if (stopping_) {
+    if (t > stop_deadline_) {
+      stopping_ = false;
+      course_.reason += "; the quick stop was not acknowledged within " +
+                        std::to_string(s_.ack_timeout_s).substr(0, 4) + " s";
+      enter(stop_then_, t);
+    }
+    return;
+  }
+  if (finished(phase_) || phase_ == Phase::Idle || phase_ == Phase::Estimate ||
+      phase_ == Phase::Report)
+    return;
+  if (!s_.observe && awaiting_ack_ && t > ack_deadline_) {
+    fail(t,
+         "the table did not acknowledge " + awaiting_what_ + " within " +
+             std::to_string(static_cast<int>(std::lround(s_.ack_timeout_s * 1000))) + " ms" +
+             (last_fault_.empty() ? "" : " (table fault: " + last_fault_ + ")"),
+         out);
+    return;
+  }
+  // losing a device: the table's side at any time of a run, the INS once
+  // it has been commanded
+  const bool heard_time = t - run_start_ > s_.grace_s;
+  if (!s_.observe && heard_time) {
+    if (e.table_status_stale)
+      return fail(t, "table status lost (no TBL_Status for 10 periods)", out);
+    if (e.encoder_stale)
+      return fail(t, "table encoder lost (no encoder frame for 10 periods)", out);
+  }
+  const bool in_run = phase_ == Phase::Hold || phase_ == Phase::Turn;
+  if (phase_ == Phase::Align || in_run) {
+    if (e.ins_status_stale && !s_.observe && heard_time)
+      return fail(t, "INS status lost (no status frame for 10 periods)", out);
+  }
+  const bool nav_time = t - course_.t0_s > s_.grace_s;
+  if (in_run && nav_time && e.velocity_stale)
+    return fail(t,
+                std::string("INS velocity lost during ") + to_string(phase_) + " " +
+                    std::to_string(index_) + " (no velocity frame for 10 periods)",
+                out);
+  if (in_run && nav_time && s_.observe && e.encoder_stale)
+    return fail(t, "table encoder lost (no encoder frame for 10 periods)", out);
+
+  switch (phase_) {
+    case Phase::Prepare:
+      if (!s_.observe && t > phase_deadline_) return fail(t, "timeout: " + waiting_for_, out);
+      break;
+    case Phase::Align:
+      if (!s_.observe && t > phase_deadline_) return fail(t, "timeout: " + waiting_for_, out);
+      break;
+    case Phase::Hold: {
+      const double rel = t - course_.t0_s;
+      if (next_turn_ < s_.profile.turns.size()) {
+        if (!s_.observe && rel >= s_.profile.turns[next_turn_].start_s) start_turn(t, out);
+      } else if (rel >= s_.profile.duration_s) {
+        may_move_ = false;
+        enter(Phase::Estimate, t);
+        out.emplace_back(RunEstimation{});
+      }
+      break;
+    }
+    case Phase::Turn:
+      if (!s_.observe && t > phase_deadline_) return fail(t, "timeout: " + waiting_for_, out);
+      if (s_.observe) observe_motion(t);
+      break;
+    default:
+      break;
+  }
+}
+
+void Sequencer::start_turn(double t, std::vector<Command>& out) {
+  const TurnSpec& turn = s_.profile.turns[next_turn_];
+  const double target = angle_ + turn.angle_rad;
+  if (!(target >= s_.limits.angle_min_rad && target <= s_.limits.angle_max_rad))
+    return fail(t,
+                "turn " + std::to_string(next_turn_ + 1) + ": target " + deg(target) +
+                    " is outside the table's angle limits",
+                out);
+  ++next_turn_;
+  enter(Phase::Turn, t, static_cast<int>(next_turn_));
+  awaiting_what_ = "the move of turn " + std::to_string(next_turn_);
+  table(TableCode::MoveRelative, t, out, turn.angle_rad, turn.max_rate_rps);
+  course_.turn_commanded_s.push_back(t);
+  TableMotion m;
+  const auto mv = m.move_by(0, turn.angle_rad, turn.max_rate_rps, turn.max_accel_rps2);
+  phase_deadline_ = t + mv.t_end + s_.turn_margin_s;
+  waiting_for_ = "turn " + std::to_string(next_turn_) + " not in position within " +
+                 std::to_string(static_cast<int>(std::lround(mv.t_end + s_.turn_margin_s))) + " s";
+}
+
+void Sequencer::on_table(const TableStatusEvent& e, std::vector<Command>& out) {
+  const double t = e.t_s;
+  table_state_ = e.state;
+  last_fault_ = e.fault != 0 ? e.fault_name : std::string();
+  const bool acked = awaiting_ack_ && e.ack == *awaiting_ack_;
+  if (acked) awaiting_ack_.reset();
+  if (stopping_) {
+    if (acked || (e.ack == seq_ && e.state == kQuickStopped)) {
+      course_.quick_stop_acked = true;
+      stopping_ = false;
+      may_move_ = false;
+      enter(stop_then_, t);
+    }
+    return;
+  }
+  if (s_.observe || finished(phase_) || phase_ == Phase::Idle) return;
+  const bool ours_acked = !awaiting_ack_ && e.ack == seq_;
+  if (e.state == kFault)
+    return fail(t, "table fault: " + (e.fault_name.empty() ? "unknown" : e.fault_name), out);
+  if (e.state == kQuickStopped && ours_acked)
+    return fail(t,
+                "the table quick-stopped by itself" +
+                    (e.fault != 0 ? " (" + e.fault_name + ")" : std::string()),
+                out);
+  if (!ours_acked) return;
+  switch (phase_) {
+    case Phase::Prepare:
+      if (!enabled_) {
+        if (e.state != kHolding && e.state != kInPosition) return;
+        enabled_ = true;
+        if (std::isnan(angle_)) {
+          waiting_for_ = "no table encoder frame to start from";
+          return;  // on_encoder goes on
+        }
+        prepare_move(t, out);
+      } else if (prepare_moving_ && e.state == kInPosition) {
+        prepare_moving_ = false;
+        may_move_ = false;
+        begin_align(t, out);
+      }
+      break;
+    case Phase::Turn:
+      if (e.state == kInPosition) {
+        may_move_ = false;
+        after_turn(t);
+      }
+      break;
+    default:
+      break;
+  }
+}
+
+void Sequencer::prepare_move(double t, std::vector<Command>& out) {
+  const double delta = wrap_pi(s_.start_angle_rad - angle_);
+  if (std::abs(delta) < s_.start_tolerance_rad) return begin_align(t, out);
+  const double target = angle_ + delta;
+  if (!(target >= s_.limits.angle_min_rad && target <= s_.limits.angle_max_rad))
+    return fail(t, "the start angle " + deg(s_.start_angle_rad) + " is outside the angle limits",
+                out);
+  prepare_moving_ = true;
+  awaiting_what_ = "the move to the start angle";
+  const double rate = std::min(s_.limits.max_rate_rps, s_.prepare_rate_rps);
+  table(TableCode::MoveRelative, t, out, delta, rate);
+  TableMotion m;
+  const auto mv = m.move_by(0, delta, rate, s_.limits.max_accel_rps2);
+  phase_deadline_ = t + mv.t_end + s_.turn_margin_s;
+  waiting_for_ = "the table not at the start angle within " +
+                 std::to_string(static_cast<int>(std::lround(mv.t_end + s_.turn_margin_s))) + " s";
+}
+
+void Sequencer::begin_align(double t, std::vector<Command>& out) {
+  enter(Phase::Align, t);
+  if (s_.observe) return;
+  double heading = std::fmod(s_.heading_offset_rad - angle_, 2 * kPi);
+  if (heading < 0) heading += 2 * kPi;
+  ++ins_seq_;
+  out.emplace_back(InsCommand{1, ins_seq_, s_.profile.align_s, heading});
+  course_.heading_given_rad = heading;
+  seen_aligning_ = false;
+  phase_deadline_ = t + s_.align_start_s;
+  waiting_for_ = "the INS not aligning within " +
+                 std::to_string(static_cast<int>(s_.align_start_s)) + " s of the command";
+}
+
+void Sequencer::on_ins(const InsModeEvent& e, std::vector<Command>& out) {
+  const double t = e.t_s;
+  const int was = ins_mode_;
+  ins_mode_ = e.mode;
+  if (stopping_ || finished(phase_) || phase_ == Phase::Idle) return;
+  if (phase_ == Phase::Estimate || phase_ == Phase::Report) return;
+  if (e.mode == kInsFault && phase_ != Phase::Prepare) return fail(t, "INS fault mode", out);
+  switch (phase_) {
+    case Phase::Prepare:
+      // observe mode: the stand's own host starts the alignment
+      if (s_.observe && e.mode == kAligning) enter(Phase::Align, t);
+      if (s_.observe && e.mode == kNavigating && was == kAligning) {
+        enter(Phase::Align, t);
+        navigating(t);
+      }
+      break;
+    case Phase::Align:
+      if (e.mode == kAligning && !seen_aligning_) {
+        seen_aligning_ = true;
+        if (!s_.observe) {
+          phase_deadline_ = t + s_.profile.align_s + s_.align_margin_s;
+          waiting_for_ = "the INS not navigating within " +
+                         std::to_string(static_cast<int>(s_.profile.align_s + s_.align_margin_s)) +
+                         " s of the alignment start";
+        }
+      }
+      if (e.mode == kNavigating && (seen_aligning_ || s_.observe)) navigating(t);
+      break;
+    case Phase::Hold:
+    case Phase::Turn:
+      if (e.mode != kNavigating)
+        return fail(t,
+                    std::string("the INS left navigation (mode ") + std::to_string(e.mode) +
+                        ") during " + to_string(phase_) + " " + std::to_string(index_),
+                    out);
+      break;
+    default:
+      break;
+  }
+}
+
+void Sequencer::navigating(double t) {
+  course_.t0_s = t;
+  next_turn_ = 0;
+  enter(Phase::Hold, t, 1);
+  if (s_.observe) hold_angle_ = angle_;
+}
+
+void Sequencer::on_encoder(const EncoderEvent& e, std::vector<Command>& out) {
+  angle_ = e.angle_rad;
+  angle_t_ = e.t_s;
+  if (stopping_ || finished(phase_)) return;
+  // enabled before the first encoder frame came: go on now
+  if (!s_.observe && phase_ == Phase::Prepare && enabled_ && !prepare_moving_)
+    return prepare_move(e.t_s, out);
+  if (!s_.observe) return;
+  if (phase_ == Phase::Hold) {
+    if (std::isnan(hold_angle_)) hold_angle_ = angle_;
+    if (std::abs(angle_ - hold_angle_) > s_.motion_threshold_rad) {
+      ++next_turn_;
+      enter(Phase::Turn, e.t_s, static_cast<int>(next_turn_));
+      course_.turn_commanded_s.push_back(e.t_s);
+      last_moving_t_ = e.t_s;
+      moving_ref_ = angle_;
+    }
+  } else if (phase_ == Phase::Turn) {
+    observe_motion(e.t_s);
+  }
+}
+
+void Sequencer::observe_motion(double t) {
+  if (std::isnan(angle_)) return;
+  if (std::abs(angle_ - moving_ref_) > s_.motion_threshold_rad / 10) {
+    moving_ref_ = angle_;
+    last_moving_t_ = t;
+    return;
+  }
+  if (t - last_moving_t_ >= s_.still_time_s) after_turn(last_moving_t_);
+}
+
+void Sequencer::after_turn(double t) {
+  enter(Phase::Hold, t, static_cast<int>(next_turn_) + 1);
+  hold_angle_ = angle_;
+}
+
+}  // namespace turncal::run

@@ -1,0 +1,161 @@
+// Frames into samples: unwrapping, clock fits, health, bad frames counted.
+#include <doctest/doctest.h>
+
+#include <cmath>
+#include <numbers>
+
+#include "turncal/run/ingest.hpp"
+#include "turncal/run/sequencer.hpp"
+
+using namespace turncal;
+using namespace turncal::run;
+
+namespace {
+
+struct Ref {
+  Config cfg;
+  can::Database db;
+  RoleMap roles;
+  Ref() {
+    auto c = parse_config("", std::string(TURNCAL_SOURCE_DIR) + "/config/turncal.toml");
+    REQUIRE(c.ok());
+    cfg = *c;
+    auto d = load_databases(cfg.can);
+    REQUIRE(d.ok());
+    db = std::move(*d);
+    auto r = resolve_roles(cfg.can, db);
+    REQUIRE(r.ok());
+    roles = *r;
+  }
+  can::TimedFrame at(double t, can::Frame f) const {
+    return {static_cast<std::int64_t>(std::llround(t * 1e9)), f};
+  }
+  can::TimedFrame vel(double t, bool east, double tag_us, double v) const {
+    return at(t, east ? roles.encode(Role::InsVelEast,
+                                     {{Role::InsVelEast, v}, {Role::InsVelEastTimeTag, tag_us}})
+                      : roles.encode(Role::InsVelNorth,
+                                     {{Role::InsVelNorth, v}, {Role::InsVelNorthTimeTag, tag_us}}));
+  }
+};
+
+}  // namespace
+
+TEST_SUITE("ingest") {
+  TEST_CASE("time tags unwrap across the u32 range; a late frame stays before the wrap") {
+    TagUnwrap u;
+    CHECK(u(4294967000.0) == doctest::Approx(4294.967));
+    CHECK(u(100.0) == doctest::Approx(4294.967396));       // wrapped
+    CHECK(u(4294967200.0) == doctest::Approx(4294.9672));  // late, from before the wrap
+    CHECK(u(300.0) == doctest::Approx(4294.967596));
+  }
+
+  TEST_CASE("angles unwrap into multi-turn, each step the short way") {
+    AngleUnwrap u;
+    const double d = std::numbers::pi / 180;
+    CHECK(u(350 * d) == doctest::Approx(350 * d));
+    CHECK(u(10 * d) == doctest::Approx(370 * d));
+    CHECK(u(355 * d) == doctest::Approx(355 * d));
+  }
+
+  TEST_CASE("clock fit recovers offset and rate; outliers are kept out") {
+    ClockFit f;
+    for (int k = 0; k < 1000; ++k) {
+      const double host = 1.7e9 + 0.01 * k;
+      const double dev = 1000 + (host - 1.7e9) * (1 + 50e-6);
+      const double jitter = (k % 7 - 3) * 1e-5;  // receive latency scatter
+      CHECK(f.add_checked(dev, host + jitter));
+    }
+    CHECK(f.rate_ppm() == doctest::Approx(50).epsilon(0.02));
+    CHECK(f.to_host(1000 + 5 * (1 + 50e-6)) == doctest::Approx(1.7e9 + 5).epsilon(1e-14));
+    CHECK(std::abs(f.to_host(1000 + 5 * (1 + 50e-6)) - (1.7e9 + 5)) < 1e-5);
+    CHECK_FALSE(f.add_checked(1000 + 10.5, 1.7e9 + 10.3));  // 0.2 s off: a jump
+    CHECK(f.count() == 1000);
+  }
+
+  TEST_CASE("velocity pairs by tag; half pairs count as drops; malformed and unknown counted") {
+    Ref r;
+    Ingest in(r.db, r.roles);
+    int samples = 0;
+    for (int k = 0; k < 100; ++k) {
+      const double t = 10 + 0.01 * k, tag = 1e6 + 1e4 * k;
+      if (k == 50) {
+        in.on_frame(r.vel(t, true, tag, 0.001));  // its North half lost
+        continue;
+      }
+      in.on_frame(r.vel(t, true, tag, 0.001));
+      const Sample s = in.on_frame(r.vel(t + 1e-4, false, tag, -0.002));
+      if (const auto* v = std::get_if<VelocitySample>(&s)) {
+        ++samples;
+        CHECK(v->ve == doctest::Approx(0.001));
+        CHECK(v->vn == doctest::Approx(-0.002));
+      }
+    }
+    CHECK(samples == 99);
+    CHECK(in.health(kVelocity).nominal_hz == doctest::Approx(100));
+    CHECK(in.health(kVelocity).dropped == 1);
+    CHECK(in.counters().half_pairs == 1);
+    // a known ID with a wrong length, and an unknown ID
+    can::Frame bad = r.roles.encode(Role::EncoderAngle, {});
+    bad.len = 3;
+    CHECK(std::holds_alternative<std::monostate>(in.on_frame(r.at(11, bad))));
+    can::Frame unknown = bad;
+    unknown.id = 0x7ff;
+    in.on_frame(r.at(11, unknown));
+    CHECK(in.counters().malformed == 1);
+    CHECK(in.counters().unknown_id == 1);
+    // stale after 10 periods unseen
+    CHECK_FALSE(in.health(kVelocity).stale(11.05));
+    CHECK(in.health(kVelocity).stale(11.2));
+    CHECK(in.health(kEncoder).stale(11));  // never seen
+  }
+
+  TEST_CASE("table status carries the fault's name from the DBC's value table") {
+    Ref r;
+    Ingest in(r.db, r.roles);
+    const Sample s = in.on_frame(
+        r.at(1, r.roles.encode(Role::TableState, {{Role::TableState, 4}, {Role::TableFault, 2}})));
+    const auto* st = std::get_if<TableStatusSample>(&s);
+    REQUIRE(st != nullptr);
+    CHECK(st->state == 4);
+    CHECK(st->fault_name == "stall");
+  }
+}
+
+TEST_SUITE("sequencer") {
+  TEST_CASE("the plan is checked against the limits before any command") {
+    SequencerSettings s;
+    s.profile = classic_profile(600, 300, std::numbers::pi, 0.5, 0.5);
+    CHECK(check_plan(s).empty());
+    s.limits.angle_max_rad = 1.0;
+    CHECK(check_plan(s).find("turn 1: end angle 180.000 deg is outside") == 0);
+    s.limits.angle_max_rad = 10;
+    s.limits.max_accel_rps2 = 0.4;
+    CHECK(check_plan(s).find("turn 1: acceleration") == 0);
+  }
+
+  TEST_CASE("idle: a signal or an abort changes nothing; a start enables the table") {
+    SequencerSettings s;
+    s.profile = classic_profile(600, 300, std::numbers::pi, 0.5, 0.5);
+    s.table_seq_base = 41;
+    Sequencer q(s);
+    std::vector<Command> out;
+    q.step(SignalEvent{0, "SIGTERM"}, out);
+    q.step(AbortRequest{0, ""}, out);
+    CHECK(q.phase() == Phase::Idle);
+    CHECK(out.empty());
+    q.step(StartRequest{1}, out);
+    REQUIRE(out.size() == 1);
+    const auto& t = std::get<TableCommand>(out[0]);
+    CHECK(t.code == TableCode::Enable);
+    CHECK(t.seq == 42);  // on from the base: never an old acknowledgement
+    // the table never answers: a fault after the ack timeout, and a quick stop
+    out.clear();
+    q.step(Tick{2.5}, out);
+    REQUIRE(out.size() == 1);
+    CHECK(std::get<TableCommand>(out[0]).code == TableCode::QuickStop);
+    q.step(Tick{4}, out);
+    CHECK(q.phase() == Phase::Failed);
+    CHECK(q.course().reason.find("the table did not acknowledge enable within 1000 ms") == 0);
+    CHECK(q.course().reason.find("the quick stop was not acknowledged") != std::string::npos);
+  }
+}
