@@ -3,9 +3,11 @@
 #pragma once
 
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <filesystem>
 #include <initializer_list>
+#include <limits>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -67,10 +69,48 @@ struct CanConfig {
   std::array<SignalRef, kRoleCount> roles;
 };
 
+/// The stand's mounting and limits ([stand]); every table command is
+/// checked against them before it goes out.
+struct StandConfig {
+  double heading_offset_rad = 0;               ///< heading of z2 = heading_offset - table angle
+  double max_rate_rps = 0.5235987755982988;    ///< 30 deg/s
+  double max_accel_rps2 = 0.5235987755982988;  ///< 30 deg/s^2
+  double angle_min_rad = -1e9;                 ///< multi-turn table angle, as the host unwraps it
+  double angle_max_rad = 1e9;
+  /// Stand seconds per real second: 1 on a real stand; N for a virtual
+  /// stand run N times faster than real time.
+  double time_scale = 1;
+};
+
+struct DaemonConfig {
+  std::filesystem::path state_directory = "/var/lib/turncal";  ///< logs and reports
+  std::filesystem::path socket = "/run/turncal/control.sock";  ///< unless socket-activated
+  std::string socket_group;  ///< group of the control socket; empty: the daemon's
+  std::filesystem::path
+      profile;           ///< the plan a start runs unless it names one (set by parse_config)
+  bool observe = false;  ///< follow a stand someone else drives
+  double heartbeat_hz = 10;
+};
+
+/// Pass/fail of one estimate, in display units (deg/h, ppm, ug, mm).
+struct Tolerance {
+  std::string parameter;  ///< model.md's name, or df_eff_1, df_eff_2
+  double max_abs = std::numeric_limits<double>::infinity();  ///< |estimate| at most this
+  double max_sigma =
+      std::numeric_limits<double>::infinity();  ///< its standard deviation at most this
+};
+
 struct Config {
   std::filesystem::path source;  ///< the file it came from
   CanConfig can;
+  StandConfig stand;
+  DaemonConfig daemon;
+  std::vector<Tolerance> tolerances;
 };
+
+/// Display unit of a parameter of the report ("deg/h", "ppm", "ug", "mm")
+/// and the factor from SI to it; an empty unit for an unknown name.
+std::pair<std::string_view, double> display_unit(std::string_view parameter);
 
 /// The reference stand's roles (can-icd.md); the defaults of [can.roles].
 std::array<SignalRef, kRoleCount> reference_roles();

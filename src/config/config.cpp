@@ -170,6 +170,98 @@ std::array<SignalRef, kRoleCount> reference_roles() {
   return out;
 }
 
+namespace {
+
+constexpr double kDegRad = 0.017453292519943295;
+
+const toml::table* section(const toml::table& root, std::string_view key, Status& st,
+                           const std::string& file) {
+  const toml::node* n = root.get(key);
+  if (n == nullptr) return nullptr;
+  if (!n->is_table()) {
+    st = make_error("key '" + std::string(key) + "': expected a table", pos_of(n->source(), file));
+    return nullptr;
+  }
+  return n->as_table();
+}
+
+Status read_stand(const toml::table& t, const std::string& file, StandConfig& s) {
+  Reader r(t, file, "stand.");
+  TURNCAL_TRY(r.no_unknown_keys({"heading_offset_deg", "max_rate_dps", "max_accel_dps2",
+                                 "angle_min_deg", "angle_max_deg", "time_scale"}));
+  double off = s.heading_offset_rad / kDegRad, rate = s.max_rate_rps / kDegRad,
+         acc = s.max_accel_rps2 / kDegRad, lo = -1e6, hi = 1e6;
+  TURNCAL_TRY(r.number("heading_offset_deg", off, -360, 360));
+  TURNCAL_TRY(r.number("max_rate_dps", rate, 0.01, 1000));
+  TURNCAL_TRY(r.number("max_accel_dps2", acc, 0.01, 10000));
+  TURNCAL_TRY(r.number("angle_min_deg", lo, -1e6, 1e6));
+  TURNCAL_TRY(r.number("angle_max_deg", hi, -1e6, 1e6));
+  TURNCAL_TRY(r.number("time_scale", s.time_scale, 1e-3, 1e4));
+  if (!(lo < hi))
+    return r.error_at(*t.get("angle_max_deg"), "angle_max_deg", "must be above angle_min_deg");
+  s.heading_offset_rad = off * kDegRad;
+  s.max_rate_rps = rate * kDegRad;
+  s.max_accel_rps2 = acc * kDegRad;
+  if (t.get("angle_min_deg") != nullptr) s.angle_min_rad = lo * kDegRad;
+  if (t.get("angle_max_deg") != nullptr) s.angle_max_rad = hi * kDegRad;
+  return Status{Ok{}};
+}
+
+Status read_daemon(const toml::table& t, const std::string& file, DaemonConfig& d) {
+  Reader r(t, file, "daemon.");
+  TURNCAL_TRY(r.no_unknown_keys(
+      {"state_directory", "socket", "socket_group", "profile", "observe", "heartbeat_hz"}));
+  std::string state = d.state_directory.string(), sock = d.socket.string(), prof;
+  TURNCAL_TRY(r.string("state_directory", state));
+  TURNCAL_TRY(r.string("socket", sock));
+  TURNCAL_TRY(r.string("socket_group", d.socket_group));
+  TURNCAL_TRY(r.string("profile", prof));
+  TURNCAL_TRY(r.boolean("observe", d.observe));
+  TURNCAL_TRY(r.number("heartbeat_hz", d.heartbeat_hz, 2, 100));
+  const std::filesystem::path base = std::filesystem::path(file).parent_path();
+  d.state_directory = state;
+  d.socket = sock;
+  if (!prof.empty())
+    d.profile =
+        std::filesystem::path(prof).is_absolute() ? std::filesystem::path(prof) : base / prof;
+  return Status{Ok{}};
+}
+
+Status read_tolerances(const toml::table& t, const std::string& file, std::vector<Tolerance>& out) {
+  for (auto&& [k, v] : t) {
+    const std::string name(k.str());
+    if (display_unit(name).first.empty())
+      return make_error("unknown key 'tolerances." + name + "': not a parameter of the report",
+                        pos_of(k.source(), file));
+    if (!v.is_table())
+      return make_error("key 'tolerances." + name + "': expected a table like { max_abs = 1 }",
+                        pos_of(v.source(), file));
+    Reader r(*v.as_table(), file, "tolerances." + name + ".");
+    TURNCAL_TRY(r.no_unknown_keys({"max_abs", "max_sigma"}));
+    Tolerance tol{name};
+    TURNCAL_TRY(r.number("max_abs", tol.max_abs, 0, 1e12));
+    TURNCAL_TRY(r.number("max_sigma", tol.max_sigma, 0, 1e12));
+    out.push_back(tol);
+  }
+  return Status{Ok{}};
+}
+
+}  // namespace
+
+std::pair<std::string_view, double> display_unit(std::string_view p) {
+  constexpr double kDegPerHour = kDegRad / 3600;
+  constexpr double kMicroG = 9.80665e-6;
+  if (p == "nu0_1" || p == "nu0_2" || p == "nu0_3") return {"deg/h", 1 / kDegPerHour};
+  if (p.starts_with("theta_") && p.size() == 8 && p[6] >= '1' && p[6] <= '3' && p[7] >= '1' &&
+      p[7] <= '3')
+    return {"ppm", 1e6};
+  if (p == "df0_1" || p == "df0_2" || p == "df_eff_1" || p == "df_eff_2")
+    return {"ug", 1 / kMicroG};
+  if (p == "g13" || p == "g23") return {"ppm", 1e6};
+  if (p == "r1" || p == "r2") return {"mm", 1e3};
+  return {"", 0};
+}
+
 Result<Config> parse_config(std::string_view text, const std::string& file) {
   toml::table root;
   try {
@@ -179,11 +271,22 @@ Result<Config> parse_config(std::string_view text, const std::string& file) {
   }
   Config cfg;
   cfg.source = file;
+  cfg.daemon.profile = std::filesystem::path(file).parent_path() / "profiles" / "tactical.toml";
   for (auto&& [k, v] : root) {
-    if (k.str() != "can")
+    if (k.str() != "can" && k.str() != "stand" && k.str() != "daemon" && k.str() != "tolerances")
       return make_error("unknown section or key '" + std::string(k.str()) + "'",
                         pos_of(k.source(), file));
   }
+  Status st{Ok{}};
+  if (const toml::table* t = section(root, "stand", st, file))
+    TURNCAL_TRY(read_stand(*t, file, cfg.stand));
+  TURNCAL_TRY(st);
+  if (const toml::table* t = section(root, "daemon", st, file))
+    TURNCAL_TRY(read_daemon(*t, file, cfg.daemon));
+  TURNCAL_TRY(st);
+  if (const toml::table* t = section(root, "tolerances", st, file))
+    TURNCAL_TRY(read_tolerances(*t, file, cfg.tolerances));
+  TURNCAL_TRY(st);
   toml::table empty;
   const toml::node* can = root.get("can");
   if (can != nullptr && !can->is_table())

@@ -12,6 +12,7 @@
 #include "scenarios.hpp"
 #include "turncal/drivers/scripted_host.hpp"
 #include "turncal/run/engine.hpp"
+#include "turncal/run/report.hpp"
 
 using namespace turncal;
 using namespace scenario;
@@ -312,6 +313,25 @@ TEST_SUITE("run engine on the virtual stand") {
     REQUIRE(r.ok());
     CHECK(r->x == live.result->x);
     CHECK(r->p == live.result->p);
+    // the report: every estimate with its sigma, prior and unit; the text in display units
+    run::ReportContext ctx{"r1", 0, 0, "test", "", "", "", "", {{"nu0_1", 1e9, 1e9}}, "command"};
+    const auto j = run::report_json(ctx, live.engine, &*live.input, &*live.result);
+    CHECK(j["status"] == "done");
+    REQUIRE(j["estimates"].size() == 20);
+    for (const auto& [name, e] : j["estimates"].items()) {
+      CAPTURE(name);
+      CHECK(e["sigma"].get<double>() > 0);
+      CHECK(e["prior_sigma"].get<double>() >= e["sigma"].get<double>());
+      CHECK(!e["unit"].get<std::string>().empty());
+    }
+    CHECK(j["estimates"]["nu0_1"]["unit"] == "rad/s");
+    CHECK(!j["combinations"].empty());
+    CHECK(j["verdict"]["pass"] == true);
+    CHECK(j["turns_achieved"][0]["angle_rad"].get<double>() ==
+          doctest::Approx(std::numbers::pi).epsilon(1e-6));
+    const std::string text = run::report_text(j);
+    CHECK(text.find("deg/h") != std::string::npos);
+    CHECK(text.find("verdict: PASS") != std::string::npos);
     // the observer saw the same phases: hold 1, turn 1, hold 2
     int turns = 0;
     for (const auto& m : replay.sequencer().course().marks) turns += m.phase == run::Phase::Turn;
@@ -335,6 +355,13 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(c.sent(run::TableCode::QuickStop) == 1);
     CHECK(c.loop.stand().table().status(c.loop.next_time()).state ==
           stand::TableState::QuickStopped);
+    // its report says why, and has no estimates
+    const auto j = run::report_json({}, c.engine, nullptr, nullptr);
+    CHECK(j["status"] == "aborted");
+    CHECK(j["reason"] == "aborted by the operator");
+    CHECK(j["quick_stop"]["acknowledged"] == true);
+    CHECK_FALSE(j.contains("estimates"));
+    CHECK(j["verdict"]["pass"] == false);
   }
 
   TEST_CASE("faults give their reason and stop the table") {

@@ -1,6 +1,8 @@
 #include <doctest/doctest.h>
 
+#include <cmath>
 #include <fstream>
+#include <numbers>
 #include <string>
 
 #include "turncal/config.hpp"
@@ -103,4 +105,52 @@ TEST_SUITE("config") {
     REQUIRE_FALSE(db.ok());
     CHECK(db.error().where.file == "/tmp/nope.dbc");
   }
+}
+
+TEST_CASE("config: [stand], [daemon] and [tolerances]") {
+  const std::string file = "/etc/turncal/turncal.toml";
+  auto c = parse_config(R"([stand]
+heading_offset_deg = 90
+max_rate_dps = 20
+angle_min_deg = -10
+angle_max_deg = 370
+time_scale = 50
+[daemon]
+state_directory = "/tmp/x"
+profile = "p.toml"
+[tolerances]
+nu0_1 = { max_abs = 0.5, max_sigma = 0.01 }
+r2 = { max_sigma = 1 }
+)",
+                        file);
+  REQUIRE_MESSAGE(c.ok(), c.error().describe());
+  CHECK(c->stand.heading_offset_rad == doctest::Approx(std::numbers::pi / 2));
+  CHECK(c->stand.max_rate_rps == doctest::Approx(20 * std::numbers::pi / 180));
+  CHECK(c->stand.angle_max_rad == doctest::Approx(370 * std::numbers::pi / 180));
+  CHECK(c->stand.time_scale == 50);
+  CHECK(c->daemon.state_directory == "/tmp/x");
+  CHECK(c->daemon.profile == "/etc/turncal/p.toml");
+  REQUIRE(c->tolerances.size() == 2);
+  CHECK(c->tolerances[0].parameter == "nu0_1");
+  CHECK(c->tolerances[0].max_abs == 0.5);
+  CHECK(std::isinf(c->tolerances[1].max_abs));
+  CHECK(display_unit("theta_23").first == "ppm");
+  CHECK(display_unit("df_eff_2").second == doctest::Approx(1 / 9.80665e-6));
+
+  auto bad = parse_config("[tolerances]\nnu0_4 = { max_abs = 1 }\n", file);
+  REQUIRE_FALSE(bad.ok());
+  CHECK(bad.error().describe() ==
+        "/etc/turncal/turncal.toml:2:1: unknown key 'tolerances.nu0_4': not a parameter of the "
+        "report");
+  auto limits = parse_config("[stand]\nangle_min_deg = 10\nangle_max_deg = 5\n", file);
+  REQUIRE_FALSE(limits.ok());
+  CHECK(limits.error().describe().find(":3:") != std::string::npos);
+  CHECK(limits.error().describe().find("stand.angle_max_deg") != std::string::npos);
+  // the shipped file: every key its default
+  auto shipped = load_config(std::string(TURNCAL_SOURCE_DIR) + "/config/turncal.toml");
+  REQUIRE_MESSAGE(shipped.ok(), shipped.error().describe());
+  CHECK(shipped->stand.heading_offset_rad == 0);
+  CHECK(shipped->stand.time_scale == 1);
+  CHECK(shipped->daemon.profile.filename() == "tactical.toml");
+  CHECK(shipped->tolerances.empty());
 }

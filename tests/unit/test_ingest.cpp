@@ -159,3 +159,25 @@ TEST_SUITE("sequencer") {
     CHECK(q.course().reason.find("the quick stop was not acknowledged") != std::string::npos);
   }
 }
+
+#include "turncal/run/report.hpp"
+
+TEST_CASE("sha256: the FIPS 180-4 examples") {
+  CHECK(sha256_hex("") == "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855");
+  CHECK(sha256_hex("abc") == "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad");
+  CHECK(sha256_hex("abcdbcdecdefdefgefghfghighijhijkijkljklmklmnlmnomnopnopq") ==
+        "248d6a61d20638b8e5c026930c3e6039a33ce45964ff2167f6ecedd419db06c1");
+  CHECK(sha256_hex(std::string(1000, 'a')) ==
+        "41edece42d63e8d9bf515a9ba6932e1c20cbc9f5a5d134645adb5db1b9737ea3");
+}
+
+TEST_CASE("judge: tolerances in display units; none means pass") {
+  const nlohmann::json e = {{"nu0_1", {{"value", 1e-6}, {"sigma", 1e-8}}}};  // rad/s
+  CHECK(judge(e, {})["pass"] == true);
+  // 1e-6 rad/s = 0.206 deg/h
+  auto v = judge(e, {{"nu0_1", 0.3, 0.01}});
+  CHECK(v["pass"] == true);
+  CHECK(v["checks"][0]["value"].get<double>() == doctest::Approx(0.2063).epsilon(1e-3));
+  CHECK(judge(e, {{"nu0_1", 0.2, 0.01}})["pass"] == false);
+  CHECK(judge(e, {{"r1", 1, 1}})["checks"][0]["why"] == "not estimated");
+}

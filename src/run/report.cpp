@@ -1,0 +1,338 @@
+#include "turncal/run/report.hpp"
+
+#include <array>
+#include <cmath>
+#include <cstdio>
+#include <numbers>
+
+namespace turncal::run {
+
+using nlohmann::json;
+
+// ---- SHA-256 (FIPS 180-4, section 6.2) ----
+
+namespace {
+
+constexpr std::array<std::uint32_t, 64> kK = {
+    0x428a2f98, 0x71374491, 0xb5c0fbcf, 0xe9b5dba5, 0x3956c25b, 0x59f111f1, 0x923f82a4, 0xab1c5ed5,
+    0xd807aa98, 0x12835b01, 0x243185be, 0x550c7dc3, 0x72be5d74, 0x80deb1fe, 0x9bdc06a7, 0xc19bf174,
+    0xe49b69c1, 0xefbe4786, 0x0fc19dc6, 0x240ca1cc, 0x2de92c6f, 0x4a7484aa, 0x5cb0a9dc, 0x76f988da,
+    0x983e5152, 0xa831c66d, 0xb00327c8, 0xbf597fc7, 0xc6e00bf3, 0xd5a79147, 0x06ca6351, 0x14292967,
+    0x27b70a85, 0x2e1b2138, 0x4d2c6dfc, 0x53380d13, 0x650a7354, 0x766a0abb, 0x81c2c92e, 0x92722c85,
+    0xa2bfe8a1, 0xa81a664b, 0xc24b8b70, 0xc76c51a3, 0xd192e819, 0xd6990624, 0xf40e3585, 0x106aa070,
+    0x19a4c116, 0x1e376c08, 0x2748774c, 0x34b0bcb5, 0x391c0cb3, 0x4ed8aa4a, 0x5b9cca4f, 0x682e6ff3,
+    0x748f82ee, 0x78a5636f, 0x84c87814, 0x8cc70208, 0x90befffa, 0xa4506ceb, 0xbef9a3f7, 0xc67178f2};
+
+constexpr std::uint32_t rotr(std::uint32_t x, int n) {
+  return (x >> n) | (x << (32 - n));
+}
+
+void block(std::array<std::uint32_t, 8>& h, const unsigned char* p) {
+  std::array<std::uint32_t, 64> w{};
+  for (std::size_t t = 0; t < 16; ++t)
+    w[t] = static_cast<std::uint32_t>(p[4 * t]) << 24 |
+           static_cast<std::uint32_t>(p[4 * t + 1]) << 16 |
+           static_cast<std::uint32_t>(p[4 * t + 2]) << 8 | static_cast<std::uint32_t>(p[4 * t + 3]);
+  for (std::size_t t = 16; t < 64; ++t) {
+    const std::uint32_t s0 = rotr(w[t - 15], 7) ^ rotr(w[t - 15], 18) ^ (w[t - 15] >> 3);
+    const std::uint32_t s1 = rotr(w[t - 2], 17) ^ rotr(w[t - 2], 19) ^ (w[t - 2] >> 10);
+    w[t] = w[t - 16] + s0 + w[t - 7] + s1;
+  }
+  auto [a, b, c, d, e, f, g, hh] = h;
+  for (std::size_t t = 0; t < 64; ++t) {
+    const std::uint32_t t1 =
+        hh + (rotr(e, 6) ^ rotr(e, 11) ^ rotr(e, 25)) + ((e & f) ^ (~e & g)) + kK[t] + w[t];
+    const std::uint32_t t2 =
+        (rotr(a, 2) ^ rotr(a, 13) ^ rotr(a, 22)) + ((a & b) ^ (a & c) ^ (b & c));
+    hh = g;
+    g = f;
+    f = e;
+    e = d + t1;
+    d = c;
+    c = b;
+    b = a;
+    a = t1 + t2;
+  }
+  h[0] += a;
+  h[1] += b;
+  h[2] += c;
+  h[3] += d;
+  h[4] += e;
+  h[5] += f;
+  h[6] += g;
+  h[7] += hh;
+}
+
+}  // namespace
+
+std::string sha256_hex(std::string_view data) {
+  std::array<std::uint32_t, 8> h = {0x6a09e667, 0xbb67ae85, 0x3c6ef372, 0xa54ff53a,
+                                    0x510e527f, 0x9b05688c, 0x1f83d9ab, 0x5be0cd19};
+  const auto* p = reinterpret_cast<const unsigned char*>(data.data());
+  std::size_t n = data.size();
+  std::size_t i = 0;
+  for (; i + 64 <= n; i += 64) block(h, p + i);
+  std::array<unsigned char, 128> tail{};
+  const std::size_t rest = n - i;
+  for (std::size_t k = 0; k < rest; ++k) tail[k] = p[i + k];
+  tail[rest] = 0x80;
+  const std::size_t len = rest + 9 <= 64 ? 64 : 128;
+  const std::uint64_t bits = static_cast<std::uint64_t>(n) * 8;
+  for (std::size_t k = 0; k < 8; ++k)
+    tail[len - 1 - k] = static_cast<unsigned char>(bits >> (8 * k));
+  block(h, tail.data());
+  if (len == 128) block(h, tail.data() + 64);
+  std::string out;
+  char buf[9];
+  for (std::uint32_t v : h) {
+    std::snprintf(buf, sizeof buf, "%08x", v);
+    out += buf;
+  }
+  return out;
+}
+
+// ---- the report ----
+
+namespace {
+
+json estimate_json(const est::ParameterEstimate& p) {
+  return {{"value", p.value},
+          {"sigma", p.sigma},
+          {"prior_sigma", p.prior_sigma},
+          {"unit", std::string(p.unit)}};
+}
+
+json health_json(const StreamHealth& h, double now) {
+  return {{"frames", h.frames},
+          {"dropped", h.dropped},
+          {"nominal_hz", h.nominal_hz},
+          {"rate_hz", h.rate_hz()},
+          {"age_s", std::isnan(h.last_host_s) ? json(nullptr) : json(h.age_s(now))}};
+}
+
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wformat-nonliteral"
+// only ever called with the literal formats below
+std::string fmt(const char* f, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, f, v);
+  return buf;
+}
+#pragma GCC diagnostic pop
+
+}  // namespace
+
+json judge(const json& estimates, const std::vector<Tolerance>& tolerances) {
+  json checks = json::array();
+  bool pass = true;
+  for (const Tolerance& t : tolerances) {
+    const auto [unit, k] = display_unit(t.parameter);
+    json c = {{"parameter", t.parameter}, {"unit", std::string(unit)}};
+    if (!estimates.contains(t.parameter)) {
+      c["pass"] = false;
+      c["why"] = "not estimated";
+      pass = false;
+      checks.push_back(c);
+      continue;
+    }
+    const double v = estimates[t.parameter]["value"].get<double>() * k;
+    const double s = estimates[t.parameter]["sigma"].get<double>() * k;
+    const bool ok_v = std::abs(v) <= t.max_abs, ok_s = s <= t.max_sigma;
+    c["value"] = v;
+    c["sigma"] = s;
+    if (std::isfinite(t.max_abs)) c["max_abs"] = t.max_abs;
+    if (std::isfinite(t.max_sigma)) c["max_sigma"] = t.max_sigma;
+    c["pass"] = ok_v && ok_s;
+    pass = pass && ok_v && ok_s;
+    checks.push_back(c);
+  }
+  return {{"pass", pass}, {"checks", checks}};
+}
+
+json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInput* input,
+                 const est::EstimationResult* result) {
+  const Sequencer& seq = engine.sequencer();
+  const Course& course = seq.course();
+  const Plan& plan = engine.plan();
+  const double now = seq.course().marks.empty() ? 0 : seq.course().marks.back().t_s;
+  json j;
+  j["format"] = "turncal-report-1";
+  j["run_id"] = ctx.run_id;
+  j["status"] = to_string(seq.phase());
+  if (!course.reason.empty()) j["reason"] = course.reason;
+  j["start_time_unix_s"] = ctx.start_unix_s;
+  j["end_time_unix_s"] = ctx.end_unix_s;
+  j["software_version"] = ctx.software_version;
+  j["mode"] = ctx.mode;
+  j["config"] = {{"file", ctx.config_file}, {"sha256", ctx.config_sha256}};
+  j["log"] = {{"file", ctx.log_file}, {"sha256", ctx.log_sha256}};
+  j["time_base"] = {{"epoch_us", engine.time_base().epoch_us}, {"scale", engine.time_base().scale}};
+  j["site"] = {{"latitude_rad", plan.site.latitude_rad}, {"height_m", plan.site.height_m}};
+  json turns = json::array();
+  for (const TurnSpec& t : plan.profile.turns)
+    turns.push_back({{"start_s", t.start_s},
+                     {"angle_rad", t.angle_rad},
+                     {"max_rate_rps", t.max_rate_rps},
+                     {"max_accel_rps2", t.max_accel_rps2}});
+  j["profile"] = {{"name", plan.name},
+                  {"file", plan.source},
+                  {"align_s", plan.profile.align_s},
+                  {"duration_s", plan.profile.duration_s},
+                  {"start_angle_rad", plan.start_angle_rad},
+                  {"turns", turns}};
+  // health
+  const Ingest& in = engine.ingest();
+  j["health"] = {
+      {"ins_velocity", health_json(in.health(kVelocity), now)},
+      {"ins_status", health_json(in.health(kInsStatus), now)},
+      {"table_encoder", health_json(in.health(kEncoder), now)},
+      {"table_status", health_json(in.health(kTableStatus), now)},
+      {"frames", in.counters().frames},
+      {"unknown_id", in.counters().unknown_id},
+      {"malformed", in.counters().malformed},
+      {"ignored", in.counters().ignored},
+      {"clock_outliers", in.counters().clock_outliers},
+      {"half_velocity_pairs", in.counters().half_pairs},
+      {"ins_clock_rate_ppm", in.ins_clock().rate_ppm()},
+      {"table_clock_rate_ppm", in.table_clock().rate_ppm()},
+      {"ins_clock_rms_s", in.ins_clock().rms_s()},
+      {"table_clock_rms_s", in.table_clock().rms_s()},
+  };
+  // phase timings, from the start
+  json phases = json::array();
+  const double t_start = course.marks.empty() ? 0 : course.marks.front().t_s;
+  for (std::size_t i = 0; i < course.marks.size(); ++i) {
+    const PhaseMark& m = course.marks[i];
+    json p = {{"phase", to_string(m.phase)}, {"start_s", m.t_s - t_start}};
+    if (m.index > 0) p["index"] = m.index;
+    if (i + 1 < course.marks.size()) p["duration_s"] = course.marks[i + 1].t_s - m.t_s;
+    phases.push_back(p);
+  }
+  j["phases"] = phases;
+  j["t0_from_start_s"] = std::isnan(course.t0_s) ? json(nullptr) : json(course.t0_s - t_start);
+  j["quick_stop"] = {{"sent", course.quick_stop_sent}, {"acknowledged", course.quick_stop_acked}};
+  if (!std::isnan(course.heading_given_rad)) j["heading_given_rad"] = course.heading_given_rad;
+  if (input != nullptr) {
+    json achieved = json::array();
+    for (const TurnAchieved& a : input->turns)
+      achieved.push_back(
+          {{"start_s", a.t_start_s},
+           {"end_s", a.t_end_s},
+           {"angle_rad", a.angle_rad},
+           {"peak_rate_rps", a.peak_rate_rps},
+           {"planned_angle_rad",
+            std::isnan(a.planned_angle_rad) ? json(nullptr) : json(a.planned_angle_rad)}});
+    j["turns_achieved"] = achieved;
+    j["velocity_samples"] = input->velocity_used;
+    j["notes"] = input->notes;
+  }
+  if (result != nullptr) {
+    json e = json::object();
+    for (const auto& p : result->parameters) e[std::string(p.name)] = estimate_json(p);
+    for (const auto& p : result->df_eff) e[std::string(p.name)] = estimate_json(p);
+    j["estimates"] = e;
+    json combos = json::array();
+    for (const est::Combination& c : result->combinations) {
+      json coeff = json::object();
+      for (std::size_t i = 0; i < c.coeff.size(); ++i)
+        if (c.coeff[i] != 0) coeff[std::string(est::kParamNames[i])] = c.coeff[i];
+      combos.push_back({{"lead", std::string(est::kParamNames[static_cast<std::size_t>(c.lead)])},
+                        {"unit", std::string(est::kParamUnits[static_cast<std::size_t>(c.lead)])},
+                        {"coefficients", coeff},
+                        {"value", c.value},
+                        {"sigma", c.sigma},
+                        {"prior_sigma", c.prior_sigma}});
+    }
+    j["combinations"] = combos;
+    if (result->has_two_stage) {
+      json ts = json::object();
+      for (std::size_t i = 0; i < est::kParamNames.size(); ++i)
+        ts[std::string(est::kParamNames[i])] = {
+            {"sigma", result->two_stage.sigma[i]},
+            {"single_loop_over_two_stage", result->two_stage.ratio[i]}};
+      j["two_stage"] = ts;
+    }
+    const est::InnovationStats& s = result->innovation_stats;
+    j["innovations"] = {{"count", s.count},
+                        {"nis_mean", s.nis_mean},
+                        {"nis_95_interval", {s.nis_lo, s.nis_hi}},
+                        {"consistent", s.consistent()},
+                        {"ljung_box_lags", s.lags},
+                        {"ljung_box", {s.ljung_box[0], s.ljung_box[1]}},
+                        {"ljung_box_limit", s.ljung_box_limit},
+                        {"white", s.white()},
+                        {"degraded_updates", result->degraded_updates}};
+    j["verdict"] = judge(e, ctx.tolerances);
+  } else {
+    j["verdict"] = {{"pass", false}, {"checks", json::array()}, {"why", "no estimates"}};
+  }
+  return j;
+}
+
+std::string report_text(const json& r) {
+  std::string out;
+  auto line = [&](const std::string& s) { out += s + "\n"; };
+  line("turncal report " + r.value("run_id", std::string("?")) + ": " +
+       r.value("status", std::string("?")));
+  if (r.contains("reason")) line("  reason: " + r["reason"].get<std::string>());
+  if (r.contains("profile"))
+    line("  profile: " + r["profile"].value("name", std::string()) + " (" +
+         fmt("%.0f s", r["profile"].value("duration_s", 0.0)) + ")");
+  if (r.contains("log")) line("  log: " + r["log"].value("file", std::string()));
+  if (r.contains("turns_achieved"))
+    for (const auto& t : r["turns_achieved"])
+      line("  turn: " + fmt("%.4f deg", t["angle_rad"].get<double>() * 180 / std::numbers::pi) +
+           " at peak " +
+           fmt("%.3f deg/s", t["peak_rate_rps"].get<double>() * 180 / std::numbers::pi) +
+           fmt(", %.2f s", t["start_s"].get<double>()) +
+           fmt(" to %.2f s after t0", t["end_s"].get<double>()));
+  if (r.contains("estimates")) {
+    line("");
+    line("  parameter        estimate        sigma        prior  unit");
+    for (const auto& [name, e] : r["estimates"].items()) {
+      const auto [unit, k] = display_unit(name);
+      char buf[160];
+      std::snprintf(buf, sizeof buf, "  %-10s %14.6g %12.4g %12.4g  %s", name.c_str(),
+                    e["value"].get<double>() * k, e["sigma"].get<double>() * k,
+                    e["prior_sigma"].get<double>() * k, std::string(unit).c_str());
+      line(buf);
+    }
+  }
+  if (r.contains("combinations") && !r["combinations"].empty()) {
+    line("");
+    line("  combinations the run determined (lead coefficient 1):");
+    for (const auto& c : r["combinations"]) {
+      const std::string lead = c["lead"].get<std::string>();
+      const auto [unit, k] = display_unit(lead);
+      std::string terms;
+      for (const auto& [n, v] : c["coefficients"].items()) {
+        if (std::abs(v.get<double>()) < 1e-3) continue;
+        terms += (terms.empty() ? "" : " + ") + fmt("%.3g ", v.get<double>()) + n;
+      }
+      line("    " + terms + " = " + fmt("%.6g", c["value"].get<double>() * k) + " +- " +
+           fmt("%.3g ", c["sigma"].get<double>() * k) + std::string(unit));
+    }
+  }
+  if (r.contains("innovations")) {
+    const auto& i = r["innovations"];
+    line("");
+    line("  innovations: NIS mean " + fmt("%.3f", i["nis_mean"].get<double>()) +
+         " (95%: " + fmt("%.3f", i["nis_95_interval"][0].get<double>()) + " to " +
+         fmt("%.3f", i["nis_95_interval"][1].get<double>()) + "), " +
+         (i["white"].get<bool>() ? "white" : "NOT white"));
+  }
+  if (r.contains("verdict")) {
+    const auto& v = r["verdict"];
+    for (const auto& c : v["checks"])
+      line("  " + std::string(c["pass"].get<bool>() ? "pass " : "FAIL ") +
+           c["parameter"].get<std::string>() +
+           (c.contains("value")
+                ? fmt(" = %.4g", c["value"].get<double>()) +
+                      fmt(" +- %.3g ", c["sigma"].get<double>()) + c["unit"].get<std::string>()
+                : std::string(": not estimated")));
+    line(std::string("  verdict: ") + (v["pass"].get<bool>() ? "PASS" : "FAIL"));
+  }
+  return out;
+}
+
+}  // namespace turncal::run
