@@ -1,0 +1,229 @@
+// turncalctl: the operator's command line over turncald's control socket.
+//
+//   turncalctl [--socket PATH] [--json] start [--profile PLAN.toml] [--watch]
+//   turncalctl [--socket PATH] [--json] status | watch | abort [REASON]
+//   turncalctl [--socket PATH] [--json] reports | show RUN_ID
+//
+// Exit codes: 0 done (a watched run ended done, a request answered ok);
+// 1 the daemon refused the request or the watched run failed or was
+// aborted; 2 usage; 3 the daemon cannot be reached.
+#include <sys/socket.h>
+#include <sys/un.h>
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <nlohmann/json.hpp>
+#include <string>
+
+using nlohmann::json;
+
+namespace {
+
+constexpr int kOk = 0, kRefused = 1, kUsage = 2, kUnreachable = 3;
+
+class Connection {
+ public:
+  explicit Connection(const std::string& path) {
+    fd_ = ::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
+    sockaddr_un a{};
+    a.sun_family = AF_UNIX;
+    if (path.size() >= sizeof a.sun_path) return;
+    std::memcpy(a.sun_path, path.c_str(), path.size());
+    if (::connect(fd_, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0) {
+      ::close(fd_);
+      fd_ = -1;
+    }
+  }
+  ~Connection() {
+    if (fd_ >= 0) ::close(fd_);
+  }
+  Connection(const Connection&) = delete;
+  Connection& operator=(const Connection&) = delete;
+  [[nodiscard]] bool ok() const { return fd_ >= 0; }
+  bool send(const json& j) {
+    const std::string s = j.dump() + "\n";
+    return ::send(fd_, s.data(), s.size(), MSG_NOSIGNAL) == static_cast<ssize_t>(s.size());
+  }
+  /// The next reply line; a discarded json at end of stream.
+  json next() {
+    for (;;) {
+      if (const auto nl = buf_.find('\n'); nl != std::string::npos) {
+        const std::string line = buf_.substr(0, nl);
+        buf_.erase(0, nl + 1);
+        return json::parse(line, nullptr, false);
+      }
+      char b[65536];
+      const ssize_t n = ::recv(fd_, b, sizeof b, 0);
+      if (n <= 0) return json::value_t::discarded;
+      buf_.append(b, static_cast<std::size_t>(n));
+    }
+  }
+
+ private:
+  int fd_ = -1;
+  std::string buf_;
+};
+
+std::string clock_text(double s) {
+  if (!std::isfinite(s)) return "--:--";
+  const long t = std::lround(s);
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%ld:%02ld:%02ld", t / 3600, t / 60 % 60, t % 60);
+  return buf;
+}
+
+/// One progress line: phase, elapsed and remaining, live velocity, table
+/// angle, frame health.
+std::string progress(const json& s) {
+  auto num = [&](const char* k) {
+    return s.contains(k) && s[k].is_number() ? s[k].get<double>()
+                                             : std::numeric_limits<double>::quiet_NaN();
+  };
+  std::string phase = s.value("phase", std::string("?"));
+  if (s.value("index", 0) > 0) phase += " " + std::to_string(s["index"].get<int>());
+  const double dur = num("duration_s"), rem = num("remaining_s");
+  const double frac = std::isfinite(rem) && dur > 0 ? 1 - rem / dur : 0;
+  std::string bar(20, ' ');
+  for (int i = 0; i < static_cast<int>(frac * 20) && i < 20; ++i)
+    bar[static_cast<std::size_t>(i)] = '#';
+  char buf[256];
+  std::snprintf(buf, sizeof buf,
+                "[%s] %-10s %s elapsed, %s left | v %+.4f %+.4f m/s | table %8.3f deg", bar.c_str(),
+                phase.c_str(), clock_text(num("elapsed_s")).c_str(), clock_text(rem).c_str(),
+                num("ve"), num("vn"), num("table_angle_deg"));
+  std::string out = buf;
+  if (s.contains("health"))
+    for (const auto& [name, h] : s["health"].items())
+      out += " | " + name + (h.value("stale", false) ? " STALE" : "") +
+             (h.value("dropped", 0) > 0 ? " -" + std::to_string(h["dropped"].get<long>()) : "");
+  return out;
+}
+
+int watch(Connection& c, bool as_json) {
+  if (!c.send({{"cmd", "watch"}})) return kUnreachable;
+  for (;;) {
+    const json s = c.next();
+    if (s.is_discarded()) {
+      std::fprintf(stderr, "\nturncalctl: the daemon closed the connection\n");
+      return kUnreachable;
+    }
+    if (as_json) {
+      std::printf("%s\n", s.dump().c_str());
+      std::fflush(stdout);
+    } else {
+      std::printf("\r%s\033[K", progress(s).c_str());
+      std::fflush(stdout);
+    }
+    const std::string p = s.value("phase", std::string());
+    if (p == "done" || p == "failed" || p == "aborted") {
+      if (!as_json) {
+        std::printf("\n%s%s\n", p.c_str(),
+                    s.contains("reason") ? (": " + s["reason"].get<std::string>()).c_str() : "");
+      }
+      return p == "done" ? kOk : kRefused;
+    }
+  }
+}
+
+int usage(const char* why) {
+  std::fprintf(stderr,
+               "turncalctl: %s\n"
+               "usage: turncalctl [--socket PATH] [--json] COMMAND\n"
+               "  start [--profile PLAN.toml] [--watch]   start a run\n"
+               "  status                                   the daemon's state\n"
+               "  watch                                    progress until the run ends\n"
+               "  abort [REASON]                           abort the run (the table quick-stops)\n"
+               "  reports                                  the reports kept\n"
+               "  show RUN_ID                              one report\n"
+               "exit codes: 0 ok; 1 refused, or the watched run failed; 2 usage; 3 no daemon\n",
+               why);
+  return kUsage;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string socket = "/run/turncal/control.sock";
+  if (const char* e = std::getenv("TURNCAL_SOCKET")) socket = e;
+  bool as_json = false;
+  int i = 1;
+  for (; i < argc && argv[i][0] == '-'; ++i) {
+    const std::string a = argv[i];
+    if (a == "--json")
+      as_json = true;
+    else if (a == "--socket" && i + 1 < argc)
+      socket = argv[++i];
+    else if (a == "--help" || a == "-h")
+      return usage("help");
+    else
+      return usage(("unknown option " + a).c_str());
+  }
+  if (i >= argc) return usage("missing command");
+  const std::string cmd = argv[i++];
+  json req = {{"cmd", cmd}};
+  bool then_watch = false;
+  if (cmd == "start") {
+    for (; i < argc; ++i) {
+      const std::string a = argv[i];
+      if (a == "--profile" && i + 1 < argc)
+        req["profile"] = argv[++i];
+      else if (a == "--watch")
+        then_watch = true;
+      else
+        return usage(("start: unknown argument " + a).c_str());
+    }
+  } else if (cmd == "abort") {
+    if (i < argc) req["reason"] = argv[i++];
+  } else if (cmd == "show") {
+    if (i >= argc) return usage("show: missing RUN_ID");
+    req = {{"cmd", "report"}, {"run_id", argv[i++]}};
+  } else if (cmd != "status" && cmd != "watch" && cmd != "reports") {
+    return usage(("unknown command " + cmd).c_str());
+  }
+  Connection c(socket);
+  if (!c.ok()) {
+    std::fprintf(stderr, "turncalctl: cannot reach turncald at %s: %s\n", socket.c_str(),
+                 std::strerror(errno));
+    return kUnreachable;
+  }
+  if (cmd == "watch") return watch(c, as_json);
+  if (!c.send(req)) return kUnreachable;
+  const json r = c.next();
+  if (r.is_discarded()) {
+    std::fprintf(stderr, "turncalctl: no answer from turncald\n");
+    return kUnreachable;
+  }
+  if (!r.value("ok", false)) {
+    if (as_json)
+      std::printf("%s\n", r.dump().c_str());
+    else
+      std::fprintf(stderr, "turncalctl: %s\n", r.value("error", std::string("refused")).c_str());
+    return kRefused;
+  }
+  if (as_json) {
+    std::printf("%s\n", (cmd == "show" ? r["report"] : r).dump(2).c_str());
+  } else if (cmd == "status") {
+    std::printf("%s%s\n", progress(r).c_str(),
+                r.contains("reason") ? ("\n" + r["reason"].get<std::string>()).c_str() : "");
+  } else if (cmd == "start") {
+    std::printf("run %s started; log %s\n", r["run_id"].get<std::string>().c_str(),
+                r["log"].get<std::string>().c_str());
+  } else if (cmd == "abort") {
+    std::printf("run %s: abort requested\n", r["run_id"].get<std::string>().c_str());
+  } else if (cmd == "reports") {
+    for (const auto& e : r["reports"])
+      std::printf("%s  %-12s %s\n", e["run_id"].get<std::string>().c_str(),
+                  e["status"].get<std::string>().c_str(), e["pass"].get<bool>() ? "pass" : "fail");
+  } else if (cmd == "show") {
+    std::printf("%s", r["text"].get<std::string>().c_str());
+  }
+  if (then_watch) {
+    Connection w(socket);
+    if (!w.ok()) return kUnreachable;
+    return watch(w, as_json);
+  }
+  return kOk;
+}
