@@ -13,23 +13,21 @@ void Record::add(const Sample& s) {
   }
   const auto* e = std::get_if<EncoderSample>(&s);
   if (e == nullptr) return;
-  ++encoder_seen_;
   if (!table_clock_.add_checked(e->t_table_s, e->host_s)) ++clock_outliers_;
-  if (!encoder_.empty() && e->t_table_s <= encoder_.back().t_table_s) return;  // out of order
+  if (pending_ && e->t_table_s <= last_.t_table_s) return;  // out of order
   if (pending_ && e->angle_rad == last_.angle_rad) {
     last_ = *e;  // the constant run goes on: only its ends are kept
     return;
   }
-  if (pending_ && (encoder_.empty() || encoder_.back().t_table_s != last_.t_table_s))
-    encoder_.push_back(last_);
+  close();
   encoder_.push_back(*e);
   last_ = *e;
   pending_ = true;
 }
 
 void Record::close() {
-  if (pending_ && (encoder_.empty() || encoder_.back().t_table_s != last_.t_table_s))
-    encoder_.push_back(last_);
+  // the end of the constant run, unless it is already kept
+  if (pending_ && encoder_.back().t_table_s != last_.t_table_s) encoder_.push_back(last_);
 }
 
 Result<BuiltInput> build_input(const Record& record, const Plan& plan,

@@ -61,7 +61,7 @@ Sequencer::Sequencer(SequencerSettings s)
 std::string check_plan(const SequencerSettings& s) {
   const TableLimits& l = s.limits;
   double angle = s.start_angle_rad;
-  if (!(angle >= l.angle_min_rad && angle <= l.angle_max_rad))
+  if (!l.contains(angle))
     return "start angle " + deg(angle) + " is outside the table's angle limits [" +
            deg(l.angle_min_rad) + ", " + deg(l.angle_max_rad) + "]";
   double last_start = -1;
@@ -75,7 +75,7 @@ std::string check_plan(const SequencerSettings& s) {
       return name + ": acceleration " + deg(t.max_accel_rps2) + "/s^2 is beyond the limit " +
              deg(l.max_accel_rps2) + "/s^2";
     angle += t.angle_rad;
-    if (!(angle >= l.angle_min_rad && angle <= l.angle_max_rad))
+    if (!l.contains(angle))
       return name + ": end angle " + deg(angle) + " is outside the table's angle limits [" +
              deg(l.angle_min_rad) + ", " + deg(l.angle_max_rad) + "]";
     if (t.start_s <= last_start) return name + ": starts before the turn before it";
@@ -101,7 +101,6 @@ int Sequencer::host_state() const {
 void Sequencer::enter(Phase p, double t, int index) {
   phase_ = p;
   index_ = index;
-  entered_ = t;
   course_.marks.push_back({p, index, t});
 }
 
@@ -189,25 +188,24 @@ void Sequencer::step(const Event& e, std::vector<Command>& out) {
                    (index_ > 0 ? " " + std::to_string(index_) : ""),
                out);
         } else if constexpr (std::is_same_v<E, EstimationDone>) {
-          if (phase_ != Phase::Estimate) return;
-          if (!ev.ok) {
-            course_.reason = "estimation failed: " + ev.error;
-            enter(Phase::Failed, ev.t_s);
-            return;
-          }
-          enter(Phase::Report, ev.t_s);
-          out.emplace_back(WriteReport{});
+          if (outcome(Phase::Estimate, ev.t_s, ev.ok, "estimation failed: " + ev.error))
+            out.emplace_back(WriteReport{});
         } else if constexpr (std::is_same_v<E, ReportWritten>) {
-          if (phase_ != Phase::Report) return;
-          if (!ev.ok) {
-            course_.reason = "report not written: " + ev.error;
-            enter(Phase::Failed, ev.t_s);
-            return;
-          }
-          enter(Phase::Done, ev.t_s);
+          outcome(Phase::Report, ev.t_s, ev.ok, "report not written: " + ev.error);
         }
       },
       e);
+}
+
+bool Sequencer::outcome(Phase in, double t, bool ok, const std::string& why) {
+  if (phase_ != in) return false;
+  if (!ok) {
+    course_.reason = why;
+    enter(Phase::Failed, t);
+    return false;
+  }
+  enter(in == Phase::Estimate ? Phase::Report : Phase::Done, t);
+  return true;
 }
 
 void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
@@ -255,13 +253,10 @@ void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
   if (in_run && nav_time && s_.observe && e.encoder_stale)
     return fail(t, "table encoder lost (no encoder frame for 10 periods)", out);
 
+  // prepare, align and turn each wait on the stand until phase_deadline_
+  if (!s_.observe && phase_ != Phase::Hold && t > phase_deadline_)
+    return fail(t, "timeout: " + waiting_for_, out);
   switch (phase_) {
-    case Phase::Prepare:
-      if (!s_.observe && t > phase_deadline_) return fail(t, "timeout: " + waiting_for_, out);
-      break;
-    case Phase::Align:
-      if (!s_.observe && t > phase_deadline_) return fail(t, "timeout: " + waiting_for_, out);
-      break;
     case Phase::Hold: {
       const double rel = t - course_.t0_s;
       if (next_turn_ < s_.profile.turns.size()) {
@@ -274,7 +269,6 @@ void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
       break;
     }
     case Phase::Turn:
-      if (!s_.observe && t > phase_deadline_) return fail(t, "timeout: " + waiting_for_, out);
       if (s_.observe) observe_motion(t);
       break;
     default:
@@ -285,7 +279,7 @@ void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
 void Sequencer::start_turn(double t, std::vector<Command>& out) {
   const TurnSpec& turn = s_.profile.turns[next_turn_];
   const double target = angle_ + turn.angle_rad;
-  if (!(target >= s_.limits.angle_min_rad && target <= s_.limits.angle_max_rad))
+  if (!s_.limits.contains(target))
     return fail(t,
                 "turn " + std::to_string(next_turn_ + 1) + ": target " + deg(target) +
                     " is outside the table's angle limits",
@@ -293,18 +287,22 @@ void Sequencer::start_turn(double t, std::vector<Command>& out) {
   ++next_turn_;
   enter(Phase::Turn, t, static_cast<int>(next_turn_));
   awaiting_what_ = "the move of turn " + std::to_string(next_turn_);
-  table(TableCode::MoveRelative, t, out, turn.angle_rad, turn.max_rate_rps);
+  move(t, out, turn.angle_rad, turn.max_rate_rps, turn.max_accel_rps2,
+       "turn " + std::to_string(next_turn_) + " not in position");
   course_.turn_commanded_s.push_back(t);
+}
+
+void Sequencer::move(double t, std::vector<Command>& out, double delta, double rate, double accel,
+                     const std::string& late) {
+  table(TableCode::MoveRelative, t, out, delta, rate);
   TableMotion m;
-  const auto mv = m.move_by(0, turn.angle_rad, turn.max_rate_rps, turn.max_accel_rps2);
-  phase_deadline_ = t + mv.t_end + s_.turn_margin_s;
-  waiting_for_ = "turn " + std::to_string(next_turn_) + " not in position within " +
-                 std::to_string(static_cast<int>(std::lround(mv.t_end + s_.turn_margin_s))) + " s";
+  const double due = m.move_by(0, delta, rate, accel).t_end + s_.turn_margin_s;
+  phase_deadline_ = t + due;
+  waiting_for_ = late + " within " + std::to_string(static_cast<int>(std::lround(due))) + " s";
 }
 
 void Sequencer::on_table(const TableStatusEvent& e, std::vector<Command>& out) {
   const double t = e.t_s;
-  table_state_ = e.state;
   last_fault_ = e.fault != 0 ? e.fault_name : std::string();
   const bool acked = awaiting_ack_ && e.ack == *awaiting_ack_;
   if (acked) awaiting_ack_.reset();
@@ -358,18 +356,13 @@ void Sequencer::prepare_move(double t, std::vector<Command>& out) {
   const double delta = wrap_pi(s_.start_angle_rad - angle_);
   if (std::abs(delta) < s_.start_tolerance_rad) return begin_align(t, out);
   const double target = angle_ + delta;
-  if (!(target >= s_.limits.angle_min_rad && target <= s_.limits.angle_max_rad))
+  if (!s_.limits.contains(target))
     return fail(t, "the start angle " + deg(s_.start_angle_rad) + " is outside the angle limits",
                 out);
   prepare_moving_ = true;
   awaiting_what_ = "the move to the start angle";
-  const double rate = std::min(s_.limits.max_rate_rps, s_.prepare_rate_rps);
-  table(TableCode::MoveRelative, t, out, delta, rate);
-  TableMotion m;
-  const auto mv = m.move_by(0, delta, rate, s_.limits.max_accel_rps2);
-  phase_deadline_ = t + mv.t_end + s_.turn_margin_s;
-  waiting_for_ = "the table not at the start angle within " +
-                 std::to_string(static_cast<int>(std::lround(mv.t_end + s_.turn_margin_s))) + " s";
+  move(t, out, delta, std::min(s_.limits.max_rate_rps, s_.prepare_rate_rps),
+       s_.limits.max_accel_rps2, "the table not at the start angle");
 }
 
 void Sequencer::begin_align(double t, std::vector<Command>& out) {
@@ -436,7 +429,6 @@ void Sequencer::navigating(double t) {
 
 void Sequencer::on_encoder(const EncoderEvent& e, std::vector<Command>& out) {
   angle_ = e.angle_rad;
-  angle_t_ = e.t_s;
   if (stopping_ || finished(phase_)) return;
   // enabled before the first encoder frame came: go on now
   if (!s_.observe && phase_ == Phase::Prepare && enabled_ && !prepare_moving_)

@@ -22,11 +22,11 @@ namespace turncal::run {
 class Record {
  public:
   void add(const Sample& s);
-  /// Ends the encoder's last constant run; call before reading `encoder()`.
+  /// Keeps the end of the encoder's last constant run; call before reading
+  /// `encoder()` (safe to repeat, and to add more samples after).
   void close();
   [[nodiscard]] const std::vector<VelocitySample>& velocity() const { return velocity_; }
   [[nodiscard]] const std::vector<EncoderSample>& encoder() const { return encoder_; }
-  [[nodiscard]] std::size_t encoder_seen() const { return encoder_seen_; }
   /// The device clocks fitted on the recorded samples alone, so that the
   /// same frames give the same mapping live and in a replay.
   [[nodiscard]] const ClockFit& ins_clock() const { return ins_clock_; }
@@ -40,7 +40,6 @@ class Record {
   std::vector<EncoderSample> encoder_;
   bool pending_ = false;
   EncoderSample last_{};
-  std::size_t encoder_seen_ = 0;
 };
 
 /// What the encoder says a turn was.

@@ -47,6 +47,9 @@ struct TableLimits {
   double max_accel_rps2 = 0.6;
   double angle_min_rad = -1e9;  ///< multi-turn angle, as the host unwraps it
   double angle_max_rad = 1e9;
+  [[nodiscard]] bool contains(double angle_rad) const {
+    return angle_rad >= angle_min_rad && angle_rad <= angle_max_rad;
+  }
 };
 
 struct SequencerSettings {
@@ -204,11 +207,16 @@ class Sequencer {
   void prepare_move(double t, std::vector<Command>& out);
   void begin_align(double t, std::vector<Command>& out);
   void navigating(double t);
+  /// A relative move, and the deadline by which it must be in position.
+  void move(double t, std::vector<Command>& out, double delta, double rate, double accel,
+            const std::string& late);
+  /// Estimation or report (`in`) came back: on to the next phase, or failed
+  /// with `why`; true when it went on.
+  bool outcome(Phase in, double t, bool ok, const std::string& why);
 
   SequencerSettings s_;
   Phase phase_ = Phase::Idle;
   int index_ = 0;
-  double entered_ = 0;
   Course course_;
   double run_start_ = NAN;
   std::uint8_t seq_ = 0, ins_seq_ = 0;
@@ -226,8 +234,7 @@ class Sequencer {
   Phase stop_then_ = Phase::Failed;
   double stop_deadline_ = 0;
   int ins_mode_ = -1;
-  int table_state_ = -1;
-  double angle_ = NAN, angle_t_ = NAN;
+  double angle_ = NAN;
   // observe mode
   double last_moving_t_ = NAN;
   double hold_angle_ = NAN;
