@@ -32,7 +32,7 @@ void Engine::feed(const Event& e, std::vector<OutFrame>& out) {
       ++commands_sent_;
     } else if (const auto* i = std::get_if<InsCommand>(&c)) {
       out.push_back(
-          {true, roles_.encode(Role::InsCommand, {{Role::InsCommand, i->code},
+          {true, roles_.encode(Role::InsCommand, {{Role::InsCommand, static_cast<double>(i->code)},
                                                   {Role::InsCommandAlignDuration, i->align_s},
                                                   {Role::InsCommandHeading, i->heading_rad / kDeg},
                                                   {Role::InsCommandSeq, i->seq}})});

@@ -22,10 +22,17 @@ std::string deg(double rad) {
   return buf;
 }
 
-// Table states (can-icd.md)
-constexpr int kHolding = 1, kInPosition = 3, kFault = 4, kQuickStopped = 5;
-// INS modes
-constexpr int kAligning = 1, kNavigating = 2, kInsFault = 3;
+// the events carry the codes as numbers
+constexpr int code(TableState s) {
+  return static_cast<int>(s);
+}
+constexpr int code(InsMode m) {
+  return static_cast<int>(m);
+}
+constexpr int kHolding = code(TableState::Holding), kInPosition = code(TableState::InPosition),
+              kFault = code(TableState::Fault), kQuickStopped = code(TableState::QuickStopped);
+constexpr int kAligning = code(InsMode::Aligning), kNavigating = code(InsMode::Navigating),
+              kInsFault = code(InsMode::Fault);
 
 }  // namespace
 
@@ -371,7 +378,8 @@ void Sequencer::begin_align(double t, std::vector<Command>& out) {
   double heading = std::fmod(s_.heading_offset_rad - angle_, 2 * kPi);
   if (heading < 0) heading += 2 * kPi;
   ++ins_seq_;
-  out.emplace_back(InsCommand{1, ins_seq_, s_.profile.align_s, heading});
+  out.emplace_back(
+      InsCommand{InsCommandCode::StartAlignment, ins_seq_, s_.profile.align_s, heading});
   course_.heading_given_rad = heading;
   seen_aligning_ = false;
   phase_deadline_ = t + s_.align_start_s;

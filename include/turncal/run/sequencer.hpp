@@ -19,6 +19,7 @@
 #include <variant>
 #include <vector>
 
+#include "turncal/icd.hpp"
 #include "turncal/profile.hpp"
 
 namespace turncal::run {
@@ -133,14 +134,7 @@ using Event = std::variant<Tick, InsModeEvent, TableStatusEvent, EncoderEvent, S
                            AbortRequest, SignalEvent, EndOfInput, EstimationDone, ReportWritten>;
 
 // ---- commands ----
-enum class TableCode : std::uint8_t {
-  ControlledStop = 0,
-  MoveAbsolute = 1,
-  MoveRelative = 2,
-  QuickStop = 3,
-  Enable = 4,
-  Disable = 5
-};
+using TableCode = TableCommandCode;
 struct TableCommand {
   TableCode code;
   std::uint8_t seq;
@@ -148,7 +142,7 @@ struct TableCommand {
   double rate_rps = 0;
 };
 struct InsCommand {
-  int code;  ///< 1 start alignment, 2 go idle
+  InsCommandCode code;
   std::uint8_t seq;
   double align_s = 0;
   double heading_rad = 0;  ///< of axis z2, clockwise from North, in [0, 2 pi)

@@ -12,16 +12,14 @@
 #include <memory>
 #include <vector>
 
+#include "turncal/icd.hpp"
 #include "turncal/profile.hpp"
 #include "turncal/sim/strapdown.hpp"
 
 namespace turncal::stand {
 
-/// INS_Status.Mode
-enum class InsMode : std::uint8_t { Idle = 0, Aligning = 1, Navigating = 2, Fault = 3 };
-
-/// INS_Command.Command
-enum class InsCommandCode : std::uint8_t { StartAlignment = 1, GoIdle = 2 };
+using turncal::InsCommandCode;
+using turncal::InsMode;
 
 struct InsCommand {
   InsCommandCode code;

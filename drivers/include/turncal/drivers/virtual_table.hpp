@@ -11,29 +11,13 @@
 #include <cstdint>
 #include <limits>
 
+#include "turncal/icd.hpp"
 #include "turncal/profile.hpp"
 
 namespace turncal::stand {
 
-/// TBL_Status.State
-enum class TableState : std::uint8_t {
-  Disabled = 0,
-  Holding = 1,
-  Moving = 2,
-  InPosition = 3,
-  Fault = 4,
-  QuickStopped = 5,
-};
-
-/// TBL_Command.Command
-enum class TableCommandCode : std::uint8_t {
-  ControlledStop = 0,
-  MoveAbsolute = 1,
-  MoveRelative = 2,
-  QuickStop = 3,
-  Enable = 4,
-  Disable = 5,
-};
+using turncal::TableCommandCode;
+using turncal::TableState;
 
 /// TBL_Status.Fault (the ICD fixes 1; the rest are the virtual table's).
 enum class TableFault : std::uint8_t {

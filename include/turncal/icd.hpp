@@ -1,0 +1,35 @@
+// The codes of the reference stand's frames (can-icd.md), one definition
+// for the host (the sequencer) and the virtual stand alike.
+#pragma once
+
+#include <cstdint>
+
+namespace turncal {
+
+/// TBL_Status.State
+enum class TableState : std::uint8_t {
+  Disabled = 0,
+  Holding = 1,
+  Moving = 2,
+  InPosition = 3,
+  Fault = 4,
+  QuickStopped = 5,
+};
+
+/// TBL_Command.Command
+enum class TableCommandCode : std::uint8_t {
+  ControlledStop = 0,
+  MoveAbsolute = 1,
+  MoveRelative = 2,
+  QuickStop = 3,
+  Enable = 4,
+  Disable = 5,
+};
+
+/// INS_Status.Mode
+enum class InsMode : std::uint8_t { Idle = 0, Aligning = 1, Navigating = 2, Fault = 3 };
+
+/// INS_Command.Command
+enum class InsCommandCode : std::uint8_t { StartAlignment = 1, GoIdle = 2 };
+
+}  // namespace turncal
