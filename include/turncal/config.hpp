@@ -69,14 +69,22 @@ struct CanConfig {
   std::array<SignalRef, kRoleCount> roles;
 };
 
-/// The stand's mounting and limits ([stand]); every table command is
-/// checked against them before it goes out.
-struct StandConfig {
-  double heading_offset_rad = 0;               ///< heading of z2 = heading_offset - table angle
+/// The table's limits on the stand; every table command is checked
+/// against them before it goes out.
+struct StandLimits {
   double max_rate_rps = 0.5235987755982988;    ///< 30 deg/s
   double max_accel_rps2 = 0.5235987755982988;  ///< 30 deg/s^2
   double angle_min_rad = -1e9;                 ///< multi-turn table angle, as the host unwraps it
   double angle_max_rad = 1e9;
+  [[nodiscard]] bool contains(double angle_rad) const {
+    return angle_rad >= angle_min_rad && angle_rad <= angle_max_rad;
+  }
+};
+
+/// The stand's mounting and limits ([stand]).
+struct StandConfig {
+  double heading_offset_rad = 0;  ///< heading of z2 = heading_offset - table angle
+  StandLimits limits;
   /// Stand seconds per real second: 1 on a real stand; N for a virtual
   /// stand run N times faster than real time.
   double time_scale = 1;

@@ -189,8 +189,9 @@ Status read_stand(const toml::table& t, const std::string& file, StandConfig& s)
   Reader r(t, file, "stand.");
   TURNCAL_TRY(r.no_unknown_keys({"heading_offset_deg", "max_rate_dps", "max_accel_dps2",
                                  "angle_min_deg", "angle_max_deg", "time_scale"}));
-  double off = s.heading_offset_rad / kDegRad, rate = s.max_rate_rps / kDegRad,
-         acc = s.max_accel_rps2 / kDegRad, lo = -1e6, hi = 1e6;
+  StandLimits& l = s.limits;
+  double off = s.heading_offset_rad / kDegRad, rate = l.max_rate_rps / kDegRad,
+         acc = l.max_accel_rps2 / kDegRad, lo = -1e6, hi = 1e6;
   TURNCAL_TRY(r.number("heading_offset_deg", off, -360, 360));
   TURNCAL_TRY(r.number("max_rate_dps", rate, 0.01, 1000));
   TURNCAL_TRY(r.number("max_accel_dps2", acc, 0.01, 10000));
@@ -200,10 +201,10 @@ Status read_stand(const toml::table& t, const std::string& file, StandConfig& s)
   if (!(lo < hi))
     return r.error_at(*t.get("angle_max_deg"), "angle_max_deg", "must be above angle_min_deg");
   s.heading_offset_rad = off * kDegRad;
-  s.max_rate_rps = rate * kDegRad;
-  s.max_accel_rps2 = acc * kDegRad;
-  if (t.get("angle_min_deg") != nullptr) s.angle_min_rad = lo * kDegRad;
-  if (t.get("angle_max_deg") != nullptr) s.angle_max_rad = hi * kDegRad;
+  l.max_rate_rps = rate * kDegRad;
+  l.max_accel_rps2 = acc * kDegRad;
+  if (t.get("angle_min_deg") != nullptr) l.angle_min_rad = lo * kDegRad;
+  if (t.get("angle_max_deg") != nullptr) l.angle_max_rad = hi * kDegRad;
   return Status{Ok{}};
 }
 

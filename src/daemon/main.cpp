@@ -328,8 +328,7 @@ json Daemon::start(const json& req) {
   q.profile = plan->profile;
   q.start_angle_rad = plan->start_angle_rad;
   q.heading_offset_rad = cfg.stand.heading_offset_rad;
-  q.limits = {cfg.stand.max_rate_rps, cfg.stand.max_accel_rps2, cfg.stand.angle_min_rad,
-              cfg.stand.angle_max_rad};
+  q.limits = cfg.stand.limits;
   q.observe = cfg.daemon.observe || req.value("observe", false);
   if (engine) {
     q.table_seq_base = static_cast<std::uint8_t>(engine->commands_sent() + 100);

@@ -66,7 +66,7 @@ Sequencer::Sequencer(SequencerSettings s)
     : s_(std::move(s)), seq_(s_.table_seq_base), ins_seq_(s_.ins_seq_base) {}
 
 std::string check_plan(const SequencerSettings& s) {
-  const TableLimits& l = s.limits;
+  const StandLimits& l = s.limits;
   double angle = s.start_angle_rad;
   if (!l.contains(angle))
     return "start angle " + deg(angle) + " is outside the table's angle limits [" +

@@ -125,8 +125,8 @@ r2 = { max_sigma = 1 }
                         file);
   REQUIRE_MESSAGE(c.ok(), c.error().describe());
   CHECK(c->stand.heading_offset_rad == doctest::Approx(std::numbers::pi / 2));
-  CHECK(c->stand.max_rate_rps == doctest::Approx(20 * std::numbers::pi / 180));
-  CHECK(c->stand.angle_max_rad == doctest::Approx(370 * std::numbers::pi / 180));
+  CHECK(c->stand.limits.max_rate_rps == doctest::Approx(20 * std::numbers::pi / 180));
+  CHECK(c->stand.limits.angle_max_rad == doctest::Approx(370 * std::numbers::pi / 180));
   CHECK(c->stand.time_scale == 50);
   CHECK(c->daemon.state_directory == "/tmp/x");
   CHECK(c->daemon.profile == "/etc/turncal/p.toml");

@@ -19,6 +19,7 @@
 #include <variant>
 #include <vector>
 
+#include "turncal/config.hpp"
 #include "turncal/icd.hpp"
 #include "turncal/profile.hpp"
 
@@ -41,23 +42,11 @@ const char* to_string(Phase p);
   return p == Phase::Done || p == Phase::Aborted || p == Phase::Failed;
 }
 
-/// Limits of the stand (turncal.toml [stand]); every table command is
-/// checked against them before it goes out.
-struct TableLimits {
-  double max_rate_rps = 0.6;  ///< rad/s
-  double max_accel_rps2 = 0.6;
-  double angle_min_rad = -1e9;  ///< multi-turn angle, as the host unwraps it
-  double angle_max_rad = 1e9;
-  [[nodiscard]] bool contains(double angle_rad) const {
-    return angle_rad >= angle_min_rad && angle_rad <= angle_max_rad;
-  }
-};
-
 struct SequencerSettings {
   Profile profile;             ///< holds and turns, times from t0
   double start_angle_rad = 0;  ///< table angle at t0
   double heading_offset_rad = 0;
-  TableLimits limits;
+  StandLimits limits;  ///< turncal.toml [stand]
   bool observe = false;
   double ack_timeout_s = 1.0;           ///< a table command unacknowledged this long is a fault
   double enable_timeout_s = 5.0;        ///< from enable to the table holding
