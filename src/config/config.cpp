@@ -198,8 +198,13 @@ Status read_stand(const toml::table& t, const std::string& file, StandConfig& s)
   TURNCAL_TRY(r.number("angle_min_deg", lo, -1e6, 1e6));
   TURNCAL_TRY(r.number("angle_max_deg", hi, -1e6, 1e6));
   TURNCAL_TRY(r.number("time_scale", s.time_scale, 1e-3, 1e4));
-  if (!(lo < hi))
-    return r.error_at(*t.get("angle_max_deg"), "angle_max_deg", "must be above angle_min_deg");
+  if (!(lo < hi)) {
+    // name whichever of the two the file sets (one alone can cross the other's default)
+    const bool max_set = t.get("angle_max_deg") != nullptr;
+    const char* key = max_set ? "angle_max_deg" : "angle_min_deg";
+    return r.error_at(*t.get(key), key,
+                      max_set ? "must be above angle_min_deg" : "must be below angle_max_deg");
+  }
   s.heading_offset_rad = off * kDegRad;
   l.max_rate_rps = rate * kDegRad;
   l.max_accel_rps2 = acc * kDegRad;

@@ -125,6 +125,7 @@ class Daemon {
   int listen_fd = -1;
   std::vector<std::unique_ptr<Client>> clients;
   bool stopping = false;
+  std::uint64_t timer_ticks = 0;  ///< watchers get the status every 5th
 
   // the run
   std::unique_ptr<run::Engine> engine;
@@ -250,7 +251,10 @@ void Daemon::write_report(bool with_estimates) {
   ctx.config_file = cfg.source.string();
   ctx.config_sha256 = run::sha256_hex(read_file(cfg.source));
   ctx.log_file = log_path.filename().string();
-  ctx.log_sha256 = run::sha256_hex(read_file(log_path));
+  if (auto dg = run::sha256_file(log_path.string()))
+    ctx.log_sha256 = dg->sha256;
+  else
+    warn(dg.error().describe());
   ctx.tolerances = cfg.tolerances;
   ctx.mode = cfg.daemon.observe ? "observe" : "command";
   const bool est = with_estimates && result && input;
@@ -274,14 +278,17 @@ void Daemon::report_interrupted_runs() {
     const std::string id = name.substr(0, name.size() - 4);
     const fs::path rep = e.path().parent_path() / (id + ".report.json");
     if (fs::exists(rep)) continue;
-    const std::string data = read_file(e.path());
-    std::size_t lines = 0;
-    for (char c : data) lines += c == '\n';
+    auto dg = run::sha256_file(e.path().string());
+    if (!dg) {
+      say(LOG_WARNING, id, "interrupted", dg.error().describe());
+      continue;
+    }
+    const std::uint64_t lines = dg->lines;
     const json j = {{"format", "turncal-report-1"},
                     {"run_id", id},
                     {"status", "interrupted"},
                     {"reason", "the daemon stopped during the run (killed or crashed)"},
-                    {"log", {{"file", name}, {"sha256", run::sha256_hex(data)}, {"lines", lines}}},
+                    {"log", {{"file", name}, {"sha256", dg->sha256}, {"lines", lines}}},
                     {"verdict", {{"pass", false}, {"checks", json::array()}}}};
     (void)write_atomic(rep, j.dump(2) + "\n");
     (void)write_atomic(e.path().parent_path() / (id + ".report.txt"), run::report_text(j));
@@ -409,8 +416,7 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
     d->after_engine();
   }
   if (d->stopping && !d->running() && !d->worker_busy) sd_event_exit(d->ev, 0);
-  static int k = 0;
-  if (++k % 5 == 0) d->broadcast_watch();
+  if (++d->timer_ticks % 5 == 0) d->broadcast_watch();
   return 0;
 }
 

@@ -1,8 +1,11 @@
 #include "turncal/run/report.hpp"
 
+#include <algorithm>
 #include <array>
+#include <cerrno>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <numbers>
 
 namespace turncal::run {
@@ -65,30 +68,77 @@ void block(std::array<std::uint32_t, 8>& h, const unsigned char* p) {
 
 }  // namespace
 
-std::string sha256_hex(std::string_view data) {
-  std::array<std::uint32_t, 8> h = {0x6a09e667, 0xbb67ae85, 0x3c6ef372, 0xa54ff53a,
-                                    0x510e527f, 0x9b05688c, 0x1f83d9ab, 0x5be0cd19};
+Sha256::Sha256()
+    : h_{0x6a09e667, 0xbb67ae85, 0x3c6ef372, 0xa54ff53a,
+         0x510e527f, 0x9b05688c, 0x1f83d9ab, 0x5be0cd19} {}
+
+void Sha256::update(std::string_view data) {
   const auto* p = reinterpret_cast<const unsigned char*>(data.data());
   std::size_t n = data.size();
-  std::size_t i = 0;
-  for (; i + 64 <= n; i += 64) block(h, p + i);
+  bytes_ += n;
+  while (n > 0) {
+    if (fill_ == 0 && n >= 64) {  // whole blocks straight from the input
+      block(h_, p);
+      p += 64;
+      n -= 64;
+      continue;
+    }
+    const std::size_t take = std::min(n, 64 - fill_);
+    std::copy(p, p + take, buf_.begin() + static_cast<long>(fill_));
+    fill_ += take;
+    p += take;
+    n -= take;
+    if (fill_ == 64) {
+      block(h_, buf_.data());
+      fill_ = 0;
+    }
+  }
+}
+
+std::string Sha256::hex() const {
+  // the padding (FIPS 180-4, 5.1.1) on a copy, so the hash can go on
+  std::array<std::uint32_t, 8> h = h_;
   std::array<unsigned char, 128> tail{};
-  const std::size_t rest = n - i;
-  for (std::size_t k = 0; k < rest; ++k) tail[k] = p[i + k];
-  tail[rest] = 0x80;
-  const std::size_t len = rest + 9 <= 64 ? 64 : 128;
-  const std::uint64_t bits = static_cast<std::uint64_t>(n) * 8;
+  std::copy(buf_.begin(), buf_.begin() + static_cast<long>(fill_), tail.begin());
+  tail[fill_] = 0x80;
+  const std::size_t len = fill_ + 9 <= 64 ? 64 : 128;
+  const std::uint64_t bits = bytes_ * 8;
   for (std::size_t k = 0; k < 8; ++k)
     tail[len - 1 - k] = static_cast<unsigned char>(bits >> (8 * k));
   block(h, tail.data());
   if (len == 128) block(h, tail.data() + 64);
   std::string out;
-  char buf[9];
+  char b[9];
   for (std::uint32_t v : h) {
-    std::snprintf(buf, sizeof buf, "%08x", v);
-    out += buf;
+    std::snprintf(b, sizeof b, "%08x", v);
+    out += b;
   }
   return out;
+}
+
+std::string sha256_hex(std::string_view data) {
+  Sha256 s;
+  s.update(data);
+  return s.hex();
+}
+
+Result<FileDigest> sha256_file(const std::string& path) {
+  std::FILE* f = std::fopen(path.c_str(), "rb");
+  if (f == nullptr) return make_error("cannot read " + path + ": " + std::strerror(errno));
+  Sha256 s;
+  FileDigest d;
+  std::array<char, 65536> chunk{};
+  std::size_t n;
+  while ((n = std::fread(chunk.data(), 1, chunk.size(), f)) > 0) {
+    const std::string_view v(chunk.data(), n);
+    s.update(v);
+    d.lines += static_cast<std::uint64_t>(std::count(v.begin(), v.end(), '\n'));
+  }
+  const bool bad = std::ferror(f) != 0;
+  std::fclose(f);
+  if (bad) return make_error("cannot read " + path);
+  d.sha256 = s.hex();
+  return d;
 }
 
 // ---- the report ----

@@ -154,3 +154,10 @@ r2 = { max_sigma = 1 }
   CHECK(shipped->daemon.profile.filename() == "tactical.toml");
   CHECK(shipped->tolerances.empty());
 }
+
+TEST_CASE("config: one soft limit alone that crosses the other's default names its own key") {
+  auto c = parse_config("[stand]\nangle_min_deg = 1000000\n", "t.toml");
+  REQUIRE_FALSE(c.ok());
+  CHECK(c.error().describe() ==
+        "t.toml:2:17: key 'stand.angle_min_deg': must be below angle_max_deg");
+}

@@ -181,3 +181,28 @@ TEST_CASE("judge: tolerances in display units; none means pass") {
   CHECK(judge(e, {{"nu0_1", 0.2, 0.01}})["pass"] == false);
   CHECK(judge(e, {{"r1", 1, 1}})["checks"][0]["why"] == "not estimated");
 }
+
+TEST_CASE("sha256: fed in pieces, and of a file read in pieces, with its line count") {
+  std::string data;
+  for (int i = 0; i < 20000; ++i) data += "(1700000000.000000) vcan0 123#DEADBEEF\n";
+  const std::string whole = sha256_hex(data);
+  for (std::size_t piece : {1U, 63U, 64U, 65U, 4097U}) {
+    CAPTURE(piece);
+    Sha256 s;
+    for (std::size_t i = 0; i < data.size(); i += piece) s.update(data.substr(i, piece));
+    CHECK(s.hex() == whole);
+  }
+  const std::string path = "/tmp/turncal-unit-sha256.log";
+  {
+    std::FILE* f = std::fopen(path.c_str(), "wb");
+    REQUIRE(f != nullptr);
+    std::fwrite(data.data(), 1, data.size(), f);
+    std::fclose(f);
+  }
+  auto d = sha256_file(path);
+  std::remove(path.c_str());
+  REQUIRE(d.ok());
+  CHECK(d->sha256 == whole);
+  CHECK(d->lines == 20000);
+  CHECK_FALSE(sha256_file(path).ok());
+}

@@ -4,12 +4,15 @@
 // replay write what this returns.
 #pragma once
 
+#include <array>
+#include <cstdint>
 #include <nlohmann/json.hpp>
 #include <string>
 #include <vector>
 
 #include "turncal/config.hpp"
 #include "turncal/estimation/estimator.hpp"
+#include "turncal/result.hpp"
 #include "turncal/run/engine.hpp"
 
 namespace turncal::run {
@@ -41,7 +44,30 @@ std::string report_text(const nlohmann::json& report);
 /// "checks": [...]}; every run passes when there are none.
 nlohmann::json judge(const nlohmann::json& estimates, const std::vector<Tolerance>& tolerances);
 
-/// SHA-256 of a byte string, lower-case hex (FIPS 180-4).
+/// SHA-256 (FIPS 180-4), fed in pieces of any size.
+class Sha256 {
+ public:
+  Sha256();
+  void update(std::string_view data);
+  /// The digest of everything so far, lower-case hex.
+  [[nodiscard]] std::string hex() const;
+
+ private:
+  std::array<std::uint32_t, 8> h_;
+  std::array<unsigned char, 64> buf_{};
+  std::size_t fill_ = 0;
+  std::uint64_t bytes_ = 0;
+};
+
+/// SHA-256 of a byte string, lower-case hex.
 std::string sha256_hex(std::string_view data);
+
+struct FileDigest {
+  std::string sha256;
+  std::uint64_t lines = 0;  ///< newlines: the frames of a candump log
+};
+/// SHA-256 and line count of a file, read in 64 KiB pieces (a run's log
+/// can be far larger than the daemon's memory budget).
+Result<FileDigest> sha256_file(const std::string& path);
 
 }  // namespace turncal::run
