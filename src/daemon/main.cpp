@@ -126,6 +126,7 @@ class Daemon {
   std::vector<std::unique_ptr<Client>> clients;
   bool stopping = false;
   std::uint64_t timer_ticks = 0;  ///< watchers get the status every 5th
+  std::uint8_t heartbeat_counter = 0;
 
   // the run
   std::unique_ptr<run::Engine> engine;
@@ -410,11 +411,17 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
     // what has arrived counts before anything is judged lost
     d->on_can(*d->ins_sock, true);
     if (d->table_sock) d->on_can(*d->table_sock, false);
-    const std::int64_t now = socketcan::realtime_ns();
-    d->engine->tick(now, d->out);
-    if (!d->cfg.daemon.observe && d->running()) d->out.push_back(d->engine->heartbeat());
-    d->after_engine();
+    d->engine->tick(socketcan::realtime_ns(), d->out);
   }
+  // the heartbeat goes out from this loop, between runs too: a table will not
+  // start a move for a host it has not heard from
+  if (!d->cfg.daemon.observe)
+    d->out.push_back(run::heartbeat_frame(d->roles, d->heartbeat_counter++,
+                                          d->engine ? d->engine->sequencer().host_state() : 0));
+  if (d->engine)
+    d->after_engine();
+  else
+    d->send_out();
   if (d->stopping && !d->running() && !d->worker_busy) sd_event_exit(d->ev, 0);
   if (++d->timer_ticks % 5 == 0) d->broadcast_watch();
   return 0;

@@ -108,10 +108,9 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out) {
   feed(k, out);
 }
 
-OutFrame Engine::heartbeat() {
-  return {false,
-          roles_.encode(Role::HeartbeatCounter, {{Role::HeartbeatCounter, heartbeat_counter_++},
-                                                 {Role::HeartbeatState, seq_.host_state()}})};
+OutFrame heartbeat_frame(const RoleMap& roles, std::uint8_t counter, int host_state) {
+  return {false, roles.encode(Role::HeartbeatCounter, {{Role::HeartbeatCounter, counter},
+                                                       {Role::HeartbeatState, host_state}})};
 }
 
 Result<BuiltInput> Engine::take_estimation_input() {

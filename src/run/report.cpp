@@ -208,7 +208,8 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
   json j;
   j["format"] = "turncal-report-1";
   j["run_id"] = ctx.run_id;
-  j["status"] = to_string(seq.phase());
+  // written in the report phase, the report is that of a finished run
+  j["status"] = to_string(seq.phase() == Phase::Report ? Phase::Done : seq.phase());
   if (!course.reason.empty()) j["reason"] = course.reason;
   j["start_time_unix_s"] = ctx.start_unix_s;
   j["end_time_unix_s"] = ctx.end_unix_s;

@@ -20,6 +20,7 @@
 #include <csignal>
 #include <cstdio>
 #include <cstring>
+#include <deque>
 #include <fstream>
 #include <random>
 #include <string>
@@ -55,6 +56,7 @@ struct Options {
   std::string ins_clock, table_clock;  // OFFSET_S:PPM
   std::string angle_limits;            // MIN_DEG:MAX_DEG
   std::string truth_in;                // errors given in a JSON file
+  std::string rates;                   // VELOCITY_HZ:ENCODER_HZ[:INS_STATUS_HZ:TABLE_STATUS_HZ]
 };
 
 constexpr const char* kFaultHelp =
@@ -146,6 +148,30 @@ Status apply_clock(const std::string& opt, const std::string& spec, stand::Devic
   return Status{Ok{}};
 }
 
+/// --rates: lower frame rates for a slow host (the ICD's are the default).
+Status apply_rates(const std::string& spec, stand::StandSetup& s) {
+  if (spec.empty()) return Status{Ok{}};
+  std::vector<double> v;
+  const auto bad = [&] {
+    return make_error(
+        "--rates: expected VEL_HZ:ENC_HZ[:INS_STATUS_HZ:TABLE_STATUS_HZ], all above 0, "
+        "VEL_HZ dividing the IMU rate, not '" +
+        spec + "'");
+  };
+  if (!numbers(spec, v) || (v.size() != 2 && v.size() != 4)) return bad();
+  for (double r : v)
+    if (!(r > 0) || r > s.ins.sim.imu_rate_hz) return bad();
+  const double div = s.ins.sim.imu_rate_hz / v[0];
+  if (std::abs(div - std::round(div)) > 1e-9) return bad();
+  s.ins.sim.output_rate_hz = v[0];
+  s.encoder_hz = v[1];
+  if (v.size() == 4) {
+    s.ins_status_hz = v[2];
+    s.table_status_hz = v[3];
+  }
+  return Status{Ok{}};
+}
+
 int usage(const char* why) {
   if (why != nullptr) std::fprintf(stderr, "turncal-sim: %s\n", why);
   std::fprintf(stderr,
@@ -156,6 +182,8 @@ int usage(const char* why) {
                "        [--fault NAME=VALUE]... [--ins-clock OFFSET_S:PPM]\n"
                "        [--table-clock OFFSET_S:PPM] [--truth-in ERRORS.json]\n"
                "        [--angle-limits MIN_DEG:MAX_DEG] (the table's soft limits)\n"
+               "        [--rates VEL_HZ:ENC_HZ[:INS_STATUS_HZ:TABLE_STATUS_HZ]] (frame rates;\n"
+               "        default 100:200:10:20; VEL_HZ must divide the 400 Hz IMU rate)\n"
                "        [--start-time UNIX_S] (offline only)\n%s",
                kFaultHelp);
   return 2;
@@ -187,7 +215,7 @@ bool parse(int argc, char** argv, Options& o, std::string& err) {
     } else if (a == "--scripted-host") {
       o.scripted_host = true;
     } else if (a == "--fault" || a == "--ins-clock" || a == "--table-clock" || a == "--truth-in" ||
-               a == "--angle-limits") {
+               a == "--angle-limits" || a == "--rates") {
       const char* v = value();
       if (v == nullptr) return false;
       if (a == "--fault")
@@ -196,6 +224,7 @@ bool parse(int argc, char** argv, Options& o, std::string& err) {
         (a == "--ins-clock"     ? o.ins_clock
          : a == "--table-clock" ? o.table_clock
          : a == "--truth-in"    ? o.truth_in
+         : a == "--rates"       ? o.rates
                                 : o.angle_limits) = v;
     } else if (a == "--out" || a == "--truth" || a == "--profile" || a == "--config" ||
                a == "--ins-interface" || a == "--table-interface") {
@@ -351,6 +380,7 @@ Result<World> load_world(const Options& o) {
     setup.table_limits.angle_min_rad = v[0] * kDeg;
     setup.table_limits.angle_max_rad = v[1] * kDeg;
   }
+  TURNCAL_TRY(apply_rates(o.rates, setup));
   if (!o.truth.empty()) {
     std::ofstream tj(o.truth);
     tj << truth_json(setup.ins.sim, w.plan, o).dump(2) << "\n";
@@ -415,8 +445,13 @@ int live(const Options& o) {
 
   using Clock = std::chrono::steady_clock;
   const auto wall0 = Clock::now();
+  const std::int64_t kernel0_ns = socketcan::realtime_ns();  // the receive timestamps' clock
   std::vector<stand::StandFrame> frames;
-  std::vector<can::Frame> from_bus;
+  // Host frames wait for the tick of the stand time they arrived at (from
+  // their kernel receive timestamps), so a stand that fell behind and
+  // catches up sees the heartbeat as the bus carried it, not all at once.
+  std::deque<std::pair<double, can::Frame>> from_bus;
+  std::vector<can::Frame> due;
   socketcan::RxBatch rx;
   while (g_stop == 0 && !loop.done()) {
     for (socketcan::Socket& s : sockets) {
@@ -427,12 +462,18 @@ int live(const Options& o) {
       }
       auto got = s.receive(rx);
       if (!got) return fail(got.error());
-      for (const can::TimedFrame& f : rx.frames) from_bus.push_back(f.frame);
+      for (const can::TimedFrame& f : rx.frames)
+        from_bus.emplace_back(static_cast<double>(f.time_ns - kernel0_ns) * 1e-9 * o.speed,
+                              f.frame);
     }
     const double target = std::chrono::duration<double>(Clock::now() - wall0).count() * o.speed;
     while (loop.next_time() <= target && !loop.done()) {
-      loop.tick(from_bus, frames);
-      from_bus.clear();
+      while (!from_bus.empty() && from_bus.front().first <= loop.next_time()) {
+        due.push_back(from_bus.front().second);
+        from_bus.pop_front();
+      }
+      loop.tick(due, frames);
+      due.clear();
       for (const stand::StandFrame& f : frames)
         (void)(f.ins_side ? ins_sock : table_sock).send(f.frame);
       frames.clear();

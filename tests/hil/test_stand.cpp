@@ -238,6 +238,40 @@ TEST_SUITE("virtual stand") {
     CHECK(sim.wait(5000ms) == 0);
   }
 
+  TEST_CASE("--rates lowers the stand's frame rates; rates it cannot send are refused") {
+    {
+      // 30 Hz does not divide the 400 Hz IMU rate
+      Child bad({kSim, "--config", kSrc + "/config/turncal.toml", "--rates", "30:25"}, "/tmp");
+      CHECK(bad.wait(5000ms) == 1);
+      CHECK(hil::sh(kSim + " --config " + kSrc + "/config/turncal.toml --rates 30:25 2>&1 | " +
+                    "grep -q 'VEL_HZ dividing the IMU rate'") == 0);
+      CHECK(hil::sh(kSim + " --config " + kSrc + "/config/turncal.toml --rates 100:0 2>&1 | " +
+                    "grep -q 'all above 0'") == 0);
+    }
+    const Codec c;
+    Child sim({kSim, "--config", kSrc + "/config/turncal.toml", "--ins-interface", hil::if1(),
+               "--table-interface", hil::if1(), "--rates", "20:50:5:10"},
+              "/tmp");
+    HostBus bus(c, hil::if1(), hil::if1());
+    bus.wait_for_stand();
+    bus.align(1);
+    auto fs = bus.collect(2500ms, true);
+    CHECK(bus.last(fs, Role::InsMode) == 2);
+    fs = bus.collect(2000ms, true);
+    std::map<std::string, std::vector<std::int64_t>> times;
+    for (const auto& f : fs.frames)
+      if (const can::Message* m = c.codec->message_for(f.frame))
+        times[m->name].push_back(f.time_ns);
+    auto count = [&](const std::string& name) { return static_cast<double>(times[name].size()); };
+    // 2 s of frames: counts within one frame of rate x 2 s
+    CHECK(count("INS_VelE") == doctest::Approx(40).epsilon(0.05));
+    CHECK(count("TBL_Encoder") == doctest::Approx(100).epsilon(0.02));
+    CHECK(count("INS_Status") == doctest::Approx(10).epsilon(0.1));
+    CHECK(count("TBL_Status") == doctest::Approx(20).epsilon(0.05));
+    sim.terminate();
+    CHECK(sim.wait(5000ms) == 0);
+  }
+
   TEST_CASE("two interfaces: each node on its own; absolute moves, stops, soft limits, drops") {
     const Codec c;
     Child sim({kSim, "--config", kSrc + "/config/turncal.toml", "--ins-interface", hil::if0(),

@@ -92,6 +92,7 @@ struct ClosedLoop {
   std::optional<est::EstimationResult> result;
   std::optional<run::BuiltInput> input;
   std::string estimation_error;
+  nlohmann::json written;  ///< the report as the daemon writes it, in the report phase
 
   static run::SequencerSettings settings_of(const Plan& p, const stand::StandSetup& s) {
     run::SequencerSettings q;
@@ -140,7 +141,11 @@ struct ClosedLoop {
       if (k % 10 == 0) engine.tick(ns(t), out);
       if (k % 100 == 0 && heartbeat) out.push_back(engine.heartbeat());
       if (engine.estimation_due()) estimate(t, out);
-      if (engine.report_due()) engine.report_written(ns(t), true, "", out);
+      if (engine.report_due()) {
+        written =
+            run::report_json({}, engine, input ? &*input : nullptr, result ? &*result : nullptr);
+        engine.report_written(ns(t), true, "", out);
+      }
       send(out, t);
       if (stop && stop(t)) return;
       if (run::finished(engine.sequencer().phase())) return;
@@ -317,6 +322,7 @@ TEST_SUITE("run engine on the virtual stand") {
     run::ReportContext ctx{"r1", 0, 0, "test", "", "", "", "", {{"nu0_1", 1e9, 1e9}}, "command"};
     const auto j = run::report_json(ctx, live.engine, &*live.input, &*live.result);
     CHECK(j["status"] == "done");
+    CHECK(live.written["status"] == "done");  // as written, before the phase moves on
     REQUIRE(j["estimates"].size() == 20);
     for (const auto& [name, e] : j["estimates"].items()) {
       CAPTURE(name);

@@ -51,6 +51,11 @@ struct Live {
   int table_state = -1;
 };
 
+/// A host heartbeat frame (can-icd.md: HOST_Heartbeat). The host sends it
+/// from its main loop whenever it commands a stand, idle too (host state 0):
+/// a table refuses to start a move without a recent heartbeat.
+OutFrame heartbeat_frame(const RoleMap& roles, std::uint8_t counter, int host_state);
+
 class Engine {
  public:
   /// `db` and `roles` must outlive it.
@@ -66,7 +71,7 @@ class Engine {
   /// Deadlines and lost streams; call often (10 Hz or more).
   void tick(std::int64_t now_ns, std::vector<OutFrame>& out);
   /// The host heartbeat (can-icd.md), rolling counter and host state.
-  OutFrame heartbeat();
+  OutFrame heartbeat() { return heartbeat_frame(roles_, heartbeat_counter_++, seq_.host_state()); }
 
   /// The record is complete and estimation is due: the input, once. The
   /// record holds every sample received from the start up to t0 +
