@@ -1,6 +1,7 @@
 // turncalctl: the operator's command line over turncald's control socket.
 //
 //   turncalctl [--socket PATH] [--json] start [--profile PLAN.toml] [--watch]
+//              [--observe] [--heading-offset DEG]
 //   turncalctl [--socket PATH] [--json] status | watch | abort [REASON]
 //   turncalctl [--socket PATH] [--json] reports | show RUN_ID
 //
@@ -133,6 +134,8 @@ int usage(const char* why) {
                "turncalctl: %s\n"
                "usage: turncalctl [--socket PATH] [--json] COMMAND\n"
                "  start [--profile PLAN.toml] [--watch]   start a run\n"
+               "        [--observe]                       follow a stand another host drives\n"
+               "        [--heading-offset DEG]            INS mounting on the table, this run\n"
                "  status                                   the daemon's state\n"
                "  watch                                    progress until the run ends\n"
                "  abort [REASON]                           abort the run (the table quick-stops)\n"
@@ -172,7 +175,14 @@ int main(int argc, char** argv) {
         req["profile"] = argv[++i];
       else if (a == "--watch")
         then_watch = true;
-      else
+      else if (a == "--observe")
+        req["observe"] = true;
+      else if (a == "--heading-offset" && i + 1 < argc) {
+        char* end = nullptr;
+        const double deg = std::strtod(argv[++i], &end);
+        if (end == argv[i] || *end != '\0') return usage("start: --heading-offset needs degrees");
+        req["heading_offset_deg"] = deg;
+      } else
         return usage(("start: unknown argument " + a).c_str());
     }
   } else if (cmd == "abort") {

@@ -26,6 +26,7 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <numbers>
 #include <optional>
 #include <sstream>
 #include <string>
@@ -127,6 +128,7 @@ class Daemon {
   bool stopping = false;
   std::uint64_t timer_ticks = 0;  ///< watchers get the status every 5th
   std::uint8_t heartbeat_counter = 0;
+  bool run_observe = false;  ///< the run follows a stand another host drives
 
   // the run
   std::unique_ptr<run::Engine> engine;
@@ -338,6 +340,12 @@ json Daemon::start(const json& req) {
   q.heading_offset_rad = cfg.stand.heading_offset_rad;
   q.limits = cfg.stand.limits;
   q.observe = cfg.daemon.observe || req.value("observe", false);
+  if (req.contains("heading_offset_deg")) {
+    if (!req["heading_offset_deg"].is_number())
+      return {{"ok", false}, {"error", "heading_offset_deg: expected a number of degrees"}};
+    q.heading_offset_rad = req["heading_offset_deg"].get<double>() * std::numbers::pi / 180;
+  }
+  run_observe = q.observe;
   if (engine) {
     q.table_seq_base = static_cast<std::uint8_t>(engine->commands_sent() + 100);
     q.ins_seq_base = q.table_seq_base;
@@ -345,12 +353,15 @@ json Daemon::start(const json& req) {
   const std::int64_t now = socketcan::realtime_ns();
   run_start_ns = now;
   run_id = utc_id(now);
+  // two runs within a second: the second gets a suffix, no log is overwritten
+  for (int k = 2; fs::exists(cfg.daemon.state_directory / (run_id + ".log")); ++k)
+    run_id = utc_id(now) + "-" + std::to_string(k);
   log_path = cfg.daemon.state_directory / (run_id + ".log");
   auto w = can::LogWriter::open(log_path.string());
   if (!w) return {{"ok", false}, {"error", w.error().describe()}};
   log.emplace(std::move(*w));
   run::BuildSettings b;
-  b.heading_offset_rad = cfg.stand.heading_offset_rad;
+  b.heading_offset_rad = q.heading_offset_rad;
   engine = std::make_unique<run::Engine>(db, roles, *plan, q, b,
                                          run::TimeBase{now / 1000, cfg.stand.time_scale});
   input.reset();
@@ -415,7 +426,7 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
   }
   // the heartbeat goes out from this loop, between runs too: a table will not
   // start a move for a host it has not heard from
-  if (!d->cfg.daemon.observe)
+  if (!d->cfg.daemon.observe && !(d->running() && d->run_observe))
     d->out.push_back(run::heartbeat_frame(d->roles, d->heartbeat_counter++,
                                           d->engine ? d->engine->sequencer().host_state() : 0));
   if (d->engine)

@@ -13,6 +13,7 @@
 
 #include "hil.hpp"
 #include "process.hpp"
+#include "turncal/can/candump.hpp"
 
 using namespace turncal;
 using hil::Child;
@@ -31,9 +32,17 @@ const std::string kSrc = TURNCAL_SOURCE_DIR;
 constexpr int kSpeed = 4;
 constexpr const char* kRates = "25:25";
 
-/// A short plan (20 s alignment, 120 s, +180 deg at 60 s) and a daemon
+std::string slurp(const hil::fs::path& p) {
+  std::ifstream in(p);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+/// A short plan (20 s alignment, 120 s, +180 deg at `turn_s`) and a daemon
 /// configuration for it, in `dir`.
-void write_stand(const hil::fs::path& dir, const std::string& iface) {
+void write_stand(const hil::fs::path& dir, const std::string& iface, bool observe = false,
+                 int turn_s = 60) {
   std::ifstream in(kSrc + "/config/profiles/tactical.toml");
   std::stringstream ss;
   ss << in.rdbuf();
@@ -46,21 +55,41 @@ void write_stand(const hil::fs::path& dir, const std::string& iface) {
   };
   set("duration_s", "120");
   set("align_s", "20");
-  set("start_s", "60");
+  set("start_s", std::to_string(turn_s));
   std::ofstream(dir / "short.toml") << plan;
   std::ofstream(dir / "turncal.toml")
       << "[can]\nins_interface = \"" << iface << "\"\ntable_interface = \"" << iface
       << "\"\ndbc = [\"" << kSrc << "/config/reference-stand.dbc\"]\n"
       << "[stand]\ntime_scale = " << kSpeed << "\n"
       << "[daemon]\nstate_directory = \"" << (dir / "state").string() << "\"\nsocket = \""
-      << (dir / "control.sock").string() << "\"\nprofile = \"short.toml\"\n";
+      << (dir / "control.sock").string()
+      << "\"\nprofile = \"short.toml\"\nobserve = " << (observe ? "true" : "false") << "\n";
 }
 
-std::string slurp(const hil::fs::path& p) {
-  std::ifstream in(p);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
+/// turncalctl with these arguments; its exit status, its stdout in `out`.
+int ctl(const hil::fs::path& dir, std::vector<std::string> args, const std::string& out = "ctl.out",
+        std::chrono::milliseconds timeout = 10000ms) {
+  args.insert(args.begin(), {kCtl, "--socket", (dir / "control.sock").string()});
+  Child c(args, dir, dir / out);
+  return c.wait(timeout);
+}
+
+/// Polls the daemon's status until its phase is `phase`.
+bool wait_phase(const hil::fs::path& dir, const std::string& phase,
+                std::chrono::milliseconds timeout) {
+  for (auto end = std::chrono::steady_clock::now() + timeout;
+       std::chrono::steady_clock::now() < end; std::this_thread::sleep_for(50ms))
+    if (ctl(dir, {"--json", "status"}, "st.json") == 0 &&
+        slurp(dir / "st.json").find("\"phase\": \"" + phase + "\"") != std::string::npos)
+      return true;
+  return false;
+}
+
+Child start_sim(const hil::fs::path& dir, const std::string& seed = "3") {
+  return Child({kSim, "--config", (dir / "turncal.toml").string(), "--profile",
+                (dir / "short.toml").string(), "--speed", std::to_string(kSpeed), "--rates", kRates,
+                "--seed", seed, "--truth", "truth.json"},
+               dir);
 }
 
 /// Sends raw bytes to the control socket; the first reply line.
@@ -88,16 +117,12 @@ bool wait_for(const hil::fs::path& p, std::chrono::milliseconds t) {
 }  // namespace
 
 TEST_SUITE("daemon") {
-  TEST_CASE("turncald runs a short experiment on the virtual stand through turncalctl") {
+  TEST_CASE("turncald runs a short experiment through turncalctl; an observer replays its log") {
     hil::TempDir dir;
     write_stand(dir.path, hil::if0());
-    Child sim({kSim, "--config", (dir.path / "turncal.toml").string(), "--profile",
-               (dir.path / "short.toml").string(), "--speed", std::to_string(kSpeed), "--rates",
-               kRates, "--seed", "3", "--truth", "truth.json"},
-              dir.path);
+    Child sim = start_sim(dir.path);
     Child daemon({kDaemon, "--config", (dir.path / "turncal.toml").string()}, dir.path);
     REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
-    const std::string sock = (dir.path / "control.sock").string();
 
     // bad requests are answered with an error and harm nothing
     CHECK(raw_request(dir.path / "control.sock", "not json\n").find("malformed request") !=
@@ -110,21 +135,18 @@ TEST_SUITE("daemon") {
     CHECK(raw_request(dir.path / "control.sock", "{\"cmd\":\"fly\"}\n").find("unknown command") !=
           std::string::npos);
 
-    Child start({kCtl, "--socket", sock, "start", "--watch"}, dir.path, dir.path / "watch.out");
-    REQUIRE(start.wait(120000ms) == 0);
-    Child list({kCtl, "--socket", sock, "--json", "reports"}, dir.path, dir.path / "list.json");
-    REQUIRE(list.wait(5000ms) == 0);
+    REQUIRE(ctl(dir.path, {"start", "--watch"}, "watch.out", 120000ms) == 0);
+    REQUIRE(ctl(dir.path, {"--json", "reports"}, "list.json") == 0);
     const auto reports = nlohmann::json::parse(slurp(dir.path / "list.json"));
     REQUIRE(reports["reports"].size() == 1);
     const std::string id = reports["reports"][0]["run_id"];
-    Child show({kCtl, "--socket", sock, "--json", "show", id}, dir.path, dir.path / "report.json");
-    REQUIRE(show.wait(5000ms) == 0);
+    REQUIRE(ctl(dir.path, {"--json", "show", id}, "report.json") == 0);
     const auto r = nlohmann::json::parse(slurp(dir.path / "report.json"));
     CHECK(r["status"] == "done");
     REQUIRE(r["estimates"].size() == 20);
     // the log in the state directory is the one the report names, intact
-    const std::string log = slurp(dir.path / "state" / r["log"]["file"].get<std::string>());
-    CHECK(log.size() > 100000);
+    const hil::fs::path log = dir.path / "state" / r["log"]["file"].get<std::string>();
+    CHECK(slurp(log).size() > 100000);
     // against the truth: the sharp combinations within 4 sigma
     const auto truth = nlohmann::json::parse(slurp(dir.path / "truth.json"));
     REQUIRE(!r["combinations"].empty());
@@ -135,21 +157,13 @@ TEST_SUITE("daemon") {
         tv += k.get<double>() * truth["errors"][name].get<double>();
       CHECK(std::abs(c["value"].get<double>() - tv) <= 4 * c["sigma"].get<double>());
     }
+
     // a second run, aborted during the turn: the table quick-stops
-    Child again({kCtl, "--socket", sock, "start"}, dir.path);
-    REQUIRE(again.wait(5000ms) == 0);
-    for (int i = 0; i < 400; ++i) {
-      Child st({kCtl, "--socket", sock, "--json", "status"}, dir.path, dir.path / "st.json");
-      REQUIRE(st.wait(5000ms) == 0);
-      if (slurp(dir.path / "st.json").find("\"phase\": \"turn\"") != std::string::npos) break;
-      std::this_thread::sleep_for(50ms);
-    }
-    Child abort({kCtl, "--socket", sock, "abort"}, dir.path);
-    CHECK(abort.wait(5000ms) == 0);
-    Child watch({kCtl, "--socket", sock, "watch"}, dir.path, dir.path / "w2.out");
-    CHECK(watch.wait(20000ms) == 1);  // the watched run ended aborted
-    Child list2({kCtl, "--socket", sock, "--json", "reports"}, dir.path, dir.path / "list2.json");
-    REQUIRE(list2.wait(5000ms) == 0);
+    REQUIRE(ctl(dir.path, {"start"}) == 0);
+    REQUIRE(wait_phase(dir.path, "turn", 60000ms));
+    CHECK(ctl(dir.path, {"abort"}) == 0);
+    CHECK(ctl(dir.path, {"watch"}, "w2.out", 20000ms) == 1);  // the watched run ended aborted
+    REQUIRE(ctl(dir.path, {"--json", "reports"}, "list2.json") == 0);
     const auto reports2 = nlohmann::json::parse(slurp(dir.path / "list2.json"));
     REQUIRE(reports2["reports"].size() == 2);
     const std::string id2 = reports2["reports"][1]["run_id"];
@@ -158,7 +172,102 @@ TEST_SUITE("daemon") {
     CHECK(r2["phases"].back()["phase"] == "aborted");
     CHECK(r2["quick_stop"]["sent"] == true);
     CHECK(r2["quick_stop"]["acknowledged"] == true);
+    daemon.terminate();
+    CHECK(daemon.wait(10000ms) == 0);
+    sim.terminate();
+    sim.wait(5000ms);
 
+    // Observe mode: a second daemon on the other interface follows the first
+    // run played back by canplayer. The estimates equal the live run's within
+    // 0.2 sigma: only the receive times differ, and they enter only through
+    // the clock fits that put the encoder on the INS timeline.
+    hil::TempDir obs;
+    write_stand(obs.path, hil::if1(), true);
+    Child observer({kDaemon, "--config", (obs.path / "turncal.toml").string()}, obs.path);
+    REQUIRE(wait_for(obs.path / "control.sock", 5000ms));
+    REQUIRE(ctl(obs.path, {"start"}) == 0);
+    Child player({"canplayer", "-I", log.string(), hil::if1() + "=" + hil::if0()}, obs.path);
+    CHECK(ctl(obs.path, {"watch"}, "watch.out", 120000ms) == 0);
+    CHECK(player.wait(10000ms) == 0);
+    REQUIRE(ctl(obs.path, {"--json", "reports"}, "list.json") == 0);
+    const auto ol = nlohmann::json::parse(slurp(obs.path / "list.json"));
+    REQUIRE(ol["reports"].size() == 1);
+    const auto o = nlohmann::json::parse(slurp(
+        obs.path / "state" / (ol["reports"][0]["run_id"].get<std::string>() + ".report.json")));
+    CHECK(o["status"] == "done");
+    CHECK(o["mode"] == "observe");
+    REQUIRE(o["estimates"].size() == 20);
+    for (const auto& [name, e] : r["estimates"].items()) {
+      CAPTURE(name);
+      const double sigma = e["sigma"].get<double>();
+      CHECK(std::abs(o["estimates"][name]["value"].get<double>() - e["value"].get<double>()) <=
+            0.2 * sigma);
+      CHECK(o["estimates"][name]["sigma"].get<double>() == doctest::Approx(sigma).epsilon(0.01));
+    }
+    observer.terminate();
+    CHECK(observer.wait(10000ms) == 0);
+  }
+
+  TEST_CASE(
+      "SIGTERM during the turn: quick stop, then a clean exit; SIGKILL: reported next start") {
+    hil::TempDir dir;
+    write_stand(dir.path, hil::if0(), false, 30);
+    Child sim = start_sim(dir.path, "4");
+    const std::string config = (dir.path / "turncal.toml").string();
+    {
+      Child daemon({kDaemon, "--config", config}, dir.path);
+      REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+      REQUIRE(ctl(dir.path, {"start"}) == 0);
+      REQUIRE(wait_phase(dir.path, "turn", 60000ms));
+      daemon.terminate();
+      CHECK(daemon.wait(20000ms) == 0);
+    }
+    REQUIRE(ctl(dir.path, {"status"}) == 3);  // gone
+    hil::fs::path first_report;
+    for (const auto& e : hil::fs::directory_iterator(dir.path / "state"))
+      if (e.path().string().ends_with(".report.json")) first_report = e.path();
+    REQUIRE(!first_report.empty());
+    const auto r = nlohmann::json::parse(slurp(first_report));
+    CHECK(r["status"] == "aborted");
+    CHECK(r["reason"].get<std::string>().find("SIGTERM") != std::string::npos);
+    CHECK(r["quick_stop"]["sent"] == true);
+    CHECK(r["quick_stop"]["acknowledged"] == true);
+
+    // killed during a hold: the next start reports the run as interrupted,
+    // and its log reads to the end
+    std::string killed;
+    {
+      hil::fs::remove(dir.path / "control.sock");
+      Child daemon({kDaemon, "--config", config}, dir.path);
+      REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+      REQUIRE(ctl(dir.path, {"--json", "start"}, "start.json") == 0);
+      killed = nlohmann::json::parse(slurp(dir.path / "start.json"))["run_id"];
+      REQUIRE(wait_phase(dir.path, "hold", 60000ms));
+      std::this_thread::sleep_for(1000ms);
+      // the destructor of a running Child sends SIGKILL
+    }
+    hil::fs::remove(dir.path / "control.sock");
+    Child daemon({kDaemon, "--config", config}, dir.path);
+    REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+    REQUIRE(ctl(dir.path, {"--json", "reports"}, "list.json") == 0);
+    const auto list = nlohmann::json::parse(slurp(dir.path / "list.json"));
+    nlohmann::json entry;
+    for (const auto& e : list["reports"])
+      if (e["run_id"] == killed) entry = e;
+    REQUIRE(entry.is_object());
+    CHECK(entry["status"] == "interrupted");
+    const auto ir = nlohmann::json::parse(slurp(dir.path / "state" / (killed + ".report.json")));
+    auto reader = can::LogReader::open((dir.path / "state" / (killed + ".log")).string());
+    REQUIRE(reader.ok());
+    std::uint64_t records = 0;
+    for (;;) {
+      auto rec = reader->next();
+      REQUIRE_MESSAGE(rec.ok(), rec.error().describe());
+      if (!rec->has_value()) break;
+      ++records;
+    }
+    CHECK(records > 1000);  // prepare, alignment and part of a hold
+    CHECK(ir["log"]["lines"].get<std::uint64_t>() == records);
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
     sim.terminate();
