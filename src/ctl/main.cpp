@@ -3,7 +3,7 @@
 //   turncalctl [--socket PATH] [--json] start [--profile PLAN.toml] [--watch]
 //              [--observe] [--heading-offset DEG]
 //   turncalctl [--socket PATH] [--json] status | watch | abort [REASON]
-//   turncalctl [--socket PATH] [--json] reports | show RUN_ID
+//   turncalctl [--socket PATH] [--json] reports | show RUN_ID [--truth TRUTH.json]
 //
 // Exit codes: 0 done (a watched run ended done, a request answered ok);
 // 1 the daemon refused the request or the watched run failed or was
@@ -12,14 +12,19 @@
 #include <sys/un.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <fstream>
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "turncal/run/report.hpp"
+
 using nlohmann::json;
+using namespace std::chrono_literals;
 
 namespace {
 
@@ -96,7 +101,8 @@ std::string progress(const json& s) {
                 phase.c_str(), clock_text(num("elapsed_s")).c_str(), clock_text(rem).c_str(),
                 num("ve"), num("vn"), num("table_angle_deg"));
   std::string out = buf;
-  if (s.contains("health"))
+  const std::string ph = s.value("phase", std::string());
+  if (s.contains("health") && ph != "done" && ph != "failed" && ph != "aborted")
     for (const auto& [name, h] : s["health"].items())
       out += " | " + name + (h.value("stale", false) ? " STALE" : "") +
              (h.value("dropped", 0) > 0 ? " -" + std::to_string(h["dropped"].get<long>()) : "");
@@ -105,6 +111,9 @@ std::string progress(const json& s) {
 
 int watch(Connection& c, bool as_json) {
   if (!c.send({{"cmd", "watch"}})) return kUnreachable;
+  const bool tty = ::isatty(STDOUT_FILENO) == 1;
+  std::string last_phase;
+  auto last_line = std::chrono::steady_clock::now();
   for (;;) {
     const json s = c.next();
     if (s.is_discarded()) {
@@ -114,14 +123,21 @@ int watch(Connection& c, bool as_json) {
     if (as_json) {
       std::printf("%s\n", s.dump().c_str());
       std::fflush(stdout);
-    } else {
+    } else if (tty) {
       std::printf("\r%s\033[K", progress(s).c_str());
       std::fflush(stdout);
+    } else if (const auto now = std::chrono::steady_clock::now();
+               s.value("phase", std::string()) != last_phase || now - last_line > 10s) {
+      // into a file or a pipe: a line at each phase, and every 10 s
+      std::printf("%s\n", progress(s).c_str());
+      std::fflush(stdout);
+      last_line = now;
     }
     const std::string p = s.value("phase", std::string());
+    last_phase = p;
     if (p == "done" || p == "failed" || p == "aborted") {
       if (!as_json) {
-        std::printf("\n%s%s\n", p.c_str(),
+        std::printf("%s%s%s\n", tty ? "\n" : "", p.c_str(),
                     s.contains("reason") ? (": " + s["reason"].get<std::string>()).c_str() : "");
       }
       return p == "done" ? kOk : kRefused;
@@ -140,7 +156,8 @@ int usage(const char* why) {
                "  watch                                    progress until the run ends\n"
                "  abort [REASON]                           abort the run (the table quick-stops)\n"
                "  reports                                  the reports kept\n"
-               "  show RUN_ID                              one report\n"
+               "  show RUN_ID [--truth TRUTH.json]         one report (with turncal-sim's\n"
+               "                                           truth beside each estimate)\n"
                "exit codes: 0 ok; 1 refused, or the watched run failed; 2 usage; 3 no daemon\n",
                why);
   return kUsage;
@@ -168,6 +185,7 @@ int main(int argc, char** argv) {
   const std::string cmd = argv[i++];
   json req = {{"cmd", cmd}};
   bool then_watch = false;
+  json truth;  // turncal-sim's truth, shown beside the estimates
   if (cmd == "start") {
     for (; i < argc; ++i) {
       const std::string a = argv[i];
@@ -190,6 +208,16 @@ int main(int argc, char** argv) {
   } else if (cmd == "show") {
     if (i >= argc) return usage("show: missing RUN_ID");
     req = {{"cmd", "report"}, {"run_id", argv[i++]}};
+    if (i + 1 < argc && std::string(argv[i]) == "--truth") {
+      std::ifstream in(argv[i + 1]);
+      truth = json::parse(in, nullptr, false);
+      if (!in || truth.is_discarded() || !truth.contains("errors")) {
+        std::fprintf(stderr, "turncalctl: %s: not a turncal-sim truth file\n", argv[i + 1]);
+        return kUsage;
+      }
+      i += 2;
+    }
+    if (i < argc) return usage(("show: unknown argument " + std::string(argv[i])).c_str());
   } else if (cmd != "status" && cmd != "watch" && cmd != "reports") {
     return usage(("unknown command " + cmd).c_str());
   }
@@ -228,7 +256,8 @@ int main(int argc, char** argv) {
       std::printf("%s  %-12s %s\n", e["run_id"].get<std::string>().c_str(),
                   e["status"].get<std::string>().c_str(), e["pass"].get<bool>() ? "pass" : "fail");
   } else if (cmd == "show") {
-    std::printf("%s", r["text"].get<std::string>().c_str());
+    std::printf("%s", truth.is_null() ? r["text"].get<std::string>().c_str()
+                                      : turncal::run::report_text(r["report"], &truth).c_str());
   }
   if (then_watch) {
     Connection w(socket);

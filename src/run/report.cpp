@@ -1,5 +1,7 @@
 #include "turncal/run/report.hpp"
 
+#include "turncal/earth.hpp"
+
 #include <algorithm>
 #include <array>
 #include <cerrno>
@@ -320,7 +322,22 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
   return j;
 }
 
-std::string report_text(const json& r) {
+namespace {
+
+/// The injected value of an estimate: a parameter, or df_eff_i = df0_i + g G_i3.
+std::optional<double> truth_of(const json& errors, const std::string& name, double g) {
+  if (errors.contains(name) && errors[name].is_number()) return errors[name].get<double>();
+  if (name.starts_with("df_eff_")) {
+    const std::string i = name.substr(7);
+    const auto df = truth_of(errors, "df0_" + i, g), gi3 = truth_of(errors, "g" + i + "3", g);
+    if (df && gi3) return *df + g * *gi3;
+  }
+  return std::nullopt;
+}
+
+}  // namespace
+
+std::string report_text(const json& r, const json* truth) {
   std::string out;
   auto line = [&](const std::string& s) { out += s + "\n"; };
   line("turncal report " + r.value("run_id", std::string("?")) + ": " +
@@ -339,13 +356,22 @@ std::string report_text(const json& r) {
            fmt(" to %.2f s after t0", t["end_s"].get<double>()));
   if (r.contains("estimates")) {
     line("");
-    line("  parameter        estimate        sigma        prior  unit");
+    const json errors = truth != nullptr ? truth->value("errors", json::object()) : json();
+    const json site = r.value("site", json::object());
+    const double g =
+        earth::normal_gravity(site.value("latitude_rad", 0.0), site.value("height_m", 0.0));
+    line(std::string("  parameter        estimate        sigma        prior  unit") +
+         (truth != nullptr ? "         truth   error/sigma" : ""));
     for (const auto& [name, e] : r["estimates"].items()) {
       const auto [unit, k] = display_unit(name);
-      char buf[160];
-      std::snprintf(buf, sizeof buf, "  %-10s %14.6g %12.4g %12.4g  %s", name.c_str(),
-                    e["value"].get<double>() * k, e["sigma"].get<double>() * k,
-                    e["prior_sigma"].get<double>() * k, std::string(unit).c_str());
+      char buf[200];
+      int n = std::snprintf(buf, sizeof buf, "  %-10s %14.6g %12.4g %12.4g  %-7s", name.c_str(),
+                            e["value"].get<double>() * k, e["sigma"].get<double>() * k,
+                            e["prior_sigma"].get<double>() * k, std::string(unit).c_str());
+      if (truth != nullptr)
+        if (const auto t = truth_of(errors, name, g))
+          std::snprintf(buf + n, sizeof buf - static_cast<std::size_t>(n), " %13.6g %+9.2f", *t * k,
+                        (e["value"].get<double>() - *t) / e["sigma"].get<double>());
       line(buf);
     }
   }
@@ -360,8 +386,22 @@ std::string report_text(const json& r) {
         if (std::abs(v.get<double>()) < 1e-3) continue;
         terms += (terms.empty() ? "" : " + ") + fmt("%.3g ", v.get<double>()) + n;
       }
+      std::string against;
+      if (truth != nullptr) {
+        const json errors = truth->value("errors", json::object());
+        double tv = 0;
+        bool all = true;
+        for (const auto& [n, v] : c["coefficients"].items()) {
+          const auto t = truth_of(errors, n, 0);
+          all = all && t.has_value();
+          if (t) tv += v.get<double>() * *t;
+        }
+        if (all)
+          against = fmt("  (truth %.6g, ", tv * k) +
+                    fmt("%+.2f sigma)", (c["value"].get<double>() - tv) / c["sigma"].get<double>());
+      }
       line("    " + terms + " = " + fmt("%.6g", c["value"].get<double>() * k) + " +- " +
-           fmt("%.3g ", c["sigma"].get<double>() * k) + std::string(unit));
+           fmt("%.3g ", c["sigma"].get<double>() * k) + std::string(unit) + against);
     }
   }
   if (r.contains("innovations")) {

@@ -206,3 +206,32 @@ TEST_CASE("sha256: fed in pieces, and of a file read in pieces, with its line co
   CHECK(d->lines == 20000);
   CHECK_FALSE(sha256_file(path).ok());
 }
+
+TEST_CASE("report text with the truth: the injected value and the error in sigmas") {
+  // 1e-6 rad/s = 0.2063 deg/h; df_eff_1 = df0_1 + g g13 at the equator, g = 9.7803 m/s^2
+  const nlohmann::json r = {
+      {"run_id", "x"},
+      {"status", "done"},
+      {"site", {{"latitude_rad", 0.0}, {"height_m", 0.0}}},
+      {"estimates",
+       {{"nu0_1", {{"value", 1.02e-6}, {"sigma", 1e-8}, {"prior_sigma", 1e-5}}},
+        {"df_eff_1", {{"value", 2.0e-4}, {"sigma", 1e-5}, {"prior_sigma", 1e-3}}}}},
+      {"combinations",
+       {{{"lead", "nu0_1"},
+         {"coefficients", {{"nu0_1", 1.0}, {"r1", 0.5}}},
+         {"value", 1.1e-6},
+         {"sigma", 5e-8}}}}};
+  const nlohmann::json truth = {
+      {"errors", {{"nu0_1", 1e-6}, {"df0_1", 1e-4}, {"g13", 1e-5}, {"r1", 1e-7}}}};
+  const std::string plain = report_text(r);
+  CHECK(plain.find("truth") == std::string::npos);
+  const std::string t = report_text(r, &truth);
+  CAPTURE(t);
+  CHECK(t.find("error/sigma") != std::string::npos);
+  CHECK(t.find("0.206265") != std::string::npos);  // the truth of nu0_1 in deg/h
+  CHECK(t.find("+2.00") != std::string::npos);     // (1.02e-6 - 1e-6) / 1e-8
+  // df_eff_1 truth 1e-4 + 9.7803e-5 = 1.97803e-4 m/s^2 = 20.17 ug: (2.0e-4 - 1.978e-4) / 1e-5
+  CHECK(t.find("+0.22") != std::string::npos);
+  // the combination: truth 1e-6 + 0.5e-7 = 1.05e-6, (1.1e-6 - 1.05e-6) / 5e-8 = +1.00
+  CHECK(t.find("+1.00 sigma") != std::string::npos);
+}

@@ -38,7 +38,10 @@ nlohmann::json report_json(const ReportContext& ctx, const Engine& engine, const
 
 /// The plain-text summary of a report (from its JSON, so any report file
 /// can be shown again).
-std::string report_text(const nlohmann::json& report);
+/// With `truth` (a turncal-sim truth file: "errors" keyed by model.md's
+/// names, SI), each estimate and combination also shows the injected value
+/// and its error in sigmas.
+std::string report_text(const nlohmann::json& report, const nlohmann::json* truth = nullptr);
 
 /// Pass/fail of the estimates against the tolerances: {"pass": bool,
 /// "checks": [...]}; every run passes when there are none.
