@@ -47,6 +47,7 @@ namespace fs = std::filesystem;
 namespace {
 
 constexpr std::size_t kMaxRequest = 64 * 1024;  ///< bytes of one control request line
+constexpr std::size_t kMaxQueued = 4 << 20;     ///< bytes of replies a client may leave unread
 constexpr const char* kVersion = "0.1.0";
 
 bool g_journal = false;  // under systemd: structured journal entries
@@ -177,11 +178,36 @@ struct Client {
     sd_event_source_unref(src);
     ::close(fd);
   }
-  void reply(const json& j) const {
-    const std::string s = j.dump() + "\n";
-    // small replies; a client that cannot take them is dropped by the loop
-    (void)!::send(fd, s.data(), s.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
+  std::string out;           ///< replies the socket has not taken yet
+  bool broken = false;       ///< gone, or so far behind that it is dropped
+  bool close_after = false;  ///< dropped once its replies are sent
+  /// Queues a reply and sends what the socket takes; the rest goes when the
+  /// socket is writable again (EPOLLOUT), so a large report is never cut.
+  void reply(const json& j) {
+    if (broken) return;
+    if (out.size() > kMaxQueued) {  // a watcher that stopped reading
+      broken = true;
+      return;
+    }
+    out += j.dump() + "\n";
+    flush();
   }
+  void flush() {
+    while (!out.empty() && !broken) {
+      const ssize_t n = ::send(fd, out.data(), out.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
+      if (n < 0 && (errno == EAGAIN || errno == EINTR)) break;
+      if (n <= 0) {
+        broken = true;
+        break;
+      }
+      out.erase(0, static_cast<std::size_t>(n));
+    }
+    // a client being closed is not read any more (EPOLLIN would fire forever)
+    if (src != nullptr)
+      sd_event_source_set_io_events(
+          src, (close_after ? 0U : EPOLLIN) | (out.empty() || broken ? 0U : EPOLLOUT));
+  }
+  [[nodiscard]] bool done() const { return broken || (close_after && out.empty()); }
 };
 
 void Daemon::send_out() {
@@ -302,6 +328,13 @@ void Daemon::report_interrupted_runs() {
 
 json Daemon::status() const {
   json j = {{"ok", true}, {"phase", phase_name()}, {"run_id", run_id}};
+  // what the sockets took since the daemon started, and what the kernel lost
+  json can = json::object();
+  for (const auto* s : {&ins_sock, &table_sock})
+    if (*s)
+      can[(*s)->interface()] = {{"rx_frames", (*s)->stats().rx_frames},
+                                {"rx_dropped", (*s)->stats().rx_dropped}};
+  j["can"] = can;
   if (!engine) return j;
   const auto& s = engine->sequencer();
   const double now = engine->stand_s(socketcan::realtime_ns());
@@ -379,6 +412,7 @@ void Daemon::broadcast_watch() {
   const json s = status();
   for (auto& c : clients)
     if (c->watching) c->reply(s);
+  std::erase_if(clients, [](const auto& c) { return c->done(); });
 }
 
 void Daemon::on_can(socketcan::Socket& s, bool /*ins_side*/) {
@@ -525,34 +559,39 @@ int on_client(sd_event_source*, int fd, uint32_t revents, void* u) {
   auto* c = static_cast<Client*>(u);
   Daemon& d = *c->d;
   auto drop = [&] { std::erase_if(d.clients, [&](const auto& p) { return p.get() == c; }); };
-  if (revents & (EPOLLHUP | EPOLLERR)) {
-    drop();
-    return 0;
-  }
-  char buf[4096];
-  const ssize_t n = ::recv(fd, buf, sizeof buf, MSG_DONTWAIT);
-  if (n <= 0) {
-    if (n < 0 && (errno == EAGAIN || errno == EINTR)) return 0;
-    drop();
-    return 0;
-  }
-  c->in.append(buf, static_cast<std::size_t>(n));
-  std::size_t nl;
-  while ((nl = c->in.find('\n')) != std::string::npos) {
-    const std::string line = c->in.substr(0, nl);
-    c->in.erase(0, nl + 1);
-    if (line.size() > kMaxRequest) {
-      c->reply({{"ok", false}, {"error", "request too large"}});
-      drop();
-      return 0;
+  if (revents & EPOLLOUT) c->flush();
+  if (revents & (EPOLLHUP | EPOLLERR)) c->broken = true;
+  if ((revents & EPOLLIN) && !c->close_after && !c->broken) {
+    char buf[4096];
+    const ssize_t n = ::recv(fd, buf, sizeof buf, MSG_DONTWAIT);
+    if (n == 0 || (n < 0 && errno != EAGAIN && errno != EINTR)) {
+      // the client closed: what it asked is answered, then it is dropped
+      c->close_after = true;
+    } else if (n > 0) {
+      c->in.append(buf, static_cast<std::size_t>(n));
+      std::size_t nl;
+      while (!c->close_after && (nl = c->in.find('\n')) != std::string::npos) {
+        const std::string line = c->in.substr(0, nl);
+        c->in.erase(0, nl + 1);
+        if (line.size() > kMaxRequest) {
+          c->reply({{"ok", false}, {"error", "request too large"}});
+          c->close_after = true;
+        } else {
+          handle_request(*c, line);
+        }
+      }
+      if (!c->close_after && c->in.size() > kMaxRequest) {
+        c->reply({{"ok", false},
+                  {"error", "request too large (over " + std::to_string(kMaxRequest) + " bytes)"}});
+        c->close_after = true;
+      }
     }
-    handle_request(*c, line);
   }
-  if (c->in.size() > kMaxRequest) {
-    c->reply({{"ok", false},
-              {"error", "request too large (over " + std::to_string(kMaxRequest) + " bytes)"}});
+  if (c->close_after) c->in.clear();
+  if (c->done())
     drop();
-  }
+  else
+    c->flush();  // sends what is left, and sets the events still wanted
   return 0;
 }
 

@@ -6,6 +6,7 @@
 #include <sys/socket.h>
 #include <sys/un.h>
 
+#include <cstring>
 #include <fstream>
 #include <nlohmann/json.hpp>
 #include <sstream>
@@ -156,6 +157,43 @@ TEST_SUITE("daemon") {
       for (const auto& [name, k] : c["coefficients"].items())
         tv += k.get<double>() * truth["errors"][name].get<double>();
       CHECK(std::abs(c["value"].get<double>() - tv) <= 4 * c["sigma"].get<double>());
+    }
+
+    // replies larger than the socket takes at once arrive whole: 60 reports
+    // asked at once (some 2 MB) and read only then
+    {
+      const int fd = ::socket(AF_UNIX, SOCK_STREAM, 0);
+      sockaddr_un a{};
+      a.sun_family = AF_UNIX;
+      std::strcpy(a.sun_path, (dir.path / "control.sock").c_str());
+      REQUIRE(::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
+      const timeval limit{10, 0};  // a reply cut short would leave recv waiting
+      ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &limit, sizeof limit);
+      std::string reqs;
+      for (int k = 0; k < 60; ++k) reqs += "{\"cmd\":\"report\",\"run_id\":\"" + id + "\"}\n";
+      REQUIRE(::send(fd, reqs.data(), reqs.size(), MSG_NOSIGNAL) ==
+              static_cast<ssize_t>(reqs.size()));
+      std::this_thread::sleep_for(500ms);
+      std::string got;
+      char buf[65536];
+      int lines = 0;
+      while (lines < 60) {
+        const ssize_t n = ::recv(fd, buf, sizeof buf, 0);
+        if (n <= 0) break;
+        for (ssize_t k = 0; k < n; ++k) lines += buf[k] == '\n';
+        got.append(buf, static_cast<std::size_t>(n));
+      }
+      ::close(fd);
+      CHECK(lines == 60);
+      CHECK(got.size() > 60 * 10000);
+      std::istringstream in(got);
+      std::string line;
+      int whole = 0;
+      while (std::getline(in, line)) {
+        const auto j = nlohmann::json::parse(line, nullptr, false);
+        whole += !j.is_discarded() && j.value("ok", false) && j["report"]["run_id"] == id;
+      }
+      CHECK(whole == 60);
     }
 
     // a second run, aborted during the turn: the table quick-stops
