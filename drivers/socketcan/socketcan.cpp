@@ -18,7 +18,7 @@
 namespace turncal::socketcan {
 namespace {
 
-constexpr std::size_t kBatch = 64;
+constexpr std::size_t kBatch = Socket::kBatchFrames;
 constexpr std::size_t kCmsgSpace =
     CMSG_SPACE(sizeof(struct timespec)) + CMSG_SPACE(sizeof(std::uint32_t));
 

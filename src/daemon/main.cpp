@@ -418,7 +418,7 @@ void Daemon::broadcast_watch() {
 void Daemon::on_can(socketcan::Socket& s, bool /*ins_side*/) {
   for (;;) {
     rx.clear();
-    auto n = s.receive(rx);
+    auto n = s.receive(rx, 4);
     if (!n) {
       warn(n.error().describe());
       return;
@@ -430,7 +430,8 @@ void Daemon::on_can(socketcan::Socket& s, bool /*ins_side*/) {
     }
     if (log) (void)log->flush();
     after_engine();
-    if (*n == 0) return;
+    // a short read drained the socket: no second recvmmsg just to see EAGAIN
+    if (*n < 4 * socketcan::Socket::kBatchFrames) return;
   }
 }
 

@@ -158,6 +158,17 @@ TEST_SUITE("daemon") {
         tv += k.get<double>() * truth["errors"][name].get<double>();
       CHECK(std::abs(c["value"].get<double>() - tv) <= 4 * c["sigma"].get<double>());
     }
+    // and the 18 parameters with df_eff_1, df_eff_2 (a fixed seed: 4 sigma, as in
+    // the scenario tier)
+    int params = 0;
+    for (const auto& [name, t] : truth["errors"].items()) {
+      if (!r["estimates"].contains(name)) continue;
+      CAPTURE(name);
+      const auto& e = r["estimates"][name];
+      CHECK(std::abs(e["value"].get<double>() - t.get<double>()) <= 4 * e["sigma"].get<double>());
+      ++params;
+    }
+    CHECK(params == 20);
 
     // replies larger than the socket takes at once arrive whole: 60 reports
     // asked at once (some 2 MB) and read only then

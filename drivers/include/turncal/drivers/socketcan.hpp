@@ -78,8 +78,11 @@ class Socket {
   [[nodiscard]] const Stats& stats() const { return stats_; }
   [[nodiscard]] bool tx_pending() const { return !txq_.empty(); }
 
-  /// Reads up to `max_batches` x 64 frames without blocking, appending to
-  /// `out`. Returns the number of frames read; link changes come as events.
+  /// Frames one recvmmsg call takes.
+  static constexpr std::size_t kBatchFrames = 64;
+  /// Reads up to `max_batches` x kBatchFrames frames without blocking,
+  /// appending to `out`; stops at the first short batch (the socket is then
+  /// drained). Returns the number of frames read; link changes come as events.
   Result<std::size_t> receive(RxBatch& out, std::size_t max_batches = 4);
   /// Sends without blocking; queues when the kernel is full. An error only
   /// for a frame the socket cannot carry (FD frame on a classic socket).
