@@ -83,6 +83,11 @@ std::string clock_text(double s) {
 
 /// One progress line: phase, elapsed and remaining, live velocity, table
 /// angle, frame health.
+/// A phase the run does not leave.
+bool finished(const std::string& phase) {
+  return phase == "done" || phase == "failed" || phase == "aborted";
+}
+
 std::string progress(const json& s) {
   auto num = [&](const char* k) {
     return s.contains(k) && s[k].is_number() ? s[k].get<double>()
@@ -101,8 +106,7 @@ std::string progress(const json& s) {
                 phase.c_str(), clock_text(num("elapsed_s")).c_str(), clock_text(rem).c_str(),
                 num("ve"), num("vn"), num("table_angle_deg"));
   std::string out = buf;
-  const std::string ph = s.value("phase", std::string());
-  if (s.contains("health") && ph != "done" && ph != "failed" && ph != "aborted")
+  if (s.contains("health") && !finished(s.value("phase", std::string())))
     for (const auto& [name, h] : s["health"].items())
       out += " | " + name + (h.value("stale", false) ? " STALE" : "") +
              (h.value("dropped", 0) > 0 ? " -" + std::to_string(h["dropped"].get<long>()) : "");
@@ -135,7 +139,7 @@ int watch(Connection& c, bool as_json) {
     }
     const std::string p = s.value("phase", std::string());
     last_phase = p;
-    if (p == "done" || p == "failed" || p == "aborted") {
+    if (finished(p)) {
       if (!as_json) {
         std::printf("%s%s%s\n", tty ? "\n" : "", p.c_str(),
                     s.contains("reason") ? (": " + s["reason"].get<std::string>()).c_str() : "");

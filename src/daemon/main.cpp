@@ -48,6 +48,7 @@ namespace {
 
 constexpr std::size_t kMaxRequest = 64 * 1024;  ///< bytes of one control request line
 constexpr std::size_t kMaxQueued = 4 << 20;     ///< bytes of replies a client may leave unread
+constexpr std::size_t kRxBatches = 4;           ///< recvmmsg calls per receive, kBatchFrames each
 constexpr const char* kVersion = "0.1.0";
 
 bool g_journal = false;  // under systemd: structured journal entries
@@ -129,7 +130,6 @@ class Daemon {
   bool stopping = false;
   std::uint64_t timer_ticks = 0;  ///< watchers get the status every 5th
   std::uint8_t heartbeat_counter = 0;
-  bool run_observe = false;  ///< the run follows a stand another host drives
 
   // the run
   std::unique_ptr<run::Engine> engine;
@@ -223,8 +223,8 @@ void Daemon::send_out() {
 }
 
 void Daemon::after_engine() {
+  send_out();  // the heartbeat goes out between runs too
   if (!engine) return;
-  send_out();
   const run::Phase p = engine->sequencer().phase();
   if (p != last_phase) {
     last_phase = p;
@@ -378,7 +378,6 @@ json Daemon::start(const json& req) {
       return {{"ok", false}, {"error", "heading_offset_deg: expected a number of degrees"}};
     q.heading_offset_rad = req["heading_offset_deg"].get<double>() * std::numbers::pi / 180;
   }
-  run_observe = q.observe;
   if (engine) {
     q.table_seq_base = static_cast<std::uint8_t>(engine->commands_sent() + 100);
     q.ins_seq_base = q.table_seq_base;
@@ -418,7 +417,7 @@ void Daemon::broadcast_watch() {
 void Daemon::on_can(socketcan::Socket& s, bool /*ins_side*/) {
   for (;;) {
     rx.clear();
-    auto n = s.receive(rx, 4);
+    auto n = s.receive(rx, kRxBatches);
     if (!n) {
       warn(n.error().describe());
       return;
@@ -431,7 +430,7 @@ void Daemon::on_can(socketcan::Socket& s, bool /*ins_side*/) {
     if (log) (void)log->flush();
     after_engine();
     // a short read drained the socket: no second recvmmsg just to see EAGAIN
-    if (*n < 4 * socketcan::Socket::kBatchFrames) return;
+    if (*n < kRxBatches * socketcan::Socket::kBatchFrames) return;
   }
 }
 
@@ -461,13 +460,11 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
   }
   // the heartbeat goes out from this loop, between runs too: a table will not
   // start a move for a host it has not heard from
-  if (!d->cfg.daemon.observe && !(d->running() && d->run_observe))
+  const bool observing = d->running() && d->engine->sequencer().settings().observe;
+  if (!d->cfg.daemon.observe && !observing)
     d->out.push_back(run::heartbeat_frame(d->roles, d->heartbeat_counter++,
                                           d->engine ? d->engine->sequencer().host_state() : 0));
-  if (d->engine)
-    d->after_engine();
-  else
-    d->send_out();
+  d->after_engine();
   if (d->stopping && !d->running() && !d->worker_busy) sd_event_exit(d->ev, 0);
   if (++d->timer_ticks % 5 == 0) d->broadcast_watch();
   return 0;

@@ -338,6 +338,10 @@ std::optional<double> truth_of(const json& errors, const std::string& name, doub
 }  // namespace
 
 std::string report_text(const json& r, const json* truth) {
+  const json errors = truth != nullptr ? truth->value("errors", json::object()) : json();
+  const json site = r.value("site", json::object());
+  const double g =
+      earth::normal_gravity(site.value("latitude_rad", 0.0), site.value("height_m", 0.0));
   std::string out;
   auto line = [&](const std::string& s) { out += s + "\n"; };
   line("turncal report " + r.value("run_id", std::string("?")) + ": " +
@@ -356,10 +360,6 @@ std::string report_text(const json& r, const json* truth) {
            fmt(" to %.2f s after t0", t["end_s"].get<double>()));
   if (r.contains("estimates")) {
     line("");
-    const json errors = truth != nullptr ? truth->value("errors", json::object()) : json();
-    const json site = r.value("site", json::object());
-    const double g =
-        earth::normal_gravity(site.value("latitude_rad", 0.0), site.value("height_m", 0.0));
     line(std::string("  parameter        estimate        sigma        prior  unit") +
          (truth != nullptr ? "         truth   error/sigma" : ""));
     for (const auto& [name, e] : r["estimates"].items()) {
@@ -388,11 +388,10 @@ std::string report_text(const json& r, const json* truth) {
       }
       std::string against;
       if (truth != nullptr) {
-        const json errors = truth->value("errors", json::object());
         double tv = 0;
         bool all = true;
         for (const auto& [n, v] : c["coefficients"].items()) {
-          const auto t = truth_of(errors, n, 0);
+          const auto t = truth_of(errors, n, g);
           all = all && t.has_value();
           if (t) tv += v.get<double>() * *t;
         }
