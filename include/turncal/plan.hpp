@@ -4,8 +4,10 @@
 // the edge; errors name file, line and key. No toml++ in this header.
 #pragma once
 
+#include <span>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "turncal/estimation/estimator.hpp"
 #include "turncal/profile.hpp"
@@ -19,6 +21,8 @@ struct Plan {
   std::string name;
   std::string description;
   std::string source;  ///< file it was read from
+  std::string text;    ///< its text, as read (a report keeps it, so a replay needs no file)
+  std::vector<std::string> overrides;  ///< "key=value" set over the text, in order
   Profile profile;
   double start_angle_rad = 0;  ///< table angle at t0, counter-clockwise seen from above
   est::Site site;
@@ -32,7 +36,12 @@ struct Plan {
   [[nodiscard]] est::ProcessNoise noise() const { return {vrw * vrw, arw * arw}; }
 };
 
-Result<Plan> parse_plan(std::string_view text, const std::string& file);
-Result<Plan> load_plan(const std::string& path);
+/// Parses a plan. Each override is "section.key=VALUE" with VALUE in TOML
+/// (`estimation.epoch_s=2`, `estimation.measurement="mean"`,
+/// `priors.gyro_bias_dph=[1,1,0.5]`), set over the text before it is
+/// validated, so an override is checked like the file; its errors name it.
+Result<Plan> parse_plan(std::string_view text, const std::string& file,
+                        std::span<const std::string> overrides = {});
+Result<Plan> load_plan(const std::string& path, std::span<const std::string> overrides = {});
 
 }  // namespace turncal

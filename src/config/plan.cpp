@@ -71,17 +71,52 @@ Status read_turns(const toml::node* node, const std::string& file, Plan& plan) {
   return Status{Ok{}};
 }
 
+/// Sets "a.b.c=VALUE" in root: the tables on the way are made if missing.
+Status apply_override(toml::table& root, const std::string& o) {
+  const std::string where = "--set " + o;
+  const auto eq = o.find('=');
+  if (eq == std::string::npos || eq == 0)
+    return make_error("expected section.key=VALUE", SourcePos{where, 0, 0});
+  const std::string path = o.substr(0, eq);
+  toml::table parsed;
+  try {
+    parsed = toml::parse("v = " + o.substr(eq + 1), where);
+  } catch (const toml::parse_error& e) {
+    return make_error(std::string(e.description()), SourcePos{where, 0, 0});
+  }
+  toml::table* t = &root;
+  std::size_t from = 0;
+  for (;;) {
+    const auto dot = path.find('.', from);
+    const std::string key = path.substr(from, dot == std::string::npos ? dot : dot - from);
+    if (key.empty()) return make_error("empty key in '" + path + "'", SourcePos{where, 0, 0});
+    if (dot == std::string::npos) {
+      t->insert_or_assign(key, std::move(*parsed.get("v")));
+      return Status{Ok{}};
+    }
+    toml::node* n = t->get(key);
+    if (n == nullptr) n = &t->insert_or_assign(key, toml::table{}).first->second;
+    if (!n->is_table()) return make_error("'" + key + "' is not a table", SourcePos{where, 0, 0});
+    t = n->as_table();
+    from = dot + 1;
+  }
+}
+
 }  // namespace
 
-Result<Plan> parse_plan(std::string_view text, const std::string& file) {
+Result<Plan> parse_plan(std::string_view text, const std::string& file,
+                        std::span<const std::string> overrides) {
   toml::table root;
   try {
     root = toml::parse(text, file);
   } catch (const toml::parse_error& e) {
     return make_error(std::string(e.description()), pos_of(e.source(), file));
   }
+  for (const std::string& o : overrides) TURNCAL_TRY(apply_override(root, o));
   Plan plan;
   plan.source = file;
+  plan.text = std::string(text);
+  plan.overrides.assign(overrides.begin(), overrides.end());
   TURNCAL_TRY(
       Reader(root, file, "").no_unknown_keys({"profile", "site", "priors", "noise", "estimation"}));
 
@@ -167,12 +202,12 @@ Result<Plan> parse_plan(std::string_view text, const std::string& file) {
   return plan;
 }
 
-Result<Plan> load_plan(const std::string& path) {
+Result<Plan> load_plan(const std::string& path, std::span<const std::string> overrides) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return make_error("cannot open profile file", SourcePos{path, 0, 0});
   std::stringstream ss;
   ss << in.rdbuf();
-  return parse_plan(ss.str(), path);
+  return parse_plan(ss.str(), path, overrides);
 }
 
 }  // namespace turncal

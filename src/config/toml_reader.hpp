@@ -15,7 +15,10 @@
 
 namespace turncal::config_detail {
 
+/// Where a node was read; a node set by an override (source "--set KEY=VALUE")
+/// is named by the override, not by a line of the file.
 inline SourcePos pos_of(const toml::source_region& r, const std::string& file) {
+  if (r.path && r.path->starts_with("--set ")) return SourcePos{*r.path, 0, 0};
   return SourcePos{file, r.begin.line, r.begin.column};
 }
 

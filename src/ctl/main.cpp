@@ -4,10 +4,13 @@
 //              [--observe] [--heading-offset DEG]
 //   turncalctl [--socket PATH] [--json] status | watch | abort [REASON]
 //   turncalctl [--socket PATH] [--json] reports | show RUN_ID [--truth TRUTH.json]
+//   turncalctl [--json] replay LOG [options]       (no daemon: offline.cpp)
 //
-// Exit codes: 0 done (a watched run ended done, a request answered ok);
-// 1 the daemon refused the request or the watched run failed or was
-// aborted; 2 usage; 3 the daemon cannot be reached.
+// Exit codes: 0 done (a watched run ended done, a request answered ok, a
+// replay estimated a whole log); 1 the daemon refused the request, the
+// watched run failed or was aborted, or a replay gave no estimates or met a
+// damaged log; 2 usage or a bad configuration; 3 the daemon cannot be
+// reached.
 #include <sys/socket.h>
 #include <sys/un.h>
 #include <unistd.h>
@@ -21,14 +24,14 @@
 #include <nlohmann/json.hpp>
 #include <string>
 
+#include "offline.hpp"
 #include "turncal/run/report.hpp"
 
 using nlohmann::json;
+using namespace turncal::ctl;
 using namespace std::chrono_literals;
 
 namespace {
-
-constexpr int kOk = 0, kRefused = 1, kUsage = 2, kUnreachable = 3;
 
 class Connection {
  public:
@@ -149,7 +152,9 @@ int watch(Connection& c, bool as_json) {
   }
 }
 
-int usage(const char* why) {
+}  // namespace
+
+int turncal::ctl::usage(const char* why) {
   std::fprintf(stderr,
                "turncalctl: %s\n"
                "usage: turncalctl [--socket PATH] [--json] COMMAND\n"
@@ -162,12 +167,22 @@ int usage(const char* why) {
                "  reports                                  the reports kept\n"
                "  show RUN_ID [--truth TRUTH.json]         one report (with turncal-sim's\n"
                "                                           truth beside each estimate)\n"
-               "exit codes: 0 ok; 1 refused, or the watched run failed; 2 usage; 3 no daemon\n",
+               "offline (no daemon):\n"
+               "  replay LOG                               re-estimate a recorded run\n"
+               "        [--config FILE]                   stand configuration (DBC, roles)\n"
+               "        [--report LIVE.json|--no-report]  settings of the live run (default:\n"
+               "                                           the report next to the log)\n"
+               "        [--profile PLAN.toml]             replay with another profile\n"
+               "        [--set SECTION.KEY=VALUE]...      what-if: any profile key\n"
+               "        [--epoch S] [--mean|--sample]     filter epoch, measurement\n"
+               "        [--two-stage|--no-two-stage]      the two-stage comparison\n"
+               "        [--heading-offset DEG]            INS mounting on the table\n"
+               "        [--json OUT] [--truth TRUTH.json] write the report; truth beside it\n"
+               "exit codes: 0 ok; 1 refused, the watched run failed, or a replay gave no\n"
+               "estimates or met a damaged log; 2 usage or bad configuration; 3 no daemon\n",
                why);
   return kUsage;
 }
-
-}  // namespace
 
 int main(int argc, char** argv) {
   std::string socket = "/run/turncal/control.sock";
@@ -187,6 +202,7 @@ int main(int argc, char** argv) {
   }
   if (i >= argc) return usage("missing command");
   const std::string cmd = argv[i++];
+  if (cmd == "replay") return replay(argc, argv, i, as_json);
   json req = {{"cmd", cmd}};
   bool then_watch = false;
   json truth;  // turncal-sim's truth, shown beside the estimates

@@ -38,6 +38,7 @@
 #include "turncal/drivers/socketcan.hpp"
 #include "turncal/plan.hpp"
 #include "turncal/run/engine.hpp"
+#include "turncal/run/replay.hpp"
 #include "turncal/run/report.hpp"
 
 using namespace turncal;
@@ -49,7 +50,6 @@ namespace {
 constexpr std::size_t kMaxRequest = 64 * 1024;  ///< bytes of one control request line
 constexpr std::size_t kMaxQueued = 4 << 20;     ///< bytes of replies a client may leave unread
 constexpr std::size_t kRxBatches = 4;           ///< recvmmsg calls per receive, kBatchFrames each
-constexpr const char* kVersion = "0.1.0";
 
 bool g_journal = false;  // under systemd: structured journal entries
 
@@ -276,7 +276,7 @@ void Daemon::write_report(bool with_estimates) {
   ctx.run_id = run_id;
   ctx.start_unix_s = static_cast<double>(run_start_ns) * 1e-9;
   ctx.end_unix_s = static_cast<double>(socketcan::realtime_ns()) * 1e-9;
-  ctx.software_version = kVersion;
+  ctx.software_version = run::software_version();
   ctx.config_file = cfg.source.string();
   ctx.config_sha256 = run::sha256_hex(read_file(cfg.source));
   ctx.log_file = log_path.filename().string();

@@ -10,7 +10,11 @@
 #include <cstring>
 #include <numbers>
 
+#include "text_format.hpp"
+
 namespace turncal::run {
+
+using detail::fmt;
 
 using nlohmann::json;
 
@@ -162,16 +166,6 @@ json health_json(const StreamHealth& h, double now) {
           {"age_s", std::isnan(h.last_host_s) ? json(nullptr) : json(h.age_s(now))}};
 }
 
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wformat-nonliteral"
-// only ever called with the literal formats below
-std::string fmt(const char* f, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, f, v);
-  return buf;
-}
-#pragma GCC diagnostic pop
-
 }  // namespace
 
 json judge(const json& estimates, const std::vector<Tolerance>& tolerances) {
@@ -232,7 +226,13 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
                   {"align_s", plan.profile.align_s},
                   {"duration_s", plan.profile.duration_s},
                   {"start_angle_rad", plan.start_angle_rad},
-                  {"turns", turns}};
+                  {"turns", turns},
+                  {"toml", plan.text},
+                  {"overrides", plan.overrides}};
+  // what a replay needs besides the log and the profile to see what this run saw
+  j["settings"] = {{"heading_offset_rad", seq.settings().heading_offset_rad},
+                   {"observe", seq.settings().observe},
+                   {"two_stage", engine.build_settings().two_stage}};
   // health
   const Ingest& in = engine.ingest();
   j["health"] = {
@@ -351,6 +351,18 @@ std::string report_text(const json& r, const json* truth) {
     line("  profile: " + r["profile"].value("name", std::string()) + " (" +
          fmt("%.0f s", r["profile"].value("duration_s", 0.0)) + ")");
   if (r.contains("log")) line("  log: " + r["log"].value("file", std::string()));
+  if (r.contains("replay") && r["replay"].is_object()) {
+    const json& p = r["replay"];
+    std::string s = "  replay";
+    s += p.value("of_live_report", false) ? " with the live run's settings" : " of a log alone";
+    for (const auto& o : p.value("overrides", json::array())) s += ", " + o.get<std::string>();
+    line(s);
+    if (p.contains("damage") && p["damage"].is_object())
+      line("  log damaged at line " + std::to_string(p["damage"].value("line", 0)) + ": " +
+           p["damage"].value("what", std::string()));
+    for (const auto& m : p.value("missing_roles", json::array()))
+      line("  no frames of " + m.get<std::string>());
+  }
   if (r.contains("turns_achieved"))
     for (const auto& t : r["turns_achieved"])
       line("  turn: " + fmt("%.4f deg", t["angle_rad"].get<double>() * 180 / std::numbers::pi) +

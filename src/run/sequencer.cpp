@@ -184,7 +184,10 @@ void Sequencer::step(const Event& e, std::vector<Command>& out) {
           }
         } else if constexpr (std::is_same_v<E, EndOfInput>) {
           if (finished(phase_) || phase_ == Phase::Estimate || phase_ == Phase::Report) return;
-          if (phase_ == Phase::Hold && index_ == static_cast<int>(s_.profile.turns.size()) + 1) {
+          const bool last_hold =
+              phase_ == Phase::Hold && index_ == static_cast<int>(s_.profile.turns.size()) + 1;
+          const bool after_t0 = phase_ == Phase::Hold || phase_ == Phase::Turn;
+          if (last_hold || (s_.estimate_partial && after_t0)) {
             // the recording ends in the last hold: estimate what there is
             enter(Phase::Estimate, ev.t_s);
             out.emplace_back(RunEstimation{});

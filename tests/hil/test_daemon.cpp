@@ -170,6 +170,25 @@ TEST_SUITE("daemon") {
     }
     CHECK(params == 20);
 
+    // turncalctl replay of the log (no daemon): with the live run's settings,
+    // from the report next to the log, the estimation is the live one bit for bit
+    REQUIRE(ctl(dir.path,
+                {"replay", log.string(), "--config", (dir.path / "turncal.toml").string(), "--json",
+                 (dir.path / "replay.json").string()},
+                "replay.txt", 60000ms) == 0);
+    const auto live = nlohmann::json::parse(slurp(dir.path / "state" / (id + ".report.json")));
+    const auto rp = nlohmann::json::parse(slurp(dir.path / "replay.json"));
+    CHECK(rp["mode"] == "replay");
+    CHECK(rp["replay"]["of_live_report"] == true);
+    for (const char* k : {"estimates", "combinations", "two_stage", "innovations", "turns_achieved",
+                          "velocity_samples", "verdict"}) {
+      CAPTURE(k);
+      REQUIRE(live.contains(k));
+      CHECK(rp[k].dump() == live[k].dump());
+    }
+    CHECK(slurp(dir.path / "replay.txt").find("replay with the live run's settings") !=
+          std::string::npos);
+
     // replies larger than the socket takes at once arrive whole: 60 reports
     // asked at once (some 2 MB) and read only then
     {
@@ -221,6 +240,14 @@ TEST_SUITE("daemon") {
     CHECK(r2["phases"].back()["phase"] == "aborted");
     CHECK(r2["quick_stop"]["sent"] == true);
     CHECK(r2["quick_stop"]["acknowledged"] == true);
+    // its log is kept and replays whole: hold 1 and the turn up to the abort
+    CHECK(ctl(dir.path,
+              {"--json", "replay", (dir.path / "state" / (id2 + ".log")).string(), "--config",
+               (dir.path / "turncal.toml").string()},
+              "replay2.json", 60000ms) == 0);
+    const auto rp2 = nlohmann::json::parse(slurp(dir.path / "replay2.json"));
+    CHECK(rp2["replay"]["damage"].is_null());
+    CHECK(rp2["estimates"].size() == 20);
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
     sim.terminate();

@@ -5,13 +5,18 @@
 #include <doctest/doctest.h>
 
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <functional>
 #include <memory>
 #include <numbers>
+#include <sstream>
 
 #include "scenarios.hpp"
+#include "turncal/can/candump.hpp"
 #include "turncal/drivers/scripted_host.hpp"
 #include "turncal/run/engine.hpp"
+#include "turncal/run/replay.hpp"
 #include "turncal/run/report.hpp"
 
 using namespace turncal;
@@ -61,13 +66,14 @@ Plan load(const std::string& name) {
 }
 
 /// The tactical plan cut short: 20 s alignment, 120 s, +180 deg at 60 s.
+/// Set by overrides, as turncalctl does, so the plan's text and overrides
+/// (which a report keeps for the replay) are this plan.
 Plan short_plan() {
-  Plan p = load("tactical.toml");
-  p.profile.align_s = 20;
-  p.profile.duration_s = 120;
-  p.profile.turns.resize(1);
-  p.profile.turns[0].start_s = 60;
-  return p;
+  auto p = load_plan(std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/tactical.toml",
+                     std::vector<std::string>{"profile.align_s=20", "profile.duration_s=120",
+                                              "profile.turn=[{start_s = 60, angle_deg = 180}]"});
+  REQUIRE_MESSAGE(p.ok(), (p.ok() ? "" : p.error().describe()));
+  return *p;
 }
 
 struct Logged {
@@ -198,6 +204,64 @@ stand::StandSetup setup_of(const Plan& plan, std::uint64_t seed) {
   s.table_clock = {4200.0, -30};   // the table's tags wrap (2^32 us) during the run
   s.seed = seed;
   return s;
+}
+
+/// A folder of its own under the system's temporary folder, removed after.
+struct TempDir {
+  std::filesystem::path path;
+  TempDir() {
+    path = std::filesystem::temp_directory_path() /
+           ("turncal-scenario-" + std::to_string(::getpid()) + "-" + std::to_string(counter()++));
+    std::filesystem::create_directories(path);
+  }
+  ~TempDir() {
+    std::error_code ec;
+    std::filesystem::remove_all(path, ec);
+  }
+  TempDir(const TempDir&) = delete;
+  TempDir& operator=(const TempDir&) = delete;
+  static int& counter() {
+    static int n = 0;
+    return n;
+  }
+};
+
+/// Writes the frames of a closed loop as the recorder does (one interface);
+/// `keep` selects them.
+void write_log(const std::vector<Logged>& log, const std::filesystem::path& path,
+               const std::function<bool(const can::Frame&)>& keep = {}) {
+  auto w = can::LogWriter::open(path.string());
+  REQUIRE(w.ok());
+  for (const Logged& l : log)
+    if (!keep || keep(l.f.frame)) REQUIRE(w->write({l.f.time_ns, "vcan0", l.f.frame}).ok());
+  REQUIRE(w->close().ok());
+}
+
+/// The sections of a report the estimation makes: a replay with the live
+/// run's settings gives them bit for bit.
+const std::vector<const char*> kEstimationSections = {
+    "estimates",      "combinations",     "two_stage", "innovations",
+    "turns_achieved", "velocity_samples", "notes",     "verdict"};
+
+/// A live run of the short plan on seed 7, its report as the daemon writes it.
+struct LiveRun {
+  Plan plan = short_plan();
+  ClosedLoop live{plan, setup_of(plan, 7)};
+  LiveRun() {
+    live.run_until(200);
+    REQUIRE_MESSAGE(live.phase() == run::Phase::Done, live.course().reason);
+    REQUIRE(live.written.contains("estimates"));
+  }
+  static const LiveRun& get() {
+    static const LiveRun r;
+    return r;
+  }
+};
+
+Result<run::ReplayOutcome> replay_file(const std::filesystem::path& log, const nlohmann::json* live,
+                                       const run::ReplayOptions& o = {}) {
+  return run::replay_log(reference_stand().cfg, reference_stand().db, stand_roles(), log.string(),
+                         live, o);
 }
 
 /// Truth of the 18 parameters and df_eff, in the estimator's order.
@@ -449,5 +513,137 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(c.phase() == run::Phase::Failed);
     CHECK(c.course().reason.find("refused before any command: turn 1: rate 30.000 deg/s") == 0);
     CHECK(c.engine.commands_sent() == 0);
+  }
+
+  TEST_CASE("replay of the log with the live run's report: the estimation bit for bit") {
+    const LiveRun& l = LiveRun::get();
+    TempDir dir;
+    write_log(l.live.log, dir.path / "run.log");
+    auto r = replay_file(dir.path / "run.log", &l.live.written);
+    REQUIRE_MESSAGE(r.ok(), (r.ok() ? "" : r.error().describe()));
+    const nlohmann::json& j = r->report;
+    CHECK(j["status"] == "done");
+    CHECK(j["mode"] == "replay");
+    CHECK_FALSE(r->damage);
+    CHECK(r->missing.empty());
+    for (const char* k : kEstimationSections) {
+      CAPTURE(k);
+      REQUIRE(l.live.written.contains(k));
+      CHECK(j[k].dump() == l.live.written[k].dump());
+    }
+    // the same estimates as the live filter's state, exactly
+    CHECK(j["estimates"]["nu0_1"]["value"].get<double>() == l.live.result->parameters[0].value);
+  }
+
+  TEST_CASE("replay what-ifs: another epoch, no two-stage, a tighter prior change the result") {
+    const LiveRun& l = LiveRun::get();
+    TempDir dir;
+    write_log(l.live.log, dir.path / "run.log");
+    run::ReplayOptions o;
+    o.overrides = {"estimation.epoch_s=2", "priors.gyro_bias_dph=0.1"};
+    o.two_stage = false;
+    auto r = replay_file(dir.path / "run.log", &l.live.written, o);
+    REQUIRE(r.ok());
+    const nlohmann::json& j = r->report;
+    REQUIRE(j["status"] == "done");
+    CHECK_FALSE(j.contains("two_stage"));
+    CHECK(j["profile"]["overrides"].size() == 5);  // the plan's three, then the two
+    const double deg_h = std::numbers::pi / 180 / 3600;
+    CHECK(j["estimates"]["nu0_3"]["prior_sigma"].get<double>() == doctest::Approx(0.1 * deg_h));
+    CHECK(j["estimates"]["nu0_1"]["sigma"].get<double>() <
+          l.live.written["estimates"]["nu0_1"]["sigma"].get<double>());
+    // half as many epochs: half as many innovations
+    CHECK(j["innovations"]["count"].get<double>() ==
+          doctest::Approx(l.live.written["innovations"]["count"].get<double>() / 2).epsilon(0.02));
+    CHECK(j["replay"]["overrides"].size() == 2);
+  }
+
+  TEST_CASE("replay of a log cut in the last hold: estimates up to the damage, and where") {
+    const LiveRun& l = LiveRun::get();
+    TempDir dir;
+    write_log(l.live.log, dir.path / "run.log");
+    // cut at about t0 + 100 s (of 120) in the middle of a line, as a crash leaves it
+    std::ifstream in(dir.path / "run.log");
+    std::stringstream ss;
+    ss << in.rdbuf();
+    const std::string text = ss.str();
+    const double t0 = l.live.course().t0_s;
+    std::size_t lines = 0, at = 0;
+    for (std::size_t p = 0; p < text.size(); p = text.find('\n', p) + 1) {
+      ++lines;
+      const double t = std::stod(text.substr(p + 1, 17));
+      if (t > t0 + 100) {  // stand time is the Unix time of the log
+        at = p + 10;       // inside the timestamp
+        break;
+      }
+    }
+    REQUIRE(at > 0);
+    std::ofstream(dir.path / "cut.log") << text.substr(0, at);
+    auto r = replay_file(dir.path / "cut.log", &l.live.written);
+    REQUIRE(r.ok());
+    REQUIRE(r->damage);
+    CHECK(r->damage->line == lines);
+    CHECK(r->report["replay"]["damage"]["line"] == lines);
+    CHECK(r->report["status"] == "done");
+    CHECK(r->report["reason"].get<std::string>().find("damaged at line " + std::to_string(lines)) !=
+          std::string::npos);
+    // the record ends about 20 s early; the estimates are of what there is
+    const auto& e = r->report["estimates"];
+    REQUIRE(e.size() == 20);
+    CHECK(e["nu0_1"]["sigma"].get<double>() >
+          l.live.written["estimates"]["nu0_1"]["sigma"].get<double>());
+    CHECK(r->report["notes"].dump().find("before the planned end") != std::string::npos);
+    CHECK(run::report_text(r->report).find("damaged at line") != std::string::npos);
+  }
+
+  TEST_CASE("replay of a log corrupted in the first hold: the estimates of that hold alone") {
+    const LiveRun& l = LiveRun::get();
+    TempDir dir;
+    write_log(l.live.log, dir.path / "run.log");
+    std::ifstream in(dir.path / "run.log");
+    std::vector<std::string> lines;
+    for (std::string s; std::getline(in, s);) lines.push_back(s);
+    const double t0 = l.live.course().t0_s;
+    std::size_t bad = 0;
+    for (std::size_t k = 0; k < lines.size(); ++k)
+      if (std::stod(lines[k].substr(1, 17)) > t0 + 40) {
+        bad = k;
+        break;
+      }
+    REQUIRE(bad > 0);
+    lines[bad] = "(garbage";
+    std::ofstream out(dir.path / "bad.log");
+    for (const auto& s : lines) out << s << '\n';
+    out.close();
+    auto r = replay_file(dir.path / "bad.log", &l.live.written);
+    REQUIRE(r.ok());
+    REQUIRE(r->damage);
+    CHECK(r->damage->line == bad + 1);
+    CHECK(r->report["status"] == "done");
+    CHECK(r->report["turns_achieved"].empty());
+    // one position: the heading-dependent terms stay near their priors
+    const auto& e = r->report["estimates"];
+    CHECK(e["r1"]["sigma"].get<double>() > 0.5 * e["r1"]["prior_sigma"].get<double>());
+  }
+
+  TEST_CASE("replay of another stand's log: the roles it lacks named, the run not estimated") {
+    const LiveRun& l = LiveRun::get();
+    TempDir dir;
+    const auto& roles = stand_roles();
+    const std::uint32_t enc = roles[Role::EncoderAngle].message->id;
+    const std::uint32_t ts = roles[Role::TableState].message->id;
+    write_log(l.live.log, dir.path / "other.log",
+              [&](const can::Frame& f) { return f.id != enc && f.id != ts; });
+    run::ReplayOptions o;
+    o.profile = l.plan.source;
+    o.overrides = l.plan.overrides;
+    auto r = replay_file(dir.path / "other.log", nullptr, o);
+    REQUIRE(r.ok());
+    REQUIRE(r->missing.size() == 2);
+    CHECK(r->missing[0].find("encoder_angle") != std::string::npos);
+    CHECK(r->missing[1].find("table_state") != std::string::npos);
+    CHECK(r->report["status"] == "failed");
+    CHECK(r->report["replay"]["missing_roles"].size() == 2);
+    CHECK_FALSE(r->report.contains("estimates"));
   }
 }

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <string>
+#include <vector>
 
 #include "turncal/earth.hpp"
 #include "turncal/plan.hpp"
@@ -114,5 +115,42 @@ TEST_SUITE("plan") {
         "[[profile.turn]]\nstart_s = 108\nangle_deg = -90\n",
         "ok.toml");
     CHECK(ok.ok());
+  }
+
+  TEST_CASE("overrides set keys over the file and are validated like it") {
+    const std::vector<std::string> o = {"estimation.epoch_s=2", "estimation.measurement=\"mean\"",
+                                        "priors.gyro_bias_dph=[1, 1, 0.5]", "noise.arw_dprh=0.01"};
+    auto p = load_plan(kProfiles + "tactical.toml", o);
+    REQUIRE_MESSAGE(p.ok(), (p.ok() ? "" : p.error().describe()));
+    CHECK(p->epoch_s == 2);
+    CHECK(p->mean_measurement);
+    CHECK(p->priors.params[2] == doctest::Approx(0.5 * earth::kDeg / 3600));
+    CHECK(p->priors.params[1] == doctest::Approx(earth::kDeg / 3600));
+    CHECK(p->arw == doctest::Approx(0.01 * earth::kDeg / 60));
+    CHECK(p->overrides == o);
+    CHECK(p->profile.turns.size() == 1);  // the rest of the file stays
+    // the text is kept as read: parsed again with the overrides it is the same plan
+    auto q = parse_plan(p->text, "again.toml", p->overrides);
+    REQUIRE(q.ok());
+    CHECK(q->epoch_s == 2);
+    CHECK(q->priors.params == p->priors.params);
+    // a new section is made
+    auto n = parse_plan("", "empty.toml", std::vector<std::string>{"site.latitude_deg=10"});
+    REQUIRE(n.ok());
+    CHECK(n->site.latitude_rad == doctest::Approx(10 * earth::kDeg));
+  }
+
+  TEST_CASE("a bad override names itself, its key and what is wrong") {
+    auto err = [](std::string o) {
+      auto r = load_plan(kProfiles + "tactical.toml", std::vector<std::string>{o});
+      REQUIRE_FALSE(r.ok());
+      return r.error().describe();
+    };
+    CHECK(err("estimation.epoch_s=0") ==
+          "--set estimation.epoch_s=0: key 'estimation.epoch_s': must be between 0.001 and 600");
+    CHECK(err("estimation.epoch=1").find("unknown key 'estimation.epoch'") != std::string::npos);
+    CHECK(err("estimation.epoch_s").find("expected section.key=VALUE") != std::string::npos);
+    CHECK(err("estimation.measurement=mean").starts_with("--set estimation.measurement=mean: "));
+    CHECK(err("site.latitude_deg.x=1").find("'latitude_deg' is not a table") != std::string::npos);
   }
 }

@@ -92,6 +92,7 @@ class Engine {
   [[nodiscard]] const Plan& plan() const { return plan_; }
   [[nodiscard]] const Live& live() const { return live_; }
   [[nodiscard]] const TimeBase& time_base() const { return time_; }
+  [[nodiscard]] const BuildSettings& build_settings() const { return build_; }
   [[nodiscard]] double stand_s(std::int64_t ns) const { return time_.stand_s(ns); }
   /// Tables of the commands we sent, counted.
   [[nodiscard]] std::uint64_t commands_sent() const { return commands_sent_; }

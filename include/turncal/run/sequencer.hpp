@@ -48,6 +48,9 @@ struct SequencerSettings {
   double heading_offset_rad = 0;
   StandLimits limits;  ///< turncal.toml [stand]
   bool observe = false;
+  /// A recording that ends anywhere after t0 (a damaged log) is estimated
+  /// over what there is; otherwise only one that ends in the last hold.
+  bool estimate_partial = false;
   double ack_timeout_s = 1.0;           ///< a table command unacknowledged this long is a fault
   double enable_timeout_s = 5.0;        ///< from enable to the table holding
   double align_start_s = 3.0;           ///< from the INS command to the INS aligning

@@ -1,0 +1,156 @@
+// turncalctl's offline commands: they need no daemon.
+//
+//   replay LOG [--config FILE] [--report LIVE.json | --no-report]
+//              [--profile PLAN.toml] [--set KEY=VALUE]... [--epoch S]
+//              [--mean | --sample] [--two-stage | --no-two-stage]
+//              [--heading-offset DEG] [--json OUT] [--truth TRUTH.json]
+#include "offline.hpp"
+
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <numbers>
+#include <sstream>
+#include <string>
+
+#include "turncal/config.hpp"
+#include "turncal/run/replay.hpp"
+#include "turncal/run/report.hpp"
+
+namespace turncal::ctl {
+
+using nlohmann::json;
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string default_config() {
+  if (const char* e = std::getenv("TURNCAL_CONFIG")) return e;
+  return std::string(TURNCAL_DATA_DIR) + "/turncal.toml";
+}
+
+bool read_json(const std::string& path, json& out) {
+  std::ifstream in(path);
+  if (!in) return false;
+  out = json::parse(in, nullptr, false);
+  return !out.is_discarded() && out.is_object();
+}
+
+/// Writes text to a file, or says why not.
+bool write_text(const std::string& path, const std::string& text) {
+  std::ofstream out(path, std::ios::binary | std::ios::trunc);
+  out << text;
+  out.close();
+  if (!out) std::fprintf(stderr, "turncalctl: cannot write %s\n", path.c_str());
+  return static_cast<bool>(out);
+}
+
+bool number(const char* s, double& v) {
+  char* end = nullptr;
+  v = std::strtod(s, &end);
+  return end != s && *end == '\0';
+}
+
+}  // namespace
+
+int replay(int argc, char** argv, int i, bool as_json) {
+  if (i >= argc) return usage("replay: missing LOG");
+  const std::string log = argv[i++];
+  std::string config = default_config(), report_path, json_out, truth_path;
+  bool no_report = false;
+  run::ReplayOptions o;
+  for (; i < argc; ++i) {
+    const std::string a = argv[i];
+    const bool has = i + 1 < argc;
+    double v = 0;
+    if (a == "--config" && has) {
+      config = argv[++i];
+    } else if (a == "--report" && has) {
+      report_path = argv[++i];
+    } else if (a == "--no-report") {
+      no_report = true;
+    } else if (a == "--profile" && has) {
+      o.profile = argv[++i];
+    } else if (a == "--set" && has) {
+      o.overrides.emplace_back(argv[++i]);
+    } else if (a == "--epoch" && has) {
+      if (!number(argv[++i], v)) return usage("replay: --epoch needs seconds");
+      o.overrides.push_back("estimation.epoch_s=" + std::string(argv[i]));
+    } else if (a == "--mean" || a == "--sample") {
+      o.overrides.push_back("estimation.measurement=\"" + a.substr(2) + "\"");
+    } else if (a == "--two-stage" || a == "--no-two-stage") {
+      o.two_stage = a == "--two-stage";
+    } else if (a == "--heading-offset" && has) {
+      if (!number(argv[++i], v)) return usage("replay: --heading-offset needs degrees");
+      o.heading_offset_rad = v * std::numbers::pi / 180;
+    } else if (a == "--json" && has) {
+      json_out = argv[++i];
+    } else if (a == "--truth" && has) {
+      truth_path = argv[++i];
+    } else {
+      return usage(("replay: unknown argument " + a).c_str());
+    }
+  }
+  auto cfg = load_config(config);
+  if (!cfg) {
+    std::fprintf(stderr, "turncalctl: %s\n", cfg.error().describe().c_str());
+    return kUsage;
+  }
+  auto db = load_databases(cfg->can);
+  if (!db) {
+    std::fprintf(stderr, "turncalctl: %s\n", db.error().describe().c_str());
+    return kUsage;
+  }
+  auto roles = resolve_roles(cfg->can, *db);
+  if (!roles) {
+    std::fprintf(stderr, "turncalctl: %s\n", roles.error().describe().c_str());
+    return kUsage;
+  }
+  // the live run's report: named, or next to the log as the daemon keeps it
+  json live;
+  if (!no_report) {
+    if (report_path.empty()) {
+      const fs::path beside = fs::path(log).replace_extension(".report.json");
+      if (fs::exists(beside)) report_path = beside.string();
+    }
+    if (!report_path.empty()) {
+      if (!read_json(report_path, live)) {
+        std::fprintf(stderr, "turncalctl: %s: not a turncal report\n", report_path.c_str());
+        return kUsage;
+      }
+      if (!live.contains("profile") || !live["profile"].contains("toml")) {
+        std::fprintf(stderr,
+                     "turncalctl: %s has no profile to replay with (an interrupted run's "
+                     "report?): give --profile or --no-report\n",
+                     report_path.c_str());
+        return kUsage;
+      }
+      std::fprintf(stderr, "turncalctl: replaying with the settings of %s\n", report_path.c_str());
+    }
+  }
+  json truth;
+  if (!truth_path.empty() && (!read_json(truth_path, truth) || !truth.contains("errors"))) {
+    std::fprintf(stderr, "turncalctl: %s: not a turncal-sim truth file\n", truth_path.c_str());
+    return kUsage;
+  }
+  auto r = run::replay_log(*cfg, *db, *roles, log, live.is_null() ? nullptr : &live, o);
+  if (!r) {
+    std::fprintf(stderr, "turncalctl: %s\n", r.error().describe().c_str());
+    return kRefused;
+  }
+  if (!json_out.empty() && !write_text(json_out, r->report.dump(2) + "\n")) return kRefused;
+  if (as_json)
+    std::printf("%s\n", r->report.dump(2).c_str());
+  else
+    std::printf("%s", run::report_text(r->report, truth.is_null() ? nullptr : &truth).c_str());
+  if (r->damage)
+    std::fprintf(stderr, "turncalctl: %s: damaged at line %llu: %s\n", log.c_str(),
+                 static_cast<unsigned long long>(r->damage->line), r->damage->what.c_str());
+  for (const std::string& m : r->missing)
+    std::fprintf(stderr, "turncalctl: %s: no frames of %s\n", log.c_str(), m.c_str());
+  const bool done = r->report.value("status", std::string()) == "done";
+  return done && !r->damage ? kOk : kRefused;
+}
+
+}  // namespace turncal::ctl

@@ -1,0 +1,16 @@
+// turncalctl's commands that need no daemon (replay, plan). Internal to
+// turncalctl.
+#pragma once
+
+namespace turncal::ctl {
+
+/// Exit codes of turncalctl.
+inline constexpr int kOk = 0, kRefused = 1, kUsage = 2, kUnreachable = 3;
+
+/// Prints the usage with `why` and returns kUsage.
+int usage(const char* why);
+
+/// `turncalctl replay LOG ...`; argv[i] is the first argument after "replay".
+int replay(int argc, char** argv, int i, bool as_json);
+
+}  // namespace turncal::ctl

@@ -1,0 +1,182 @@
+#include "turncal/run/replay.hpp"
+
+#include <cmath>
+#include <filesystem>
+#include <memory>
+
+#include "turncal/can/candump.hpp"
+#include "turncal/estimation/estimator.hpp"
+#include "turncal/plan.hpp"
+#include "turncal/run/engine.hpp"
+#include "turncal/run/report.hpp"
+
+namespace turncal::run {
+
+using nlohmann::json;
+
+const char* software_version() {
+  return TURNCAL_VERSION;
+}
+
+namespace {
+
+/// Stand time between engine ticks in a replay: the daemon ticks at 10 Hz;
+/// ten times as often costs little and judges staleness no later.
+constexpr double kTickS = 0.01;
+
+Result<Plan> replay_plan(const Config& cfg, const json* live, const ReplayOptions& o) {
+  std::vector<std::string> overrides;
+  if (o.profile.empty() && live != nullptr && live->contains("profile") &&
+      (*live)["profile"].contains("toml") && (*live)["profile"]["toml"].is_string()) {
+    const json& p = (*live)["profile"];
+    if (p.contains("overrides") && p["overrides"].is_array())
+      for (const json& s : p["overrides"])
+        if (s.is_string()) overrides.push_back(s.get<std::string>());
+    overrides.insert(overrides.end(), o.overrides.begin(), o.overrides.end());
+    return parse_plan(p["toml"].get<std::string>(),
+                      p.value("file", std::string("the live report's profile")), overrides);
+  }
+  const std::string path = o.profile.empty() ? cfg.daemon.profile.string() : o.profile;
+  return load_plan(path, o.overrides);
+}
+
+/// A number at a JSON path of the live report, if it is there.
+std::optional<double> live_number(const json* live, const char* section, const char* key) {
+  if (live == nullptr || !live->contains(section)) return std::nullopt;
+  const json& s = (*live)[section];
+  if (!s.is_object() || !s.contains(key) || !s[key].is_number()) return std::nullopt;
+  return s[key].get<double>();
+}
+
+/// Roles of each stream, and the message that carries them, for a log that
+/// never carried it.
+std::vector<std::string> missing_roles(const Engine& e, const RoleMap& roles) {
+  static constexpr std::array<std::array<Role, 2>, kStreams> kOf = {{
+      {Role::InsVelEast, Role::InsVelNorth},
+      {Role::InsMode, Role::InsMode},
+      {Role::EncoderAngle, Role::EncoderAngle},
+      {Role::TableState, Role::TableState},
+  }};
+  std::vector<std::string> out;
+  for (int s = 0; s < kStreams; ++s) {
+    if (e.ingest().health(static_cast<Stream>(s)).frames > 0) continue;
+    const auto& rs = kOf[static_cast<std::size_t>(s)];
+    std::string names(role_key(rs[0]));
+    if (rs[1] != rs[0]) names += ", " + std::string(role_key(rs[1]));
+    const can::Message* m = roles[rs[0]].message;
+    char id[16];
+    std::snprintf(id, sizeof id, m->extended ? "0x%08X" : "0x%03X", m->id);
+    out.push_back(names + " (message " + m->name + ", id " + id + ")");
+  }
+  return out;
+}
+
+}  // namespace
+
+Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, const RoleMap& roles,
+                                 const std::string& log_path, const json* live,
+                                 const ReplayOptions& options) {
+  TURNCAL_ASSIGN(plan, replay_plan(cfg, live, options));
+  TURNCAL_ASSIGN(reader, can::LogReader::open(log_path));
+  ReplayOutcome out;
+
+  SequencerSettings q;
+  q.profile = plan.profile;
+  q.start_angle_rad = plan.start_angle_rad;
+  q.heading_offset_rad = options.heading_offset_rad.value_or(
+      live_number(live, "settings", "heading_offset_rad").value_or(cfg.stand.heading_offset_rad));
+  q.limits = cfg.stand.limits;
+  q.observe = true;
+  q.estimate_partial = true;
+  BuildSettings b;
+  b.heading_offset_rad = q.heading_offset_rad;
+  b.two_stage = true;
+  if (live != nullptr && live->contains("settings") && (*live)["settings"].contains("two_stage"))
+    b.two_stage = (*live)["settings"]["two_stage"].get<bool>();
+  if (options.two_stage) b.two_stage = *options.two_stage;
+
+  // the first record: the time base of a log without a live report
+  can::LogRecord rec;
+  std::optional<LogDamage> damage;
+  bool have = false;
+  if (auto r = reader.next(rec); !r)
+    damage = LogDamage{reader.line_number(), r.error().describe()};
+  else
+    have = *r;
+  if (!have && !damage) return make_error(log_path + ": the log is empty");
+  TimeBase tb{have ? rec.time_ns / 1000 : 0, cfg.stand.time_scale};
+  if (const auto e = live_number(live, "time_base", "epoch_us")) tb.epoch_us = std::llround(*e);
+  if (const auto s = live_number(live, "time_base", "scale")) tb.scale = *s;
+
+  Engine engine(db, roles, plan, q, b, tb);
+  std::vector<OutFrame> sent;  // observe mode sends nothing; kept for the interface
+  engine.start(tb.epoch_us * 1000, sent);
+  std::int64_t first_ns = have ? rec.time_ns : 0, last_ns = first_ns;
+  std::int64_t next_tick_ns = first_ns;
+  const auto tick_ns = static_cast<std::int64_t>(kTickS / tb.scale * 1e9);
+  while (have) {
+    engine.on_frame({rec.time_ns, rec.frame}, sent);
+    last_ns = std::max(last_ns, rec.time_ns);
+    if (rec.time_ns >= next_tick_ns) {
+      engine.tick(rec.time_ns, sent);
+      next_tick_ns = rec.time_ns + tick_ns;
+    }
+    if (engine.estimation_due()) break;
+    auto r = reader.next(rec);
+    if (!r) {
+      damage = LogDamage{reader.line_number(), r.error().describe()};
+      break;
+    }
+    have = *r;
+  }
+  out.lines = reader.line_number();
+  out.damage = damage;
+  if (!engine.estimation_due()) engine.end_of_input(last_ns, sent);
+
+  std::optional<BuiltInput> input;
+  std::optional<est::EstimationResult> result;
+  if (engine.estimation_due()) {
+    auto in = engine.take_estimation_input();
+    if (!in) {
+      engine.estimation_done(last_ns, false, in.error().describe(), sent);
+    } else {
+      input = std::move(*in);
+      auto r = est::estimate(input->input);
+      if (r) result = std::move(*r);
+      engine.estimation_done(last_ns, r.ok(), r ? "" : r.error().describe(), sent);
+    }
+  }
+  out.missing = missing_roles(engine, roles);
+
+  ReportContext ctx;
+  namespace fs = std::filesystem;
+  ctx.run_id =
+      live != nullptr ? live->value("run_id", std::string()) : fs::path(log_path).stem().string();
+  ctx.start_unix_s = live != nullptr ? live->value("start_time_unix_s", 0.0)
+                                     : static_cast<double>(first_ns) * 1e-9;
+  ctx.end_unix_s =
+      live != nullptr ? live->value("end_time_unix_s", 0.0) : static_cast<double>(last_ns) * 1e-9;
+  ctx.software_version = software_version();
+  ctx.config_file = cfg.source.string();
+  if (auto d = sha256_file(cfg.source.string())) ctx.config_sha256 = d->sha256;
+  ctx.log_file = fs::path(log_path).filename().string();
+  if (auto d = sha256_file(log_path)) ctx.log_sha256 = d->sha256;
+  ctx.tolerances = cfg.tolerances;
+  ctx.mode = "replay";
+  const bool est = input && result;
+  out.report = report_json(ctx, engine, est ? &*input : nullptr, est ? &*result : nullptr);
+  engine.report_written(last_ns, true, "", sent);
+
+  json r = {{"log_lines", out.lines},
+            {"of_live_report", live != nullptr},
+            {"overrides", options.overrides},
+            {"missing_roles", out.missing}};
+  r["damage"] = damage ? json{{"line", damage->line}, {"what", damage->what}} : json(nullptr);
+  out.report["replay"] = r;
+  if (damage && !out.report.contains("reason"))
+    out.report["reason"] = "the log is damaged at line " + std::to_string(damage->line) +
+                           ": estimated from the frames before it";
+  return out;
+}
+
+}  // namespace turncal::run
