@@ -5,6 +5,7 @@
 //   turncalctl [--socket PATH] [--json] status | watch | abort [REASON]
 //   turncalctl [--socket PATH] [--json] reports | show RUN_ID [--truth TRUTH.json]
 //   turncalctl [--json] replay LOG [options]       (no daemon: offline.cpp)
+//   turncalctl [--json] plan [options]             (no daemon: offline.cpp)
 //
 // Exit codes: 0 done (a watched run ended done, a request answered ok, a
 // replay estimated a whole log); 1 the daemon refused the request, the
@@ -178,6 +179,11 @@ int turncal::ctl::usage(const char* why) {
                "        [--two-stage|--no-two-stage]      the two-stage comparison\n"
                "        [--heading-offset DEG]            INS mounting on the table\n"
                "        [--json OUT] [--truth TRUTH.json] write the report; truth beside it\n"
+               "  plan                                     predict a planned experiment's sigmas\n"
+               "        [--config FILE] [--profile PLAN.toml] [--set SECTION.KEY=VALUE]...\n"
+               "        [--epoch S] [--mean|--sample] [--heading-offset DEG]\n"
+               "        [--rate HZ]                       INS velocity rate (default 100)\n"
+               "        [--no-sweep] [--json OUT]         without the hold/turn table\n"
                "exit codes: 0 ok; 1 refused, the watched run failed, or a replay gave no\n"
                "estimates or met a damaged log; 2 usage or bad configuration; 3 no daemon\n",
                why);
@@ -203,6 +209,7 @@ int main(int argc, char** argv) {
   if (i >= argc) return usage("missing command");
   const std::string cmd = argv[i++];
   if (cmd == "replay") return replay(argc, argv, i, as_json);
+  if (cmd == "plan") return plan(argc, argv, i, as_json);
   json req = {{"cmd", cmd}};
   bool then_watch = false;
   json truth;  // turncal-sim's truth, shown beside the estimates

@@ -4,6 +4,9 @@
 //              [--profile PLAN.toml] [--set KEY=VALUE]... [--epoch S]
 //              [--mean | --sample] [--two-stage | --no-two-stage]
 //              [--heading-offset DEG] [--json OUT] [--truth TRUTH.json]
+//   plan [--config FILE] [--profile PLAN.toml] [--set KEY=VALUE]... [--epoch S]
+//        [--mean | --sample] [--heading-offset DEG] [--rate HZ] [--no-sweep]
+//        [--json OUT]
 #include "offline.hpp"
 
 #include <cstdio>
@@ -11,10 +14,13 @@
 #include <filesystem>
 #include <fstream>
 #include <numbers>
+#include <optional>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include "turncal/config.hpp"
+#include "turncal/run/planning.hpp"
 #include "turncal/run/replay.hpp"
 #include "turncal/run/report.hpp"
 
@@ -52,6 +58,25 @@ bool number(const char* s, double& v) {
   return end != s && *end == '\0';
 }
 
+/// The plan keys both replay and plan take: --set, --epoch, --mean, --sample.
+/// True when argv[i] was one (i moved past its value); `bad` says why not.
+bool plan_override(int argc, char** argv, int& i, std::vector<std::string>& out, std::string& bad) {
+  const std::string a = argv[i];
+  const bool has = i + 1 < argc;
+  double v = 0;
+  if (a == "--set" && has) {
+    out.emplace_back(argv[++i]);
+  } else if (a == "--epoch" && has) {
+    if (!number(argv[++i], v)) bad = "--epoch needs seconds";
+    out.push_back("estimation.epoch_s=" + std::string(argv[i]));
+  } else if (a == "--mean" || a == "--sample") {
+    out.push_back("estimation.measurement=\"" + a.substr(2) + "\"");
+  } else {
+    return false;
+  }
+  return true;
+}
+
 }  // namespace
 
 int replay(int argc, char** argv, int i, bool as_json) {
@@ -72,13 +97,8 @@ int replay(int argc, char** argv, int i, bool as_json) {
       no_report = true;
     } else if (a == "--profile" && has) {
       o.profile = argv[++i];
-    } else if (a == "--set" && has) {
-      o.overrides.emplace_back(argv[++i]);
-    } else if (a == "--epoch" && has) {
-      if (!number(argv[++i], v)) return usage("replay: --epoch needs seconds");
-      o.overrides.push_back("estimation.epoch_s=" + std::string(argv[i]));
-    } else if (a == "--mean" || a == "--sample") {
-      o.overrides.push_back("estimation.measurement=\"" + a.substr(2) + "\"");
+    } else if (std::string bad; plan_override(argc, argv, i, o.overrides, bad)) {
+      if (!bad.empty()) return usage(("replay: " + bad).c_str());
     } else if (a == "--two-stage" || a == "--no-two-stage") {
       o.two_stage = a == "--two-stage";
     } else if (a == "--heading-offset" && has) {
@@ -151,6 +171,56 @@ int replay(int argc, char** argv, int i, bool as_json) {
     std::fprintf(stderr, "turncalctl: %s: no frames of %s\n", log.c_str(), m.c_str());
   const bool done = r->report.value("status", std::string()) == "done";
   return done && !r->damage ? kOk : kRefused;
+}
+
+int plan(int argc, char** argv, int i, bool as_json) {
+  std::string config = default_config(), profile, json_out;
+  std::vector<std::string> overrides;
+  run::PlanningSettings ps;
+  std::optional<double> heading;
+  for (; i < argc; ++i) {
+    const std::string a = argv[i];
+    const bool has = i + 1 < argc;
+    double v = 0;
+    if (a == "--config" && has) {
+      config = argv[++i];
+    } else if (a == "--profile" && has) {
+      profile = argv[++i];
+    } else if (std::string bad; plan_override(argc, argv, i, overrides, bad)) {
+      if (!bad.empty()) return usage(("plan: " + bad).c_str());
+    } else if (a == "--heading-offset" && has) {
+      if (!number(argv[++i], v)) return usage("plan: --heading-offset needs degrees");
+      heading = v * std::numbers::pi / 180;
+    } else if (a == "--rate" && has) {
+      if (!number(argv[++i], v) || !(v > 0)) return usage("plan: --rate needs the INS rate in Hz");
+      ps.sample_rate_hz = v;
+    } else if (a == "--no-sweep") {
+      ps.sweep = false;
+    } else if (a == "--json" && has) {
+      json_out = argv[++i];
+    } else {
+      return usage(("plan: unknown argument " + a).c_str());
+    }
+  }
+  auto cfg = load_config(config);
+  if (!cfg) {
+    std::fprintf(stderr, "turncalctl: %s\n", cfg.error().describe().c_str());
+    return kUsage;
+  }
+  ps.heading_offset_rad = heading.value_or(cfg->stand.heading_offset_rad);
+  auto p = load_plan(profile.empty() ? cfg->daemon.profile.string() : profile, overrides);
+  if (!p) {
+    std::fprintf(stderr, "turncalctl: %s\n", p.error().describe().c_str());
+    return kUsage;
+  }
+  auto j = run::plan_json(*p, ps);
+  if (!j) {
+    std::fprintf(stderr, "turncalctl: %s\n", j.error().describe().c_str());
+    return kRefused;
+  }
+  if (!json_out.empty() && !write_text(json_out, j->dump(2) + "\n")) return kRefused;
+  std::printf("%s", as_json ? (j->dump(2) + "\n").c_str() : run::plan_text(*j).c_str());
+  return kOk;
 }
 
 }  // namespace turncal::ctl

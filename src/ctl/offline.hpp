@@ -13,4 +13,7 @@ int usage(const char* why);
 /// `turncalctl replay LOG ...`; argv[i] is the first argument after "replay".
 int replay(int argc, char** argv, int i, bool as_json);
 
+/// `turncalctl plan ...`: the covariance analysis of a planned experiment.
+int plan(int argc, char** argv, int i, bool as_json);
+
 }  // namespace turncal::ctl

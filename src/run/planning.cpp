@@ -1,0 +1,194 @@
+#include "turncal/run/planning.hpp"
+
+#include <cmath>
+#include <cstdio>
+
+#include "text_format.hpp"
+#include "turncal/config.hpp"
+#include "turncal/profile.hpp"
+
+namespace turncal::run {
+
+using detail::fmt;
+using nlohmann::json;
+
+namespace {
+
+constexpr double kDeg = 0.017453292519943295;
+
+/// The biases whose sigmas the sweep shows.
+constexpr std::array<const char*, 5> kBiases = {"nu0_1", "nu0_2", "nu0_3", "df_eff_1", "df_eff_2"};
+
+json sigmas_of(const est::EstimationResult& r) {
+  json out = json::object();
+  for (const auto& p : r.parameters) out[std::string(p.name)] = p.sigma;
+  for (const auto& p : r.df_eff) out[std::string(p.name)] = p.sigma;
+  return out;
+}
+
+}  // namespace
+
+est::EstimationInput planned_input(const Plan& plan, const PlanningSettings& s) {
+  const TableTrajectory traj(plan.profile);
+  const double psi0 = plan.start_angle_rad - s.heading_offset_rad;
+  est::EstimationInput in;
+  est::TimelineInput& t = in.timeline;
+  t.site = plan.site;
+  t.noise = plan.noise();
+  t.epoch_s = plan.epoch_s;
+  t.duration_s = plan.profile.duration_s;
+  t.psi_start_rad = psi0;
+  for (std::size_t i = 0; i < traj.turns(); ++i)
+    t.turns.push_back(
+        {traj.turn_start(i), traj.turn_end(i), plan.profile.turns[i].angle_rad, traj.peak_rate(i)});
+  // the encoder as a run's record keeps it: both ends of every still run and
+  // every sample that moved
+  const auto n = static_cast<long>(std::floor(plan.profile.duration_s * s.encoder_hz));
+  auto angle = [&](long k) { return traj.at(static_cast<double>(k) / s.encoder_hz).angle; };
+  double prev = angle(0), cur = prev;
+  for (long k = 0; k <= n; ++k) {
+    const double next = k < n ? angle(k + 1) : cur;
+    if (k == 0 || k == n || cur != prev || cur != next)
+      t.encoder.push_back({static_cast<double>(k) / s.encoder_hz, psi0 + cur});
+    prev = cur;
+    cur = next;
+  }
+  in.priors = plan.priors;
+  in.priors.align_s = plan.profile.align_s;
+  in.sigma_z = plan.sigma_z;
+  in.mean_measurement = plan.mean_measurement;
+  in.sample_rate_hz = s.sample_rate_hz;
+  in.sharp_ratio = plan.sharp_ratio;
+  return in;
+}
+
+Plan scaled_plan(const Plan& plan, double hold_factor, double turn_angle_rad) {
+  Plan p = plan;
+  for (TurnSpec& t : p.profile.turns)
+    if (!std::isnan(turn_angle_rad)) t.angle_rad = std::copysign(turn_angle_rad, t.angle_rad);
+  // the holds (before, between and after the turns) scaled; each turn as
+  // long as its motion takes
+  const TableTrajectory old(plan.profile), turned(p.profile);
+  double t = 0, last_end = 0;
+  for (std::size_t i = 0; i < p.profile.turns.size(); ++i) {
+    t += (old.turn_start(i) - last_end) * hold_factor;
+    p.profile.turns[i].start_s = t;
+    t += turned.turn_end(i) - turned.turn_start(i);
+    last_end = old.turn_end(i);
+  }
+  p.profile.duration_s = t + (plan.profile.duration_s - last_end) * hold_factor;
+  return p;
+}
+
+Result<json> plan_json(const Plan& plan, const PlanningSettings& s) {
+  TURNCAL_ASSIGN(r, est::analyse(planned_input(plan, s)));
+  json j;
+  j["format"] = "turncal-plan-1";
+  j["profile"] = {{"name", plan.name},
+                  {"file", plan.source},
+                  {"overrides", plan.overrides},
+                  {"duration_s", plan.profile.duration_s},
+                  {"align_s", plan.profile.align_s},
+                  {"turns", plan.profile.turns.size()}};
+  j["settings"] = {{"heading_offset_rad", s.heading_offset_rad},
+                   {"sample_rate_hz", s.sample_rate_hz},
+                   {"epoch_s", plan.epoch_s},
+                   {"measurement", plan.mean_measurement ? "mean" : "sample"},
+                   {"estimable_ratio", s.estimable_ratio}};
+  json pred = json::object();
+  json estimable = json::array();
+  auto add = [&](const est::ParameterEstimate& p) {
+    const double ratio = p.prior_sigma > 0 ? p.sigma / p.prior_sigma : 1;
+    const bool est = ratio < s.estimable_ratio;
+    pred[std::string(p.name)] = {{"sigma", p.sigma},
+                                 {"prior_sigma", p.prior_sigma},
+                                 {"ratio", ratio},
+                                 {"estimable", est},
+                                 {"unit", std::string(p.unit)}};
+    if (est) estimable.push_back(std::string(p.name));
+  };
+  for (const auto& p : r.parameters) add(p);
+  for (const auto& p : r.df_eff) add(p);
+  j["predicted"] = pred;
+  j["estimable"] = estimable;
+  json combos = json::array();
+  for (const est::Combination& c : r.combinations) {
+    json coeff = json::object();
+    for (std::size_t i = 0; i < c.coeff.size(); ++i)
+      if (c.coeff[i] != 0) coeff[std::string(est::kParamNames[i])] = c.coeff[i];
+    combos.push_back({{"lead", std::string(est::kParamNames[static_cast<std::size_t>(c.lead)])},
+                      {"unit", std::string(est::kParamUnits[static_cast<std::size_t>(c.lead)])},
+                      {"coefficients", coeff},
+                      {"sigma", c.sigma},
+                      {"prior_sigma", c.prior_sigma}});
+  }
+  j["combinations"] = combos;
+  if (s.sweep && !plan.profile.turns.empty()) {
+    json rows = json::array();
+    PlanningSettings one = s;
+    one.sweep = false;
+    for (const double f : {0.25, 0.5, 1.0, 2.0})
+      for (const double a : {90.0, 180.0, 270.0}) {
+        const Plan q = scaled_plan(plan, f, a * kDeg);
+        TURNCAL_ASSIGN(qr, est::analyse(planned_input(q, one)));
+        const json sig = sigmas_of(qr);
+        json b = json::object();
+        for (const char* k : kBiases) b[k] = sig[k];
+        rows.push_back({{"hold_factor", f},
+                        {"turn_angle_rad", a * kDeg},
+                        {"duration_s", q.profile.duration_s},
+                        {"sigma", b}});
+      }
+    j["sweep"] = rows;
+  }
+  return j;
+}
+
+std::string plan_text(const json& j) {
+  std::string out;
+  auto line = [&](const std::string& s) { out += s + "\n"; };
+  const json& p = j["profile"];
+  line("turncal plan " + p.value("name", std::string("?")) + ": " +
+       fmt("%.0f s", p.value("duration_s", 0.0)) + " from t0, " +
+       std::to_string(p.value("turns", 0)) + " turn(s)");
+  line("");
+  line("  parameter   predicted sigma        prior  unit   posterior/prior");
+  for (const auto& [name, e] : j["predicted"].items()) {
+    const auto [unit, k] = display_unit(name);
+    char buf[160];
+    std::snprintf(buf, sizeof buf, "  %-10s %16.4g %12.4g  %-6s %8.3f%s", name.c_str(),
+                  e["sigma"].get<double>() * k, e["prior_sigma"].get<double>() * k,
+                  std::string(unit).c_str(), e["ratio"].get<double>(),
+                  e["estimable"].get<bool>() ? "  estimable" : "");
+    line(buf);
+  }
+  line("");
+  line("  estimable (posterior below " + fmt("%.2g", j["settings"].value("estimable_ratio", 0.5)) +
+       " of the prior): " + std::to_string(j["estimable"].size()) + " of " +
+       std::to_string(j["predicted"].size()));
+  if (j.contains("combinations") && !j["combinations"].empty())
+    line("  sharp combinations: " + std::to_string(j["combinations"].size()));
+  if (j.contains("sweep")) {
+    line("");
+    line("  bias sigmas against hold length and turn angle:");
+    line(
+        "  holds x  turn deg  run s    nu0_1 deg/h  nu0_2 deg/h  nu0_3 deg/h  df_eff_1 ug  "
+        "df_eff_2 ug");
+    for (const auto& r : j["sweep"]) {
+      const json& s = r["sigma"];
+      char buf[200];
+      std::snprintf(
+          buf, sizeof buf, "  %7.2f  %8.0f  %5.0f  %11.4f  %11.4f  %11.4f  %11.2f  %11.2f",
+          r["hold_factor"].get<double>(), r["turn_angle_rad"].get<double>() / kDeg,
+          r["duration_s"].get<double>(), s["nu0_1"].get<double>() * display_unit("nu0_1").second,
+          s["nu0_2"].get<double>() * display_unit("nu0_2").second,
+          s["nu0_3"].get<double>() * display_unit("nu0_3").second,
+          s["df_eff_1"].get<double>() * display_unit("df_eff_1").second,
+          s["df_eff_2"].get<double>() * display_unit("df_eff_2").second);
+      line(buf);
+    }
+  }
+  return out;
+}
+
+}  // namespace turncal::run
