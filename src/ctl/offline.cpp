@@ -3,7 +3,7 @@
 //   replay LOG [--config FILE] [--report LIVE.json | --no-report]
 //              [--profile PLAN.toml] [--set KEY=VALUE]... [--epoch S]
 //              [--mean | --sample] [--two-stage | --no-two-stage]
-//              [--heading-offset DEG] [--json OUT] [--truth TRUTH.json]
+//              [--heading-offset DEG] [--json OUT] [--html OUT] [--truth TRUTH.json]
 //   plan [--config FILE] [--profile PLAN.toml] [--set KEY=VALUE]... [--epoch S]
 //        [--mean | --sample] [--heading-offset DEG] [--rate HZ] [--no-sweep]
 //        [--json OUT]
@@ -82,7 +82,7 @@ bool plan_override(int argc, char** argv, int& i, std::vector<std::string>& out,
 int replay(int argc, char** argv, int i, bool as_json) {
   if (i >= argc) return usage("replay: missing LOG");
   const std::string log = argv[i++];
-  std::string config = default_config(), report_path, json_out, truth_path;
+  std::string config = default_config(), report_path, json_out, html_out, truth_path;
   bool no_report = false;
   run::ReplayOptions o;
   for (; i < argc; ++i) {
@@ -106,6 +106,9 @@ int replay(int argc, char** argv, int i, bool as_json) {
       o.heading_offset_rad = v * std::numbers::pi / 180;
     } else if (a == "--json" && has) {
       json_out = argv[++i];
+    } else if (a == "--html" && has) {
+      html_out = argv[++i];
+      o.html = true;
     } else if (a == "--truth" && has) {
       truth_path = argv[++i];
     } else {
@@ -160,6 +163,7 @@ int replay(int argc, char** argv, int i, bool as_json) {
     return kRefused;
   }
   if (!json_out.empty() && !write_text(json_out, r->report.dump(2) + "\n")) return kRefused;
+  if (!html_out.empty() && !write_text(html_out, r->html)) return kRefused;
   if (as_json)
     std::printf("%s\n", r->report.dump(2).c_str());
   else

@@ -38,6 +38,7 @@
 #include "turncal/drivers/socketcan.hpp"
 #include "turncal/plan.hpp"
 #include "turncal/run/engine.hpp"
+#include "turncal/run/html.hpp"
 #include "turncal/run/replay.hpp"
 #include "turncal/run/report.hpp"
 
@@ -291,8 +292,10 @@ void Daemon::write_report(bool with_estimates) {
   const fs::path dir = cfg.daemon.state_directory;
   auto a = write_atomic(dir / (run_id + ".report.json"), j.dump(2) + "\n");
   auto b = write_atomic(dir / (run_id + ".report.txt"), run::report_text(j));
-  if (!a || !b)
-    warn("report not written: " + (!a ? a.error() : b.error()).describe());
+  auto c = write_atomic(dir / (run_id + ".report.html"),
+                        run::report_html(j, est ? &*input : nullptr, est ? &*result : nullptr));
+  if (!a || !b || !c)
+    warn("report not written: " + (!a ? a.error() : !b ? b.error() : c.error()).describe());
   else
     info("report written: " + (dir / (run_id + ".report.json")).string());
 }
@@ -321,6 +324,8 @@ void Daemon::report_interrupted_runs() {
                     {"verdict", {{"pass", false}, {"checks", json::array()}}}};
     (void)write_atomic(rep, j.dump(2) + "\n");
     (void)write_atomic(e.path().parent_path() / (id + ".report.txt"), run::report_text(j));
+    (void)write_atomic(e.path().parent_path() / (id + ".report.html"),
+                       run::report_html(j, nullptr, nullptr));
     say(LOG_WARNING, id, "interrupted",
         "run " + id + " was interrupted; its log (" + std::to_string(lines) + " frames) is kept");
   }

@@ -9,6 +9,7 @@
 #include "turncal/estimation/estimator.hpp"
 #include "turncal/plan.hpp"
 #include "turncal/run/engine.hpp"
+#include "turncal/run/html.hpp"
 #include "turncal/run/report.hpp"
 
 namespace turncal::run {
@@ -180,6 +181,8 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   if (damage && !out.report.contains("reason"))
     out.report["reason"] = "the log is damaged at line " + std::to_string(damage->line) +
                            ": estimated from the frames before it";
+  if (options.html)
+    out.html = report_html(out.report, est ? &*input : nullptr, est ? &*result : nullptr);
   return out;
 }
 

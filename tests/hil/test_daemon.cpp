@@ -145,6 +145,10 @@ TEST_SUITE("daemon") {
     const auto r = nlohmann::json::parse(slurp(dir.path / "report.json"));
     CHECK(r["status"] == "done");
     REQUIRE(r["estimates"].size() == 20);
+    // the HTML report beside it, with its plots (rendered by chromium in the html tier)
+    const std::string html = slurp(dir.path / "state" / (id + ".report.html"));
+    CHECK(html.find("<svg") != std::string::npos);
+    CHECK(html.find("Normalized innovations") != std::string::npos);
     // the log in the state directory is the one the report names, intact
     const hil::fs::path log = dir.path / "state" / r["log"]["file"].get<std::string>();
     CHECK(slurp(log).size() > 100000);

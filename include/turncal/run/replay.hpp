@@ -29,6 +29,7 @@ struct ReplayOptions {
   std::vector<std::string> overrides;        ///< plan keys, "section.key=VALUE"
   std::optional<bool> two_stage;             ///< else the live run's (else on)
   std::optional<double> heading_offset_rad;  ///< else the live run's, else the config's
+  bool html = false;                         ///< also make the HTML report
 };
 
 /// Where a log stops being readable.
@@ -42,6 +43,7 @@ struct ReplayOutcome {
   std::optional<LogDamage> damage;   ///< the log was read up to here
   std::vector<std::string> missing;  ///< roles whose frames the log never carried
   std::uint64_t lines = 0;           ///< lines read
+  std::string html;                  ///< the HTML report, when asked for
 };
 
 /// The software version in every report.
