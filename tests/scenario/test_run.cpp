@@ -708,4 +708,88 @@ TEST_SUITE("run engine on the virtual stand") {
     }
     CHECK(run::plan_text(*j).find("estimable") != std::string::npos);
   }
+
+  TEST_CASE("the reference experiment on 5 seeds through replay of offline logs") {
+    // What turncald does on a stand, fed by logs: the virtual stand with its
+    // scripted host writes a whole tactical run (one hour) per seed to a
+    // candump log; turncalctl's replay (the daemon's engine in observe mode
+    // and its estimator) reads it with no report beside it. Criteria as for
+    // the daemon (issue: "the same daemon code fed by offline logs"):
+    // no estimate beyond 4 sigma (6e-5 per draw for a consistent filter),
+    // RMS of z over the seeds at most 1.5 for nu0_1, nu0_2, r1, r2 and the
+    // combinations (chi^2(5)/5 above 2.25: 4.7% per parameter), and sigmas
+    // within 5% of the plan's covariance analysis (the plan given the
+    // turn's start as run: see the plan test for why).
+    const std::string profile = std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/tactical.toml";
+    const Plan plan = load("tactical.toml");
+    const Stand& st = reference_stand();
+    const std::array<const char*, 4> key = {"nu0_1", "nu0_2", "r1", "r2"};
+    std::array<double, 4> ss{};
+    double ss_sharp = 0, n_sharp = 0;
+    TempDir dir;
+    for (std::uint64_t seed = 11; seed <= 15; ++seed) {
+      CAPTURE(seed);
+      const stand::StandSetup setup = setup_of(plan, seed);
+      const auto log = dir.path / ("seed" + std::to_string(seed) + ".log");
+      {
+        auto w = can::LogWriter::open(log.string());
+        REQUIRE(w.ok());
+        REQUIRE(stand::run_offline(plan, st.cfg.can, st.db, stand_roles(), setup, *w, 1.7e9).ok());
+        REQUIRE(w->close().ok());
+      }
+      run::ReplayOptions o;
+      o.profile = profile;
+      auto r = replay_file(log, nullptr, o);
+      REQUIRE(r.ok());
+      const nlohmann::json& j = r->report;
+      const std::string why = j.contains("reason") ? j["reason"].dump() : "";
+      REQUIRE_MESSAGE(j["status"] == "done", why);
+      CHECK_FALSE(r->damage);
+      REQUIRE(j["estimates"].size() == 20);
+      const auto truth = truth_of(setup.ins.sim);
+      for (std::size_t i = 0; i < truth.size(); ++i) {
+        const std::string name(est::kParamNames[i]);
+        CAPTURE(name);
+        const auto& e = j["estimates"][name];
+        const double z = (e["value"].get<double>() - truth[i]) / e["sigma"].get<double>();
+        CHECK(std::abs(z) <= 4);
+        for (std::size_t k = 0; k < key.size(); ++k)
+          if (name == key[k]) ss[k] += z * z;
+      }
+      REQUIRE(!j["combinations"].empty());
+      for (const auto& c : j["combinations"]) {
+        double tv = 0;
+        for (const auto& [name, k] : c["coefficients"].items())
+          for (std::size_t i = 0; i < truth.size(); ++i)
+            if (est::kParamNames[i] == name) tv += k.get<double>() * truth[i];
+        const double z = (c["value"].get<double>() - tv) / c["sigma"].get<double>();
+        CHECK(std::abs(z) <= 4);
+        ss_sharp += z * z;
+        n_sharp += 1;
+      }
+      Plan as_run = plan;
+      REQUIRE(j["turns_achieved"].size() == 1);
+      as_run.profile.turns[0].start_s = j["turns_achieved"][0]["start_s"].get<double>();
+      run::PlanningSettings ps;
+      ps.sweep = false;
+      auto predicted = run::plan_json(as_run, ps);
+      REQUIRE(predicted.ok());
+      for (const auto& [name, e] : j["estimates"].items()) {
+        CAPTURE(name);
+        CHECK(e["sigma"].get<double>() ==
+              doctest::Approx((*predicted)["predicted"][name]["sigma"].get<double>())
+                  .epsilon(0.05)
+                  .scale(0));
+      }
+    }
+    for (std::size_t k = 0; k < key.size(); ++k) {
+      CAPTURE(key[k]);
+      CHECK(std::sqrt(ss[k] / 5) <= 1.5);
+    }
+    CHECK(std::sqrt(ss_sharp / n_sharp) <= 1.5);
+    MESSAGE("RMS z over 5 seeds: nu0_1 " << std::sqrt(ss[0] / 5) << ", nu0_2 "
+                                         << std::sqrt(ss[1] / 5) << ", r1 " << std::sqrt(ss[2] / 5)
+                                         << ", r2 " << std::sqrt(ss[3] / 5) << ", combinations "
+                                         << std::sqrt(ss_sharp / n_sharp));
+  }
 }
