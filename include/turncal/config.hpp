@@ -88,6 +88,9 @@ struct StandConfig {
   /// Stand seconds per real second: 1 on a real stand; N for a virtual
   /// stand run N times faster than real time.
   double time_scale = 1;
+  /// The INS under test when the operator names none at start (a fixture
+  /// that holds one unit); empty: none. Reports are indexed by it.
+  std::string unit;
 };
 
 struct DaemonConfig {

@@ -188,7 +188,8 @@ const toml::table* section(const toml::table& root, std::string_view key, Status
 Status read_stand(const toml::table& t, const std::string& file, StandConfig& s) {
   Reader r(t, file, "stand.");
   TURNCAL_TRY(r.no_unknown_keys({"heading_offset_deg", "max_rate_dps", "max_accel_dps2",
-                                 "angle_min_deg", "angle_max_deg", "time_scale"}));
+                                 "angle_min_deg", "angle_max_deg", "time_scale", "unit"}));
+  TURNCAL_TRY(r.string("unit", s.unit));
   StandLimits& l = s.limits;
   double off = s.heading_offset_rad / kDegRad, rate = l.max_rate_rps / kDegRad,
          acc = l.max_accel_rps2 / kDegRad, lo = -1e6, hi = 1e6;

@@ -1,9 +1,10 @@
 // turncalctl: the operator's command line over turncald's control socket.
 //
 //   turncalctl [--socket PATH] [--json] start [--profile PLAN.toml] [--watch]
-//              [--observe] [--heading-offset DEG]
+//              [--observe] [--heading-offset DEG] [--unit ID]
 //   turncalctl [--socket PATH] [--json] status | watch | abort [REASON]
 //   turncalctl [--socket PATH] [--json] reports | show RUN_ID [--truth TRUTH.json]
+//   turncalctl [--socket PATH] [--json] history UNIT
 //   turncalctl [--json] replay LOG [options]       (no daemon: offline.cpp)
 //   turncalctl [--json] plan [options]             (no daemon: offline.cpp)
 //
@@ -162,12 +163,15 @@ int turncal::ctl::usage(const char* why) {
                "  start [--profile PLAN.toml] [--watch]   start a run\n"
                "        [--observe]                       follow a stand another host drives\n"
                "        [--heading-offset DEG]            INS mounting on the table, this run\n"
+               "        [--unit ID]                       the INS under test (serial number)\n"
                "  status                                   the daemon's state\n"
                "  watch                                    progress until the run ends\n"
                "  abort [REASON]                           abort the run (the table quick-stops)\n"
                "  reports                                  the reports kept\n"
                "  show RUN_ID [--truth TRUTH.json]         one report (with turncal-sim's\n"
                "                                           truth beside each estimate)\n"
+               "  history UNIT                             one INS's estimates across runs:\n"
+               "                                           mean and spread (repeatability)\n"
                "offline (no daemon):\n"
                "  replay LOG                               re-estimate a recorded run\n"
                "        [--config FILE]                   stand configuration (DBC, roles)\n"
@@ -223,6 +227,8 @@ int main(int argc, char** argv) {
         then_watch = true;
       else if (a == "--observe")
         req["observe"] = true;
+      else if (a == "--unit" && i + 1 < argc)
+        req["unit"] = argv[++i];
       else if (a == "--heading-offset" && i + 1 < argc) {
         char* end = nullptr;
         const double deg = std::strtod(argv[++i], &end);
@@ -246,6 +252,10 @@ int main(int argc, char** argv) {
       i += 2;
     }
     if (i < argc) return usage(("show: unknown argument " + std::string(argv[i])).c_str());
+  } else if (cmd == "history") {
+    if (i >= argc) return usage("history: missing the unit (INS identity)");
+    req = {{"cmd", "history"}, {"unit", argv[i++]}};
+    if (i < argc) return usage(("history: unknown argument " + std::string(argv[i])).c_str());
   } else if (cmd != "status" && cmd != "watch" && cmd != "reports") {
     return usage(("unknown command " + cmd).c_str());
   }
@@ -270,7 +280,11 @@ int main(int argc, char** argv) {
     return kRefused;
   }
   if (as_json) {
-    std::printf("%s\n", (cmd == "show" ? r["report"] : r).dump(2).c_str());
+    std::printf("%s\n", (cmd == "show"      ? r["report"]
+                         : cmd == "history" ? r["history"]
+                                            : r)
+                            .dump(2)
+                            .c_str());
   } else if (cmd == "status") {
     std::printf("%s%s\n", progress(r).c_str(),
                 r.contains("reason") ? ("\n" + r["reason"].get<std::string>()).c_str() : "");
@@ -281,8 +295,11 @@ int main(int argc, char** argv) {
     std::printf("run %s: abort requested\n", r["run_id"].get<std::string>().c_str());
   } else if (cmd == "reports") {
     for (const auto& e : r["reports"])
-      std::printf("%s  %-12s %s\n", e["run_id"].get<std::string>().c_str(),
-                  e["status"].get<std::string>().c_str(), e["pass"].get<bool>() ? "pass" : "fail");
+      std::printf("%s  %-12s %-4s %s\n", e["run_id"].get<std::string>().c_str(),
+                  e["status"].get<std::string>().c_str(), e["pass"].get<bool>() ? "pass" : "fail",
+                  e.value("unit", json()).is_string() ? e["unit"].get<std::string>().c_str() : "");
+  } else if (cmd == "history") {
+    std::printf("%s", r["text"].get<std::string>().c_str());
   } else if (cmd == "show") {
     std::printf("%s", truth.is_null() ? r["text"].get<std::string>().c_str()
                                       : turncal::run::report_text(r["report"], &truth).c_str());

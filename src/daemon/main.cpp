@@ -17,7 +17,9 @@
 #include <systemd/sd-journal.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <atomic>
+#include <cctype>
 #include <cerrno>
 #include <csignal>
 #include <cstdio>
@@ -31,6 +33,7 @@
 #include <sstream>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "turncal/can/candump.hpp"
@@ -38,6 +41,7 @@
 #include "turncal/drivers/socketcan.hpp"
 #include "turncal/plan.hpp"
 #include "turncal/run/engine.hpp"
+#include "turncal/run/history.hpp"
 #include "turncal/run/html.hpp"
 #include "turncal/run/replay.hpp"
 #include "turncal/run/report.hpp"
@@ -100,6 +104,22 @@ Status write_atomic(const fs::path& path, const std::string& data) {
   return Status{Ok{}};
 }
 
+/// The reports kept in `dir`, by run id, in run id order (a discarded json
+/// for one that does not parse).
+std::vector<std::pair<std::string, json>> read_reports(const fs::path& dir) {
+  std::vector<std::string> ids;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    const std::string n = e.path().filename().string();
+    if (n.ends_with(".report.json")) ids.push_back(n.substr(0, n.size() - 12));
+  }
+  std::sort(ids.begin(), ids.end());
+  std::vector<std::pair<std::string, json>> out;
+  for (const auto& id : ids)
+    out.emplace_back(id, json::parse(read_file(dir / (id + ".report.json")), nullptr, false));
+  return out;
+}
+
 std::string utc_id(std::int64_t ns) {
   const std::time_t s = static_cast<std::time_t>(ns / 1'000'000'000);
   std::tm tm{};
@@ -107,6 +127,15 @@ std::string utc_id(std::int64_t ns) {
   char buf[32];
   std::strftime(buf, sizeof buf, "%Y%m%dT%H%M%SZ", &tm);
   return buf;
+}
+
+/// A unit identity that is safe in a file listing and a log line.
+bool valid_unit(const std::string& u) {
+  if (u.empty() || u.size() > 64) return false;
+  for (const char c : u)
+    if (!std::isalnum(static_cast<unsigned char>(c)) && c != '-' && c != '_' && c != '.')
+      return false;
+  return true;
 }
 
 struct Options {
@@ -135,6 +164,7 @@ class Daemon {
   // the run
   std::unique_ptr<run::Engine> engine;
   std::string run_id;
+  std::string unit;  ///< the INS under test of this run
   fs::path log_path;
   std::optional<can::LogWriter> log;
   std::int64_t run_start_ns = 0;
@@ -286,7 +316,8 @@ void Daemon::write_report(bool with_estimates) {
   else
     warn(dg.error().describe());
   ctx.tolerances = cfg.tolerances;
-  ctx.mode = cfg.daemon.observe ? "observe" : "command";
+  ctx.mode = engine->sequencer().settings().observe ? "observe" : "command";
+  ctx.unit = unit;
   const bool est = with_estimates && result && input;
   const json j = run::report_json(ctx, *engine, est ? &*input : nullptr, est ? &*result : nullptr);
   const fs::path dir = cfg.daemon.state_directory;
@@ -383,6 +414,14 @@ json Daemon::start(const json& req) {
       return {{"ok", false}, {"error", "heading_offset_deg: expected a number of degrees"}};
     q.heading_offset_rad = req["heading_offset_deg"].get<double>() * std::numbers::pi / 180;
   }
+  std::string unit_id = cfg.stand.unit;
+  if (req.contains("unit")) {
+    if (!req["unit"].is_string() || !valid_unit(req["unit"].get<std::string>()))
+      return {
+          {"ok", false},
+          {"error", "unit: expected the INS identity, 1 to 64 letters, digits, '-', '_' or '.'"}};
+    unit_id = req["unit"].get<std::string>();
+  }
   if (engine) {
     q.table_seq_base = static_cast<std::uint8_t>(engine->commands_sent() + 100);
     q.ins_seq_base = q.table_seq_base;
@@ -397,6 +436,7 @@ json Daemon::start(const json& req) {
   auto w = can::LogWriter::open(log_path.string());
   if (!w) return {{"ok", false}, {"error", w.error().describe()}};
   log.emplace(std::move(*w));
+  unit = unit_id;
   run::BuildSettings b;
   b.heading_offset_rad = q.heading_offset_rad;
   engine = std::make_unique<run::Engine>(db, roles, *plan, q, b,
@@ -406,7 +446,7 @@ json Daemon::start(const json& req) {
   est_error.clear();
   report_done = false;
   last_phase = run::Phase::Idle;
-  info("run started: " + plan->name + " from " + profile);
+  info("run started: " + plan->name + " from " + profile + (unit.empty() ? "" : ", unit " + unit));
   engine->start(now, out);
   after_engine();
   return {{"ok", true}, {"run_id", run_id}, {"log", log_path.string()}};
@@ -527,22 +567,22 @@ void handle_request(Client& c, const std::string& line) {
   }
   if (cmd == "reports") {
     json list = json::array();
-    std::error_code ec;
-    std::vector<std::string> ids;
-    for (const auto& e : fs::directory_iterator(d.cfg.daemon.state_directory, ec)) {
-      const std::string n = e.path().filename().string();
-      if (n.ends_with(".report.json")) ids.push_back(n.substr(0, n.size() - 12));
-    }
-    std::sort(ids.begin(), ids.end());
-    for (const auto& id : ids) {
-      json r = json::parse(read_file(d.cfg.daemon.state_directory / (id + ".report.json")), nullptr,
-                           false);
-      list.push_back(
-          {{"run_id", id},
-           {"status", r.is_object() ? r.value("status", "?") : "unreadable"},
-           {"pass", r.is_object() && r.contains("verdict") ? r["verdict"]["pass"] : json(false)}});
+    for (const auto& [id, r] : read_reports(d.cfg.daemon.state_directory)) {
+      const bool ok = r.is_object();
+      list.push_back({{"run_id", id},
+                      {"status", ok ? r.value("status", "?") : "unreadable"},
+                      {"unit", ok && r.contains("unit") ? r["unit"] : json(nullptr)},
+                      {"pass", ok && r.contains("verdict") ? r["verdict"]["pass"] : json(false)}});
     }
     return c.reply({{"ok", true}, {"reports", list}});
+  }
+  if (cmd == "history") {
+    if (!req.contains("unit") || !req["unit"].is_string())
+      return c.reply({{"ok", false}, {"error", "history: expected a unit"}});
+    std::vector<json> all;
+    for (auto& [id, r] : read_reports(d.cfg.daemon.state_directory)) all.push_back(std::move(r));
+    const json h = run::history_json(req["unit"].get<std::string>(), all);
+    return c.reply({{"ok", true}, {"history", h}, {"text", run::history_text(h)}});
   }
   if (cmd == "report") {
     const std::string id = req.value("run_id", std::string());

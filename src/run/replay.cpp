@@ -168,6 +168,8 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   if (auto d = log_digest.get()) ctx.log_sha256 = d->sha256;
   ctx.tolerances = cfg.tolerances;
   ctx.mode = "replay";
+  if (live != nullptr && live->contains("unit") && (*live)["unit"].is_string())
+    ctx.unit = (*live)["unit"].get<std::string>();
   const bool est = input && result;
   out.report = report_json(ctx, engine, est ? &*input : nullptr, est ? &*result : nullptr);
   engine.report_written(last_ns, true, "", sent);

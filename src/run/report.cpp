@@ -211,6 +211,7 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
   j["end_time_unix_s"] = ctx.end_unix_s;
   j["software_version"] = ctx.software_version;
   j["mode"] = ctx.mode;
+  j["unit"] = ctx.unit.empty() ? json(nullptr) : json(ctx.unit);
   j["config"] = {{"file", ctx.config_file}, {"sha256", ctx.config_sha256}};
   j["log"] = {{"file", ctx.log_file}, {"sha256", ctx.log_sha256}};
   j["time_base"] = {{"epoch_us", engine.time_base().epoch_us}, {"scale", engine.time_base().scale}};
@@ -347,6 +348,7 @@ std::string report_text(const json& r, const json* truth) {
   line("turncal report " + r.value("run_id", std::string("?")) + ": " +
        r.value("status", std::string("?")));
   if (r.contains("reason")) line("  reason: " + r["reason"].get<std::string>());
+  if (r.contains("unit") && r["unit"].is_string()) line("  unit: " + r["unit"].get<std::string>());
   if (r.contains("profile"))
     line("  profile: " + r["profile"].value("name", std::string()) + " (" +
          fmt("%.0f s", r["profile"].value("duration_s", 0.0)) + ")");

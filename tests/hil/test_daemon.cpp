@@ -136,7 +136,8 @@ TEST_SUITE("daemon") {
     CHECK(raw_request(dir.path / "control.sock", "{\"cmd\":\"fly\"}\n").find("unknown command") !=
           std::string::npos);
 
-    REQUIRE(ctl(dir.path, {"start", "--watch"}, "watch.out", 120000ms) == 0);
+    CHECK(ctl(dir.path, {"start", "--unit", "bad/unit"}) == 1);  // refused: not an identity
+    REQUIRE(ctl(dir.path, {"start", "--unit", "SN-0042", "--watch"}, "watch.out", 120000ms) == 0);
     REQUIRE(ctl(dir.path, {"--json", "reports"}, "list.json") == 0);
     const auto reports = nlohmann::json::parse(slurp(dir.path / "list.json"));
     REQUIRE(reports["reports"].size() == 1);
@@ -144,7 +145,14 @@ TEST_SUITE("daemon") {
     REQUIRE(ctl(dir.path, {"--json", "show", id}, "report.json") == 0);
     const auto r = nlohmann::json::parse(slurp(dir.path / "report.json"));
     CHECK(r["status"] == "done");
+    CHECK(r["unit"] == "SN-0042");
     REQUIRE(r["estimates"].size() == 20);
+    // the unit's history holds the run
+    REQUIRE(ctl(dir.path, {"--json", "history", "SN-0042"}, "history.json") == 0);
+    const auto hist = nlohmann::json::parse(slurp(dir.path / "history.json"));
+    REQUIRE(hist["runs"].size() == 1);
+    CHECK(hist["runs"][0]["run_id"] == id);
+    CHECK(hist["parameters"]["nu0_1"]["mean"] == r["estimates"]["nu0_1"]["value"]);
     // the HTML report beside it, with its plots (rendered by chromium in the html tier)
     const std::string html = slurp(dir.path / "state" / (id + ".report.html"));
     CHECK(html.find("<svg") != std::string::npos);

@@ -385,9 +385,11 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(r->x == live.result->x);
     CHECK(r->p == live.result->p);
     // the report: every estimate with its sigma, prior and unit; the text in display units
-    run::ReportContext ctx{"r1", 0, 0, "test", "", "", "", "", {{"nu0_1", 1e9, 1e9}}, "command"};
+    run::ReportContext ctx{"r1",      0,     0, "test", "", "", "", "", {{"nu0_1", 1e9, 1e9}},
+                           "command", "SN-7"};
     const auto j = run::report_json(ctx, live.engine, &*live.input, &*live.result);
     CHECK(j["status"] == "done");
+    CHECK(j["unit"] == "SN-7");
     CHECK(live.written["status"] == "done");  // as written, before the phase moves on
     REQUIRE(j["estimates"].size() == 20);
     for (const auto& [name, e] : j["estimates"].items()) {

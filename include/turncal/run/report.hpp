@@ -28,6 +28,7 @@ struct ReportContext {
   std::string log_sha256;
   std::vector<Tolerance> tolerances;
   std::string mode;  ///< "command" or "observe"
+  std::string unit;  ///< the INS under test; empty: not named
 };
 
 /// The report of a finished run. `input` and `result` are null when the
