@@ -27,6 +27,7 @@
 #include <ctime>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <memory>
 #include <numbers>
 #include <optional>
@@ -104,20 +105,15 @@ Status write_atomic(const fs::path& path, const std::string& data) {
   return Status{Ok{}};
 }
 
-/// The reports kept in `dir`, by run id, in run id order (a discarded json
-/// for one that does not parse).
-std::vector<std::pair<std::string, json>> read_reports(const fs::path& dir) {
-  std::vector<std::string> ids;
-  std::error_code ec;
-  for (const auto& e : fs::directory_iterator(dir, ec)) {
-    const std::string n = e.path().filename().string();
-    if (n.ends_with(".report.json")) ids.push_back(n.substr(0, n.size() - 12));
-  }
-  std::sort(ids.begin(), ids.end());
-  std::vector<std::pair<std::string, json>> out;
-  for (const auto& id : ids)
-    out.emplace_back(id, json::parse(read_file(dir / (id + ".report.json")), nullptr, false));
-  return out;
+/// What the index keeps of a report (a discarded json: one that does not parse).
+json report_summary(const json& r) {
+  if (!r.is_object()) return json::value_t::discarded;
+  json s = json::object();
+  for (const char* k : {"run_id", "status", "unit", "start_time_unix_s", "estimates"})
+    if (r.contains(k)) s[k] = r[k];
+  s["profile"] = {{"name", r.contains("profile") ? r["profile"].value("name", "") : ""}};
+  s["verdict"] = {{"pass", r.contains("verdict") ? r["verdict"].value("pass", false) : false}};
+  return s;
 }
 
 std::string utc_id(std::int64_t ns) {
@@ -196,6 +192,11 @@ class Daemon {
   json start(const json& req);
   void write_report(bool with_estimates);
   void report_interrupted_runs();
+  /// The reports kept, by run id, cut to what `reports` and `history` need:
+  /// read once at start-up, kept up to date as reports are written, so a
+  /// request never reads the state directory while a run's frames arrive.
+  std::map<std::string, json> index;
+  void index_report(const std::string& id, const json& report);
   void broadcast_watch();
 };
 
@@ -325,10 +326,15 @@ void Daemon::write_report(bool with_estimates) {
   auto b = write_atomic(dir / (run_id + ".report.txt"), run::report_text(j));
   auto c = write_atomic(dir / (run_id + ".report.html"),
                         run::report_html(j, est ? &*input : nullptr, est ? &*result : nullptr));
+  if (a) index_report(run_id, j);
   if (!a || !b || !c)
     warn("report not written: " + (!a ? a.error() : !b ? b.error() : c.error()).describe());
   else
     info("report written: " + (dir / (run_id + ".report.json")).string());
+}
+
+void Daemon::index_report(const std::string& id, const json& report) {
+  index[id] = report_summary(report);
 }
 
 /// A log with no report: a run that was killed. Its log replays up to that
@@ -353,7 +359,7 @@ void Daemon::report_interrupted_runs() {
                     {"reason", "the daemon stopped during the run (killed or crashed)"},
                     {"log", {{"file", name}, {"sha256", dg->sha256}, {"lines", lines}}},
                     {"verdict", {{"pass", false}, {"checks", json::array()}}}};
-    (void)write_atomic(rep, j.dump(2) + "\n");
+    if (write_atomic(rep, j.dump(2) + "\n")) index_report(id, j);
     (void)write_atomic(e.path().parent_path() / (id + ".report.txt"), run::report_text(j));
     (void)write_atomic(e.path().parent_path() / (id + ".report.html"),
                        run::report_html(j, nullptr, nullptr));
@@ -567,7 +573,7 @@ void handle_request(Client& c, const std::string& line) {
   }
   if (cmd == "reports") {
     json list = json::array();
-    for (const auto& [id, r] : read_reports(d.cfg.daemon.state_directory)) {
+    for (const auto& [id, r] : d.index) {
       const bool ok = r.is_object();
       list.push_back({{"run_id", id},
                       {"status", ok ? r.value("status", "?") : "unreadable"},
@@ -580,7 +586,8 @@ void handle_request(Client& c, const std::string& line) {
     if (!req.contains("unit") || !req["unit"].is_string())
       return c.reply({{"ok", false}, {"error", "history: expected a unit"}});
     std::vector<json> all;
-    for (auto& [id, r] : read_reports(d.cfg.daemon.state_directory)) all.push_back(std::move(r));
+    all.reserve(d.index.size());
+    for (const auto& [id, r] : d.index) all.push_back(r);
     const json h = run::history_json(req["unit"].get<std::string>(), all);
     return c.reply({{"ok", true}, {"history", h}, {"text", run::history_text(h)}});
   }
@@ -672,6 +679,12 @@ Status Daemon::setup() {
     return make_error("cannot create the state directory " + cfg.daemon.state_directory.string() +
                       ": " + ec.message());
   report_interrupted_runs();
+  for (const auto& e : fs::directory_iterator(cfg.daemon.state_directory, ec)) {
+    const std::string n = e.path().filename().string();
+    if (!n.ends_with(".report.json")) continue;
+    const std::string id = n.substr(0, n.size() - 12);
+    if (!index.contains(id)) index_report(id, json::parse(read_file(e.path()), nullptr, false));
+  }
 
   auto open_sock = [&](const std::string& iface) -> Result<socketcan::Socket> {
     socketcan::Options so;

@@ -4,6 +4,8 @@
 #include <limits>
 #include <numbers>
 
+#include "turncal/icd.hpp"
+
 namespace turncal::run {
 
 namespace {
@@ -73,7 +75,14 @@ void Engine::on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out) {
   const Phase p = seq_.phase();
   const bool running = p == Phase::Prepare || p == Phase::Align || p == Phase::Hold ||
                        p == Phase::Turn || p == Phase::Estimate;
-  if (running && !record_complete_) record_.add(s);
+  // The INS sends velocity only while it navigates (can-icd.md): before it
+  // is seen aligning in this run, velocity is a previous navigation's (a
+  // run right after another), not this run's, and must not become its t0.
+  if (const auto* m = std::get_if<InsStatusSample>(&s);
+      m != nullptr && running && m->mode == static_cast<int>(InsMode::Aligning))
+    ins_aligning_seen_ = true;
+  const bool old_navigation = std::holds_alternative<VelocitySample>(s) && !ins_aligning_seen_;
+  if (running && !record_complete_ && !old_navigation) record_.add(s);
   if (const auto* v = std::get_if<VelocitySample>(&s)) {
     live_.ve = v->ve;
     live_.vn = v->vn;

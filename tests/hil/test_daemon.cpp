@@ -162,6 +162,10 @@ TEST_SUITE("daemon") {
     CHECK(slurp(log).size() > 100000);
     // against the truth: the sharp combinations within 4 sigma
     const auto truth = nlohmann::json::parse(slurp(dir.path / "truth.json"));
+    // when an estimate is off, the clocks that put the encoder on the INS
+    // timeline are the first suspects
+    CAPTURE(r["health"].dump());
+    CAPTURE(r["turns_achieved"].dump());
     REQUIRE(!r["combinations"].empty());
     for (const auto& c : r["combinations"]) {
       CAPTURE(c.dump());
@@ -258,6 +262,10 @@ TEST_SUITE("daemon") {
                (dir.path / "turncal.toml").string()},
               "replay2.json", 60000ms) == 0);
     const auto rp2 = nlohmann::json::parse(slurp(dir.path / "replay2.json"));
+    CAPTURE(rp2.value("status", std::string()));
+    CAPTURE(rp2.contains("reason") ? rp2["reason"].dump() : std::string());
+    CAPTURE(rp2.contains("phases") ? rp2["phases"].dump() : std::string());
+    CAPTURE(r2["phases"].dump());
     CHECK(rp2["replay"]["damage"].is_null());
     CHECK(rp2["estimates"].size() == 20);
     daemon.terminate();

@@ -90,7 +90,7 @@ struct ClosedLoop {
   stand::StandSetup setup;
   run::SequencerSettings settings;
   stand::StandLoop loop;
-  run::Engine engine;
+  std::unique_ptr<run::Engine> engine;
   std::vector<can::Frame> to_stand;
   std::vector<Logged> log;  ///< both directions, as the recorder keeps them
   bool heartbeat = true;
@@ -115,8 +115,23 @@ struct ClosedLoop {
         setup(s),
         settings(q ? *q : settings_of(plan, s)),
         loop(setup, reference_stand().db, stand_roles(), nullptr),
-        engine(reference_stand().db, stand_roles(), plan, settings, run::BuildSettings{},
-               run::TimeBase{kEpochNs / 1000, 1}) {}
+        engine(new_engine()) {}
+
+  [[nodiscard]] std::unique_ptr<run::Engine> new_engine() const {
+    return std::make_unique<run::Engine>(reference_stand().db, stand_roles(), plan, settings,
+                                         run::BuildSettings{}, run::TimeBase{kEpochNs / 1000, 1});
+  }
+  /// A second run on the same stand (the INS still navigating from the
+  /// first): a new engine, started by the operator at the next tick.
+  void next_run() {
+    engine = new_engine();
+    started = false;
+    start_at = loop.next_time();
+    log.clear();
+    input.reset();
+    result.reset();
+    estimation_error.clear();
+  }
 
   void send(std::vector<run::OutFrame>& out, double t) {
     for (const run::OutFrame& o : out) {
@@ -137,48 +152,48 @@ struct ClosedLoop {
       loop.tick(to_stand, frames);
       to_stand.clear();
       if (!started && t >= start_at) {
-        engine.start(ns(t), out);
+        engine->start(ns(t), out);
         started = true;
       }
       for (const stand::StandFrame& f : frames) {
         const can::TimedFrame tf{ns(f.t_s), f.frame};
         if (started) log.push_back({tf, false});  // the recorder runs from the start
-        engine.on_frame(tf, out);
+        engine->on_frame(tf, out);
       }
-      if (k % 10 == 0) engine.tick(ns(t), out);
-      if (k % 100 == 0 && heartbeat) out.push_back(engine.heartbeat());
-      if (engine.estimation_due()) estimate(t, out);
-      if (engine.report_due()) {
+      if (k % 10 == 0) engine->tick(ns(t), out);
+      if (k % 100 == 0 && heartbeat) out.push_back(engine->heartbeat());
+      if (engine->estimation_due()) estimate(t, out);
+      if (engine->report_due()) {
         written =
-            run::report_json({}, engine, input ? &*input : nullptr, result ? &*result : nullptr);
-        engine.report_written(ns(t), true, "", out);
+            run::report_json({}, *engine, input ? &*input : nullptr, result ? &*result : nullptr);
+        engine->report_written(ns(t), true, "", out);
       }
       send(out, t);
       if (stop && stop(t)) return;
-      if (run::finished(engine.sequencer().phase())) return;
+      if (run::finished(engine->sequencer().phase())) return;
     }
   }
 
   void estimate(double t, std::vector<run::OutFrame>& out) {
-    auto in = engine.take_estimation_input();
+    auto in = engine->take_estimation_input();
     if (!in) {
       estimation_error = in.error().describe();
-      engine.estimation_done(ns(t), false, estimation_error, out);
+      engine->estimation_done(ns(t), false, estimation_error, out);
       return;
     }
     auto r = est::estimate(in->input);
     if (!r) {
       estimation_error = r.error().describe();
-      engine.estimation_done(ns(t), false, estimation_error, out);
+      engine->estimation_done(ns(t), false, estimation_error, out);
       return;
     }
     input = std::move(*in);
     result = std::move(*r);
-    engine.estimation_done(ns(t), true, "", out);
+    engine->estimation_done(ns(t), true, "", out);
   }
 
-  [[nodiscard]] run::Phase phase() const { return engine.sequencer().phase(); }
-  [[nodiscard]] const run::Course& course() const { return engine.sequencer().course(); }
+  [[nodiscard]] run::Phase phase() const { return engine->sequencer().phase(); }
+  [[nodiscard]] const run::Course& course() const { return engine->sequencer().course(); }
   /// Commands of a code we sent.
   [[nodiscard]] int sent(run::TableCode code) const {
     int n = 0;
@@ -387,7 +402,7 @@ TEST_SUITE("run engine on the virtual stand") {
     // the report: every estimate with its sigma, prior and unit; the text in display units
     run::ReportContext ctx{"r1",      0,     0, "test", "", "", "", "", {{"nu0_1", 1e9, 1e9}},
                            "command", "SN-7"};
-    const auto j = run::report_json(ctx, live.engine, &*live.input, &*live.result);
+    const auto j = run::report_json(ctx, *live.engine, &*live.input, &*live.result);
     CHECK(j["status"] == "done");
     CHECK(j["unit"] == "SN-7");
     CHECK(live.written["status"] == "done");  // as written, before the phase moves on
@@ -419,7 +434,7 @@ TEST_SUITE("run engine on the virtual stand") {
     REQUIRE(c.phase() == run::Phase::Turn);
     c.run_until(c.loop.next_time() + 1.0);  // well into the move
     std::vector<run::OutFrame> out;
-    c.engine.abort(ns(c.loop.next_time()), "", out);
+    c.engine->abort(ns(c.loop.next_time()), "", out);
     CHECK(c.course().quick_stop_sent);
     c.send(out, c.loop.next_time());
     c.run_until(c.loop.next_time() + 5);
@@ -430,12 +445,63 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(c.loop.stand().table().status(c.loop.next_time()).state ==
           stand::TableState::QuickStopped);
     // its report says why, and has no estimates
-    const auto j = run::report_json({}, c.engine, nullptr, nullptr);
+    const auto j = run::report_json({}, *c.engine, nullptr, nullptr);
     CHECK(j["status"] == "aborted");
     CHECK(j["reason"] == "aborted by the operator");
     CHECK(j["quick_stop"]["acknowledged"] == true);
     CHECK_FALSE(j.contains("estimates"));
     CHECK(j["verdict"]["pass"] == false);
+  }
+
+  TEST_CASE("a second run on the same stand: the INS still navigating from the first") {
+    // The INS sends velocity while it navigates, so a run that starts after
+    // another hears the old navigation until it commands the new alignment;
+    // that velocity is not this run's and must not set its t0.
+    const Plan plan = short_plan();
+    ClosedLoop c(plan, setup_of(plan, 5));
+    c.run_until(400);
+    REQUIRE_MESSAGE(c.phase() == run::Phase::Done, c.course().reason);
+    c.next_run();
+    c.run_until(c.loop.next_time() + 400);
+    REQUIRE_MESSAGE(c.phase() == run::Phase::Done, c.course().reason, c.estimation_error);
+    REQUIRE(c.input);
+    // the first velocity recorded is the new navigation's: t0 of this run
+    const double t0_host = c.course().t0_s;
+    const auto& ins = c.engine->record().ins_clock();
+    CHECK(std::abs(ins.to_host(c.input->t0_ins_s) - t0_host) < 0.2);
+    REQUIRE(c.input->turns.size() == 1);
+    CHECK(c.input->turns[0].t_start_s == doctest::Approx(60).epsilon(0.01));
+    const auto truth = truth_of(c.setup.ins.sim);
+    for (std::size_t i = 0; i < truth.size(); ++i) {
+      const auto& p = c.result->parameters[i];
+      CAPTURE(p.name);
+      CHECK(std::abs(p.value - truth[i]) <= 4 * p.sigma);
+    }
+  }
+
+  TEST_CASE("replay of runs aborted at any moment of the turn: estimates of what there is") {
+    const Plan plan = short_plan();
+    for (const double after : {0.0, 0.05, 0.3, 1.0, 3.0, 6.5}) {
+      CAPTURE(after);
+      ClosedLoop c(plan, setup_of(plan, 2));
+      c.run_until(300, [&](double) { return c.phase() == run::Phase::Turn; });
+      REQUIRE(c.phase() == run::Phase::Turn);
+      if (after > 0) c.run_until(c.loop.next_time() + after);
+      std::vector<run::OutFrame> out;
+      c.engine->abort(ns(c.loop.next_time()), "", out);
+      c.send(out, c.loop.next_time());
+      c.run_until(c.loop.next_time() + 5);
+      REQUIRE(c.phase() == run::Phase::Aborted);
+      const auto live = run::report_json({}, *c.engine, nullptr, nullptr);
+      TempDir dir;
+      write_log(c.log, dir.path / "aborted.log");
+      auto r = replay_file(dir.path / "aborted.log", &live);
+      REQUIRE(r.ok());
+      const std::string why = r->report.contains("reason") ? r->report["reason"].dump() : "";
+      MESSAGE("abort " << after << " s into the turn: " << r->report["status"] << " " << why);
+      CHECK(r->report["status"] == "done");
+      CHECK(r->report["estimates"].size() == 20);
+    }
   }
 
   TEST_CASE("faults give their reason and stop the table") {
@@ -493,7 +559,7 @@ TEST_SUITE("run engine on the virtual stand") {
     ClosedLoop c(plan, setup_of(plan, 5));
     c.run_until(300, [&](double) { return c.phase() == run::Phase::Turn; });
     std::vector<run::OutFrame> out;
-    c.engine.signal(ns(c.loop.next_time()), "SIGTERM", out);
+    c.engine->signal(ns(c.loop.next_time()), "SIGTERM", out);
     c.send(out, c.loop.next_time());
     c.run_until(300);
     CHECK(c.phase() == run::Phase::Aborted);
@@ -502,7 +568,7 @@ TEST_SUITE("run engine on the virtual stand") {
 
     ClosedLoop h(plan, setup_of(plan, 5));
     h.run_until(300, [&](double) { return h.phase() == run::Phase::Hold; });
-    h.engine.signal(ns(h.loop.next_time()), "SIGINT", out);
+    h.engine->signal(ns(h.loop.next_time()), "SIGINT", out);
     CHECK(out.empty());
     CHECK(h.phase() == run::Phase::Aborted);
     CHECK(h.course().reason == "stopped by SIGINT");
@@ -516,7 +582,7 @@ TEST_SUITE("run engine on the virtual stand") {
     c.run_until(5);
     CHECK(c.phase() == run::Phase::Failed);
     CHECK(c.course().reason.find("refused before any command: turn 1: rate 30.000 deg/s") == 0);
-    CHECK(c.engine.commands_sent() == 0);
+    CHECK(c.engine->commands_sent() == 0);
   }
 
   TEST_CASE("replay of the log with the live run's report: the estimation bit for bit") {

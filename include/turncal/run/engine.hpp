@@ -108,6 +108,7 @@ class Engine {
   Record record_;
   Live live_;
   std::vector<Command> cmds_;
+  bool ins_aligning_seen_ = false;  ///< the INS aligned in this run: its velocity is ours
   bool estimation_due_ = false;
   bool record_complete_ = false;
   double last_frame_s_ = NAN;
