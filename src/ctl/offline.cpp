@@ -52,6 +52,14 @@ bool write_text(const std::string& path, const std::string& text) {
   return static_cast<bool>(out);
 }
 
+/// The configuration, or nothing after saying why (file, line and key).
+std::optional<Config> configuration(const std::string& path) {
+  auto cfg = load_config(path);
+  if (cfg) return std::move(*cfg);
+  std::fprintf(stderr, "turncalctl: %s\n", cfg.error().describe().c_str());
+  return std::nullopt;
+}
+
 bool number(const char* s, double& v) {
   char* end = nullptr;
   v = std::strtod(s, &end);
@@ -115,11 +123,8 @@ int replay(int argc, char** argv, int i, bool as_json) {
       return usage(("replay: unknown argument " + a).c_str());
     }
   }
-  auto cfg = load_config(config);
-  if (!cfg) {
-    std::fprintf(stderr, "turncalctl: %s\n", cfg.error().describe().c_str());
-    return kUsage;
-  }
+  auto cfg = configuration(config);
+  if (!cfg) return kUsage;
   auto db = load_databases(cfg->can);
   if (!db) {
     std::fprintf(stderr, "turncalctl: %s\n", db.error().describe().c_str());
@@ -206,11 +211,8 @@ int plan(int argc, char** argv, int i, bool as_json) {
       return usage(("plan: unknown argument " + a).c_str());
     }
   }
-  auto cfg = load_config(config);
-  if (!cfg) {
-    std::fprintf(stderr, "turncalctl: %s\n", cfg.error().describe().c_str());
-    return kUsage;
-  }
+  auto cfg = configuration(config);
+  if (!cfg) return kUsage;
   ps.heading_offset_rad = heading.value_or(cfg->stand.heading_offset_rad);
   auto p = load_plan(profile.empty() ? cfg->daemon.profile.string() : profile, overrides);
   if (!p) {

@@ -6,6 +6,7 @@
 #include "text_format.hpp"
 #include "turncal/config.hpp"
 #include "turncal/profile.hpp"
+#include "turncal/run/report.hpp"
 
 namespace turncal::run {
 
@@ -112,16 +113,7 @@ Result<json> plan_json(const Plan& plan, const PlanningSettings& s) {
   j["predicted"] = pred;
   j["estimable"] = estimable;
   json combos = json::array();
-  for (const est::Combination& c : r.combinations) {
-    json coeff = json::object();
-    for (std::size_t i = 0; i < c.coeff.size(); ++i)
-      if (c.coeff[i] != 0) coeff[std::string(est::kParamNames[i])] = c.coeff[i];
-    combos.push_back({{"lead", std::string(est::kParamNames[static_cast<std::size_t>(c.lead)])},
-                      {"unit", std::string(est::kParamUnits[static_cast<std::size_t>(c.lead)])},
-                      {"coefficients", coeff},
-                      {"sigma", c.sigma},
-                      {"prior_sigma", c.prior_sigma}});
-  }
+  for (const est::Combination& c : r.combinations) combos.push_back(combination_json(c, false));
   j["combinations"] = combos;
   if (s.sweep && !plan.profile.turns.empty()) {
     json rows = json::array();

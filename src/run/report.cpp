@@ -195,6 +195,20 @@ json judge(const json& estimates, const std::vector<Tolerance>& tolerances) {
   return {{"pass", pass}, {"checks", checks}};
 }
 
+json combination_json(const est::Combination& c, bool with_value) {
+  json coeff = json::object();
+  for (std::size_t i = 0; i < c.coeff.size(); ++i)
+    if (c.coeff[i] != 0) coeff[std::string(est::kParamNames[i])] = c.coeff[i];
+  const auto lead = static_cast<std::size_t>(c.lead);
+  json j = {{"lead", std::string(est::kParamNames[lead])},
+            {"unit", std::string(est::kParamUnits[lead])},
+            {"coefficients", coeff}};
+  if (with_value) j["value"] = c.value;
+  j["sigma"] = c.sigma;
+  j["prior_sigma"] = c.prior_sigma;
+  return j;
+}
+
 json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInput* input,
                  const est::EstimationResult* result) {
   const Sequencer& seq = engine.sequencer();
@@ -286,17 +300,8 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
     for (const auto& p : result->df_eff) e[std::string(p.name)] = estimate_json(p);
     j["estimates"] = e;
     json combos = json::array();
-    for (const est::Combination& c : result->combinations) {
-      json coeff = json::object();
-      for (std::size_t i = 0; i < c.coeff.size(); ++i)
-        if (c.coeff[i] != 0) coeff[std::string(est::kParamNames[i])] = c.coeff[i];
-      combos.push_back({{"lead", std::string(est::kParamNames[static_cast<std::size_t>(c.lead)])},
-                        {"unit", std::string(est::kParamUnits[static_cast<std::size_t>(c.lead)])},
-                        {"coefficients", coeff},
-                        {"value", c.value},
-                        {"sigma", c.sigma},
-                        {"prior_sigma", c.prior_sigma}});
-    }
+    for (const est::Combination& c : result->combinations)
+      combos.push_back(combination_json(c, true));
     j["combinations"] = combos;
     if (result->has_two_stage) {
       json ts = json::object();

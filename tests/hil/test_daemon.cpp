@@ -166,6 +166,19 @@ TEST_SUITE("daemon") {
     // timeline are the first suspects
     CAPTURE(r["health"].dump());
     CAPTURE(r["turns_achieved"].dump());
+    // the run's report, log and truth are kept for a look after a failure
+    {
+      const hil::fs::path keep = TURNCAL_ARTIFACTS_DIR;
+      std::error_code ec;
+      hil::fs::create_directories(keep, ec);
+      for (const hil::fs::path& f :
+           {dir.path / "state" / (id + ".report.json"), log, dir.path / "truth.json"})
+        hil::fs::copy_file(f, keep / ("daemon-run-" + f.filename().string()),
+                           hil::fs::copy_options::overwrite_existing, ec);
+    }
+    MESSAGE("clocks: ins rms " << r["health"]["ins_clock_rms_s"] << " s, table rms "
+                               << r["health"]["table_clock_rms_s"] << " s, outliers "
+                               << r["health"]["clock_outliers"]);
     REQUIRE(!r["combinations"].empty());
     for (const auto& c : r["combinations"]) {
       CAPTURE(c.dump());

@@ -37,6 +37,11 @@ struct ReportContext {
 nlohmann::json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInput* input,
                            const est::EstimationResult* result);
 
+/// One combination as the report and the plan give it: the lead parameter
+/// and its unit, the non-zero coefficients by name, sigma and prior sigma,
+/// and the value when `with_value` (a plan has none).
+nlohmann::json combination_json(const est::Combination& c, bool with_value);
+
 /// The plain-text summary of a report (from its JSON, so any report file
 /// can be shown again).
 /// With `truth` (a turncal-sim truth file: "errors" keyed by model.md's
