@@ -86,13 +86,13 @@ std::string clock_text(double s) {
   return buf;
 }
 
-/// One progress line: phase, elapsed and remaining, live velocity, table
-/// angle, frame health.
 /// A phase the run does not leave.
 bool finished(const std::string& phase) {
   return phase == "done" || phase == "failed" || phase == "aborted";
 }
 
+/// One progress line: phase, elapsed and remaining, live velocity, table
+/// angle, frame health.
 std::string progress(const json& s) {
   auto num = [&](const char* k) {
     return s.contains(k) && s[k].is_number() ? s[k].get<double>()

@@ -52,12 +52,12 @@ bool write_text(const std::string& path, const std::string& text) {
   return static_cast<bool>(out);
 }
 
-/// The configuration, or nothing after saying why (file, line and key).
-std::optional<Config> configuration(const std::string& path) {
-  auto cfg = load_config(path);
-  if (cfg) return std::move(*cfg);
-  std::fprintf(stderr, "turncalctl: %s\n", cfg.error().describe().c_str());
-  return std::nullopt;
+/// True when `r` holds a value; else says its error (a configuration's
+/// names file, line and key) and is false.
+template <class T>
+bool or_say(const Result<T>& r) {
+  if (!r) std::fprintf(stderr, "turncalctl: %s\n", r.error().describe().c_str());
+  return static_cast<bool>(r);
 }
 
 bool number(const char* s, double& v) {
@@ -123,18 +123,12 @@ int replay(int argc, char** argv, int i, bool as_json) {
       return usage(("replay: unknown argument " + a).c_str());
     }
   }
-  auto cfg = configuration(config);
-  if (!cfg) return kUsage;
+  auto cfg = load_config(config);
+  if (!or_say(cfg)) return kUsage;
   auto db = load_databases(cfg->can);
-  if (!db) {
-    std::fprintf(stderr, "turncalctl: %s\n", db.error().describe().c_str());
-    return kUsage;
-  }
+  if (!or_say(db)) return kUsage;
   auto roles = resolve_roles(cfg->can, *db);
-  if (!roles) {
-    std::fprintf(stderr, "turncalctl: %s\n", roles.error().describe().c_str());
-    return kUsage;
-  }
+  if (!or_say(roles)) return kUsage;
   // the live run's report: named, or next to the log as the daemon keeps it
   json live;
   if (!no_report) {
@@ -163,10 +157,7 @@ int replay(int argc, char** argv, int i, bool as_json) {
     return kUsage;
   }
   auto r = run::replay_log(*cfg, *db, *roles, log, live.is_null() ? nullptr : &live, o);
-  if (!r) {
-    std::fprintf(stderr, "turncalctl: %s\n", r.error().describe().c_str());
-    return kRefused;
-  }
+  if (!or_say(r)) return kRefused;
   if (!json_out.empty() && !write_text(json_out, r->report.dump(2) + "\n")) return kRefused;
   if (!html_out.empty() && !write_text(html_out, r->html)) return kRefused;
   if (as_json)
@@ -211,19 +202,13 @@ int plan(int argc, char** argv, int i, bool as_json) {
       return usage(("plan: unknown argument " + a).c_str());
     }
   }
-  auto cfg = configuration(config);
-  if (!cfg) return kUsage;
+  auto cfg = load_config(config);
+  if (!or_say(cfg)) return kUsage;
   ps.heading_offset_rad = heading.value_or(cfg->stand.heading_offset_rad);
   auto p = load_plan(profile.empty() ? cfg->daemon.profile.string() : profile, overrides);
-  if (!p) {
-    std::fprintf(stderr, "turncalctl: %s\n", p.error().describe().c_str());
-    return kUsage;
-  }
+  if (!or_say(p)) return kUsage;
   auto j = run::plan_json(*p, ps);
-  if (!j) {
-    std::fprintf(stderr, "turncalctl: %s\n", j.error().describe().c_str());
-    return kRefused;
-  }
+  if (!or_say(j)) return kRefused;
   if (!json_out.empty() && !write_text(json_out, j->dump(2) + "\n")) return kRefused;
   std::printf("%s", as_json ? (j->dump(2) + "\n").c_str() : run::plan_text(*j).c_str());
   return kOk;

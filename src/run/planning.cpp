@@ -6,6 +6,7 @@
 #include "text_format.hpp"
 #include "turncal/config.hpp"
 #include "turncal/profile.hpp"
+#include "turncal/run/record.hpp"
 #include "turncal/run/report.hpp"
 
 namespace turncal::run {
@@ -32,11 +33,8 @@ json sigmas_of(const est::EstimationResult& r) {
 est::EstimationInput planned_input(const Plan& plan, const PlanningSettings& s) {
   const TableTrajectory traj(plan.profile);
   const double psi0 = plan.start_angle_rad - s.heading_offset_rad;
-  est::EstimationInput in;
+  est::EstimationInput in = input_of_plan(plan, s.sample_rate_hz);
   est::TimelineInput& t = in.timeline;
-  t.site = plan.site;
-  t.noise = plan.noise();
-  t.epoch_s = plan.epoch_s;
   t.duration_s = plan.profile.duration_s;
   t.psi_start_rad = psi0;
   for (std::size_t i = 0; i < traj.turns(); ++i)
@@ -54,12 +52,6 @@ est::EstimationInput planned_input(const Plan& plan, const PlanningSettings& s) 
     prev = cur;
     cur = next;
   }
-  in.priors = plan.priors;
-  in.priors.align_s = plan.profile.align_s;
-  in.sigma_z = plan.sigma_z;
-  in.mean_measurement = plan.mean_measurement;
-  in.sample_rate_hz = s.sample_rate_hz;
-  in.sharp_ratio = plan.sharp_ratio;
   return in;
 }
 

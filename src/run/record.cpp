@@ -30,6 +30,20 @@ void Record::close() {
   if (pending_ && encoder_.back().t_table_s != last_.t_table_s) encoder_.push_back(last_);
 }
 
+est::EstimationInput input_of_plan(const Plan& plan, double sample_rate_hz) {
+  est::EstimationInput in;
+  in.timeline.site = plan.site;
+  in.timeline.noise = plan.noise();
+  in.timeline.epoch_s = plan.epoch_s;
+  in.priors = plan.priors;
+  in.priors.align_s = plan.profile.align_s;
+  in.sigma_z = plan.sigma_z;
+  in.mean_measurement = plan.mean_measurement;
+  in.sample_rate_hz = sample_rate_hz;
+  in.sharp_ratio = plan.sharp_ratio;
+  return in;
+}
+
 Result<BuiltInput> build_input(const Record& record, const Plan& plan,
                                const BuildSettings& settings) {
   const ClockFit& ins = record.ins_clock();
@@ -46,6 +60,7 @@ Result<BuiltInput> build_input(const Record& record, const Plan& plan,
   const double duration = plan.profile.duration_s;
 
   est::EstimationInput& in = out.input;
+  in = input_of_plan(plan, settings.sample_rate_hz);
   for (const VelocitySample& v : vel) {
     const double t = v.t_ins_s - t0;
     if (t > duration + 1e-6) break;
@@ -127,17 +142,8 @@ Result<BuiltInput> build_input(const Record& record, const Plan& plan,
     out.turns.push_back(a);
   }
 
-  in.timeline.site = plan.site;
-  in.timeline.noise = plan.noise();
-  in.timeline.epoch_s = plan.epoch_s;
   in.timeline.duration_s = std::min(duration, recorded);
   in.timeline.psi_start_rad = est::psi_at(enc, 0.0);
-  in.priors = plan.priors;
-  in.priors.align_s = plan.profile.align_s;
-  in.sigma_z = plan.sigma_z;
-  in.mean_measurement = plan.mean_measurement;
-  in.sample_rate_hz = settings.sample_rate_hz;
-  in.sharp_ratio = plan.sharp_ratio;
   in.with_two_stage = settings.two_stage;
   return out;
 }

@@ -100,14 +100,16 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
     b.two_stage = (*live)["settings"]["two_stage"].get<bool>();
   if (options.two_stage) b.two_stage = *options.two_stage;
 
-  // the first record: the time base of a log without a live report
+  // the next record; a line that does not parse ends the log there
   can::LogRecord rec;
   std::optional<LogDamage> damage;
-  bool have = false;
-  if (auto r = reader.next(rec); !r)
-    damage = LogDamage{reader.line_number(), r.error().describe()};
-  else
-    have = *r;
+  auto next = [&] {
+    auto r = reader.next(rec);
+    if (!r) damage = LogDamage{reader.line_number(), r.error().describe()};
+    return r && *r;
+  };
+  // the first record: the time base of a log without a live report
+  bool have = next();
   if (!have && !damage) return make_error(log_path + ": the log is empty");
   TimeBase tb{have ? rec.time_ns / 1000 : 0, cfg.stand.time_scale};
   if (const auto e = live_number(live, "time_base", "epoch_us")) tb.epoch_us = std::llround(*e);
@@ -127,12 +129,7 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
       next_tick_ns = rec.time_ns + tick_ns;
     }
     if (engine.estimation_due()) break;
-    auto r = reader.next(rec);
-    if (!r) {
-      damage = LogDamage{reader.line_number(), r.error().describe()};
-      break;
-    }
-    have = *r;
+    have = next();
   }
   out.lines = reader.line_number();
   out.damage = damage;

@@ -70,6 +70,12 @@ struct BuiltInput {
   std::vector<std::string> notes;  ///< what the builder had to assume
 };
 
+/// An estimation input with what `plan` sets: site, noise, epoch, priors,
+/// output noise, measurement and sharp ratio; `sample_rate_hz` is the INS
+/// velocity rate. The record (build_input) and the planning
+/// (planned_input) add the timeline and the data.
+est::EstimationInput input_of_plan(const Plan& plan, double sample_rate_hz);
+
 /// The estimation input of a recorded run of `plan` (the record closed).
 Result<BuiltInput> build_input(const Record& record, const Plan& plan,
                                const BuildSettings& settings);
