@@ -101,6 +101,9 @@ struct DaemonConfig {
       profile;           ///< the plan a start runs unless it names one (set by parse_config)
   bool observe = false;  ///< follow a stand someone else drives
   double heartbeat_hz = 10;
+  /// A stream is lost after 10 periods unseen and never sooner than this,
+  /// real milliseconds: the host's scheduling latency.
+  double stale_floor_ms = 50;
 };
 
 /// Pass/fail of one estimate, in display units (deg/h, ppm, ug, mm).

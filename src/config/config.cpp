@@ -216,8 +216,8 @@ Status read_stand(const toml::table& t, const std::string& file, StandConfig& s)
 
 Status read_daemon(const toml::table& t, const std::string& file, DaemonConfig& d) {
   Reader r(t, file, "daemon.");
-  TURNCAL_TRY(r.no_unknown_keys(
-      {"state_directory", "socket", "socket_group", "profile", "observe", "heartbeat_hz"}));
+  TURNCAL_TRY(r.no_unknown_keys({"state_directory", "socket", "socket_group", "profile", "observe",
+                                 "heartbeat_hz", "stale_floor_ms"}));
   std::string state = d.state_directory.string(), sock = d.socket.string(), prof;
   TURNCAL_TRY(r.string("state_directory", state));
   TURNCAL_TRY(r.string("socket", sock));
@@ -225,6 +225,7 @@ Status read_daemon(const toml::table& t, const std::string& file, DaemonConfig& 
   TURNCAL_TRY(r.string("profile", prof));
   TURNCAL_TRY(r.boolean("observe", d.observe));
   TURNCAL_TRY(r.number("heartbeat_hz", d.heartbeat_hz, 2, 100));
+  TURNCAL_TRY(r.number("stale_floor_ms", d.stale_floor_ms, 0, 1000));
   const std::filesystem::path base = std::filesystem::path(file).parent_path();
   d.state_directory = state;
   d.socket = sock;

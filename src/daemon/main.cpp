@@ -396,7 +396,9 @@ json Daemon::status() const {
   json h = json::object();
   for (int k = 0; k < run::kStreams; ++k) {
     const auto& sh = engine->ingest().health(static_cast<run::Stream>(k));
-    h[sh.name] = {{"rate_hz", sh.rate_hz()}, {"dropped", sh.dropped}, {"stale", sh.stale(now)}};
+    h[sh.name] = {{"rate_hz", sh.rate_hz()},
+                  {"dropped", sh.dropped},
+                  {"stale", sh.stale(now, s.settings().stale_floor_s)}};
   }
   j["health"] = h;
   return j;
@@ -415,6 +417,7 @@ json Daemon::start(const json& req) {
   q.heading_offset_rad = cfg.stand.heading_offset_rad;
   q.limits = cfg.stand.limits;
   q.observe = cfg.daemon.observe || req.value("observe", false);
+  q.stale_floor_s = cfg.daemon.stale_floor_ms * 1e-3 * cfg.stand.time_scale;
   if (req.contains("heading_offset_deg")) {
     if (!req["heading_offset_deg"].is_number())
       return {{"ok", false}, {"error", "heading_offset_deg: expected a number of degrees"}};

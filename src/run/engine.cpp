@@ -110,10 +110,11 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out) {
   // the stand has gone quiet past the end: nothing more will come
   if (t > record_end_s() + 1.0 && !(last_frame_s_ > t - 1.0)) record_complete_ = true;
   Tick k{t};
-  k.velocity_stale = ingest_.health(kVelocity).stale(t);
-  k.ins_status_stale = ingest_.health(kInsStatus).stale(t);
-  k.encoder_stale = ingest_.health(kEncoder).stale(t);
-  k.table_status_stale = ingest_.health(kTableStatus).stale(t);
+  const double floor = seq_.settings().stale_floor_s;
+  k.velocity_stale = ingest_.health(kVelocity).stale(t, floor);
+  k.ins_status_stale = ingest_.health(kInsStatus).stale(t, floor);
+  k.encoder_stale = ingest_.health(kEncoder).stale(t, floor);
+  k.table_status_stale = ingest_.health(kTableStatus).stale(t, floor);
   feed(k, out);
 }
 

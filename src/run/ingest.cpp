@@ -24,6 +24,12 @@ double AngleUnwrap::operator()(double angle_rad) {
   return angle_rad + turns_;
 }
 
+namespace {
+constexpr double kBucketS = 1.0;   ///< device seconds per envelope sample
+constexpr double kMaxRate = 1e-3;  ///< |rate| held below 0.1%
+constexpr double kGateSpanS = 10;  ///< envelope span before the gate applies
+}  // namespace
+
 void ClockFit::add(double device_s, double host_s) {
   if (n_ == 0) {
     x0_ = device_s;
@@ -39,42 +45,104 @@ void ClockFit::add(double device_s, double host_s) {
   cxx_ += dx * (x - mx_);
   cxy_ += dx * (y - my_);
   cyy_ += dy * (y - my_);
+
+  // the lowest sample of each second of device time (a late frame from
+  // an earlier second is past: it cannot be lower than what that second had)
+  const auto k = static_cast<long>(std::floor(x / kBucketS));
+  if (k < current_k_) return;
+  line_valid_ = false;
+  if (k > current_k_) {
+    if (current_k_ >= 0) {
+      hull_push(hull_, current_);
+      if (seconds_++ == 0) first_x_ = current_.x;
+      last_x_ = current_.x;
+      sum_x_ += current_.x;
+      gate_line_ = edge_over(hull_, sum_x_ / static_cast<double>(seconds_));
+    }
+    current_k_ = k;
+    current_ = {x, y};
+  } else if (y - x < current_.y - current_.x) {
+    current_ = {x, y};
+  }
 }
 
 bool ClockFit::add_checked(double device_s, double host_s, double gate_s) {
-  if (n_ > 50 && std::abs(residual(device_s, host_s)) > gate_s) return false;
+  if (seconds_ >= 2 && last_x_ - first_x_ >= kGateSpanS) {
+    const double r = host_s - y0_ - gate_line_.a - gate_line_.b * (device_s - x0_);
+    if (r < -gate_s) return false;
+    if (r > gate_s) ++late_;
+  }
   add(device_s, host_s);
   return true;
 }
 
-double ClockFit::slope() const {
-  // a span too short to tell the rate: take the clocks as equal in rate
-  return n_ < 2 || cxx_ <= 1e-6 * static_cast<double>(n_) ? 1.0 : cxy_ / cxx_;
+void ClockFit::hull_push(std::vector<Point>& hull, const Point& p) {
+  while (hull.size() >= 2) {
+    const Point& o = hull[hull.size() - 2];
+    const Point& q = hull.back();
+    // q on or above the segment from o to p: not on the lower hull
+    if ((q.x - o.x) * (p.y - o.y) - (q.y - o.y) * (p.x - o.x) > 0) break;
+    hull.pop_back();
+  }
+  hull.push_back(p);
+}
+
+ClockFit::Line ClockFit::edge_over(const std::vector<Point>& hull, double mean_x) {
+  // The line under every point with the least total distance to them
+  // touches the lower hull along the edge over their mean x.
+  Line l;
+  if (hull.empty()) return l;
+  std::size_t i = 0;
+  while (i + 2 < hull.size() && hull[i + 1].x < mean_x) ++i;
+  if (hull.size() >= 2 && hull[i + 1].x > hull[i].x)
+    l.b = (hull[i + 1].y - hull[i].y) / (hull[i + 1].x - hull[i].x);
+  l.b = std::clamp(l.b, 1 - kMaxRate, 1 + kMaxRate);
+  // the support line of that slope: under every point, touching one
+  l.a = hull.front().y - l.b * hull.front().x;
+  for (const Point& p : hull) l.a = std::min(l.a, p.y - l.b * p.x);
+  return l;
+}
+
+const ClockFit::Line& ClockFit::line() const {
+  if (!line_valid_) {
+    if (current_k_ < 0) {
+      line_ = Line{};
+    } else {
+      std::vector<Point> h = hull_;
+      hull_push(h, current_);
+      line_ = edge_over(h, (sum_x_ + current_.x) / static_cast<double>(seconds_ + 1));
+    }
+    line_valid_ = true;
+  }
+  return line_;
 }
 
 double ClockFit::to_host(double device_s) const {
-  return y0_ + my_ + slope() * (device_s - x0_ - mx_);
+  const Line& l = line();
+  return y0_ + l.a + l.b * (device_s - x0_);
 }
 
 double ClockFit::to_device(double host_s) const {
-  return x0_ + mx_ + (host_s - y0_ - my_) / slope();
+  const Line& l = line();
+  return x0_ + (host_s - y0_ - l.a) / l.b;
 }
 
 double ClockFit::rate_ppm() const {
-  return (1 / slope() - 1) * 1e6;
+  return (1 / line().b - 1) * 1e6;
 }
 
 double ClockFit::rms_s() const {
   if (n_ < 3) return 0;
-  const double b = slope();
-  const double ss = cyy_ - 2 * b * cxy_ + b * b * cxx_;
-  return std::sqrt(std::max(0.0, ss) / static_cast<double>(n_ - 2));
+  const Line& l = line();
+  const double spread = cyy_ - 2 * l.b * cxy_ + l.b * l.b * cxx_;
+  const double mean = my_ - l.a - l.b * mx_;
+  return std::sqrt(std::max(0.0, spread) / static_cast<double>(n_) + mean * mean);
 }
 
-bool StreamHealth::stale(double now_s) const {
+bool StreamHealth::stale(double now_s, double floor_s) const {
   if (std::isnan(last_host_s)) return true;
   const double period = nominal_hz > 0 ? 1 / nominal_hz : 1.0;
-  return now_s - last_host_s > 10 * period;
+  return now_s - last_host_s > std::max(10 * period, floor_s);
 }
 
 double StreamHealth::rate_hz() const {

@@ -25,6 +25,9 @@ namespace {
 /// Stand time between engine ticks in a replay: the daemon ticks at 10 Hz;
 /// ten times as often costs little and judges staleness no later.
 constexpr double kTickS = 0.01;
+/// Frames received closer together than this (host time) are one burst.
+constexpr std::int64_t kBurstNs = 1'000'000;
+constexpr std::int64_t kBurstMaxNs = 20'000'000;
 
 Result<Plan> replay_plan(const Config& cfg, const json* live, const ReplayOptions& o) {
   std::vector<std::string> overrides;
@@ -114,22 +117,36 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   TimeBase tb{have ? rec.time_ns / 1000 : 0, cfg.stand.time_scale};
   if (const auto e = live_number(live, "time_base", "epoch_us")) tb.epoch_us = std::llround(*e);
   if (const auto s = live_number(live, "time_base", "scale")) tb.scale = *s;
+  // the live run's floor (none before reports carried it), else the config's
+  q.stale_floor_s =
+      live_number(live, "settings", "stale_floor_s")
+          .value_or(live != nullptr ? 0.0 : cfg.daemon.stale_floor_ms * 1e-3 * tb.scale);
 
   Engine engine(db, roles, plan, q, b, tb);
   std::vector<OutFrame> sent;  // observe mode sends nothing; kept for the interface
   engine.start(tb.epoch_us * 1000, sent);
   std::int64_t first_ns = have ? rec.time_ns : 0, last_ns = first_ns;
   std::int64_t next_tick_ns = first_ns;
+  std::int64_t last_t = first_ns, burst_start = first_ns;
   const auto tick_ns = static_cast<std::int64_t>(kTickS / tb.scale * 1e9);
   while (have) {
     engine.on_frame({rec.time_ns, rec.frame}, sent);
-    last_ns = std::max(last_ns, rec.time_ns);
-    if (rec.time_ns >= next_tick_ns) {
-      engine.tick(rec.time_ns, sent);
-      next_tick_ns = rec.time_ns + tick_ns;
-    }
+    const std::int64_t t = rec.time_ns;
+    last_ns = std::max(last_ns, t);
     if (engine.estimation_due()) break;
     have = next();
+    // The daemon takes in all that has arrived before it judges a stream
+    // lost, so a host that stalled (every stream silent, then a burst) was
+    // never short of frames; no tick inside a burst, then (for a while: a
+    // bus that busy is no burst).
+    if (t - last_t > kBurstNs) burst_start = t;
+    last_t = t;
+    const bool burst = have && rec.time_ns - t < kBurstNs && t - burst_start < kBurstMaxNs;
+    if (!burst && t >= next_tick_ns) {
+      engine.tick(t, sent);
+      next_tick_ns = t + tick_ns;
+      if (engine.estimation_due()) break;
+    }
   }
   out.lines = reader.line_number();
   out.damage = damage;

@@ -247,6 +247,7 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
   // what a replay needs besides the log and the profile to see what this run saw
   j["settings"] = {{"heading_offset_rad", seq.settings().heading_offset_rad},
                    {"observe", seq.settings().observe},
+                   {"stale_floor_s", seq.settings().stale_floor_s},
                    {"two_stage", engine.build_settings().two_stage}};
   // health
   const Ingest& in = engine.ingest();
@@ -260,6 +261,7 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
       {"malformed", in.counters().malformed},
       {"ignored", in.counters().ignored},
       {"clock_outliers", in.counters().clock_outliers},
+      {"clock_late_frames", in.ins_clock().late() + in.table_clock().late()},
       {"half_velocity_pairs", in.counters().half_pairs},
       {"ins_clock_rate_ppm", in.ins_clock().rate_ppm()},
       {"table_clock_rate_ppm", in.table_clock().rate_ppm()},

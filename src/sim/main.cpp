@@ -453,6 +453,7 @@ int live(const Options& o) {
   std::deque<std::pair<double, can::Frame>> from_bus;
   std::vector<can::Frame> due;
   socketcan::RxBatch rx;
+  double max_lag_s = 0;
   while (g_stop == 0 && !loop.done()) {
     for (socketcan::Socket& s : sockets) {
       rx.clear();
@@ -467,6 +468,8 @@ int live(const Options& o) {
                               f.frame);
     }
     const double target = std::chrono::duration<double>(Clock::now() - wall0).count() * o.speed;
+    // how far behind real time the stand fell (its frames then go out late, in a burst)
+    max_lag_s = std::max(max_lag_s, (target - loop.next_time()) / o.speed);
     while (loop.next_time() <= target && !loop.done()) {
       while (!from_bus.empty() && from_bus.front().first <= loop.next_time()) {
         due.push_back(from_bus.front().second);
@@ -492,11 +495,12 @@ int live(const Options& o) {
   for (const socketcan::Socket& s : sockets) overflow += s.stats().tx_overflow;
   std::fprintf(stderr,
                "turncal-sim: stopped at %.3f s simulated; host frames %llu (undecodable %llu, "
-               "refused commands %llu); send queue overflow %llu\n",
+               "refused commands %llu); send queue overflow %llu; at most %.0f ms behind real "
+               "time\n",
                loop.next_time(), static_cast<unsigned long long>(c.host_frames),
                static_cast<unsigned long long>(c.host_undecodable),
                static_cast<unsigned long long>(c.refused),
-               static_cast<unsigned long long>(overflow));
+               static_cast<unsigned long long>(overflow), max_lag_s * 1e3);
   return 0;
 }
 

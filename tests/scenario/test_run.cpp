@@ -94,6 +94,8 @@ struct ClosedLoop {
   std::vector<can::Frame> to_stand;
   std::vector<Logged> log;  ///< both directions, as the recorder keeps them
   bool heartbeat = true;
+  /// Frames the host does not hear (a stand late or lossy on the bus).
+  std::function<bool(const stand::StandFrame&)> lose;
   double start_at = 0.1;  ///< stand time the operator starts the run
   bool started = false;
   std::optional<est::EstimationResult> result;
@@ -156,6 +158,7 @@ struct ClosedLoop {
         started = true;
       }
       for (const stand::StandFrame& f : frames) {
+        if (lose && lose(f)) continue;
         const can::TimedFrame tf{ns(f.t_s), f.frame};
         if (started) log.push_back({tf, false});  // the recorder runs from the start
         engine->on_frame(tf, out);
@@ -544,6 +547,39 @@ TEST_SUITE("run engine on the virtual stand") {
     }
   }
 
+  TEST_CASE("an encoder gap in the turn: lost after 10 periods, never before the floor") {
+    // The encoder (200 Hz) unheard from 82 s for `gap_s`, mid-turn. With no
+    // floor, 10 periods (50 ms) are enough; a floor of 100 ms (a virtual
+    // stand at 2x with the default 50 ms of real time) lets a 80 ms gap pass
+    // and still stops the table on a 150 ms one.
+    const Plan plan = short_plan();
+    struct Case {
+      double floor_s, gap_s;
+      bool fails;
+    };
+    for (const Case k : {Case{0, 0.08, true}, Case{0.1, 0.08, false}, Case{0.1, 0.15, true}}) {
+      CAPTURE(k.floor_s);
+      CAPTURE(k.gap_s);
+      const stand::StandSetup s = setup_of(plan, 3);
+      run::SequencerSettings q = ClosedLoop::settings_of(plan, s);
+      q.stale_floor_s = k.floor_s;
+      ClosedLoop c(plan, s, q);
+      const std::uint32_t encoder = reference_stand().db.find("TBL_Encoder")->id;
+      c.lose = [&](const stand::StandFrame& f) {
+        return f.frame.id == encoder && f.t_s > 82 && f.t_s < 82 + k.gap_s;
+      };
+      c.run_until(83);
+      if (k.fails) {
+        CHECK(c.phase() == run::Phase::Failed);
+        CHECK_MESSAGE(c.course().reason.find("table encoder lost") == 0, c.course().reason);
+        CHECK(c.sent(run::TableCode::QuickStop) == 1);
+      } else {
+        CHECK(c.phase() == run::Phase::Turn);
+        CHECK(c.sent(run::TableCode::QuickStop) == 0);
+      }
+    }
+  }
+
   TEST_CASE("heartbeat lost during the turn: the table stops itself, the run fails saying so") {
     const Plan plan = short_plan();
     ClosedLoop c(plan, setup_of(plan, 4));
@@ -626,6 +662,57 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(j["innovations"]["count"].get<double>() ==
           doctest::Approx(l.live.written["innovations"]["count"].get<double>() / 2).epsilon(0.02));
     CHECK(j["replay"]["overrides"].size() == 2);
+  }
+
+  TEST_CASE("replay: a host that stalled loses no stream; a device that fell silent does") {
+    // The live daemon takes in what has arrived before it judges a stream
+    // lost: a stall of the whole host (every stream silent for 300 ms, then
+    // the frames in a burst) is no loss, though the log shows a gap three
+    // times the velocity's 10 periods. One device silent that long is.
+    const LiveRun& l = LiveRun::get();
+    // stand time is the Unix time of the log
+    const auto from = static_cast<std::int64_t>(std::llround((l.live.course().t0_s + 40) * 1e9));
+    const std::int64_t to = from + 300'000'000;
+    const std::uint32_t encoder = reference_stand().db.find("TBL_Encoder")->id;
+    struct Case {
+      const char* name;
+      bool all;
+      const char* reason;
+    };
+    for (const Case k :
+         {Case{"host stall", true, ""}, Case{"encoder silent", false, "table encoder lost"}}) {
+      const std::string name = k.name;
+      CAPTURE(name);
+      std::vector<Logged> log;
+      const auto n = std::count_if(l.live.log.begin(), l.live.log.end(), [&](const Logged& f) {
+        return f.f.time_ns > from && f.f.time_ns < to;
+      });
+      std::int64_t burst = to - n * 20'000;  // the burst ends where the stall did
+      for (Logged f : l.live.log) {
+        if (f.f.time_ns > from && f.f.time_ns < to) {
+          if (!k.all && f.f.frame.id != encoder) {
+            log.push_back(f);
+            continue;
+          }
+          if (!k.all) continue;           // the encoder's frames are gone
+          f.f.time_ns = burst += 20'000;  // 20 us apart after the stall
+        }
+        log.push_back(f);
+      }
+      TempDir dir;
+      write_log(log, dir.path / "run.log");
+      auto r = replay_file(dir.path / "run.log", &l.live.written);
+      REQUIRE(r.ok());
+      const nlohmann::json& j = r->report;
+      const std::string reason = j.contains("reason") ? j["reason"].get<std::string>() : "";
+      if (k.all) {
+        CHECK_MESSAGE(j["status"] == "done", reason);
+        CHECK(j["estimates"].size() == 20);
+      } else {
+        CHECK(j["status"] == "failed");
+        CHECK_MESSAGE(reason.find(k.reason) == 0, reason);
+      }
+    }
   }
 
   TEST_CASE("replay of a log cut in the last hold: estimates up to the damage, and where") {

@@ -44,6 +44,7 @@ TEST_SUITE("config") {
     CHECK(cfg->can.table_interface == "vcan0");
     CHECK(cfg->can.dbc_files.at(0) == "/x/reference-stand.dbc");
     CHECK(cfg->can.roles[static_cast<std::size_t>(Role::TableAck)].message == "TBL_Status");
+    CHECK(cfg->daemon.stale_floor_ms == 50);
   }
 
   TEST_CASE("errors name file, line and key") {
@@ -71,6 +72,9 @@ TEST_SUITE("config") {
       Error e = parse_error("[can]\ntx_queue_frames = 0\n");
       CHECK(e.message.find("can.tx_queue_frames") != std::string::npos);
       CHECK(e.where.line == 2);
+      e = parse_error("[daemon]\nheartbeat_hz = 10\nstale_floor_ms = 5000\n");
+      CHECK(e.message.find("daemon.stale_floor_ms") != std::string::npos);
+      CHECK(e.where.line == 3);
     }
     SUBCASE("role not Message.Signal") {
       Error e = parse_error("[can.roles]\nencoder_angle = \"TBL_Encoder\"\n");

@@ -3,6 +3,7 @@
 
 #include <cmath>
 #include <numbers>
+#include <random>
 
 #include "turncal/run/ingest.hpp"
 #include "turncal/run/sequencer.hpp"
@@ -59,17 +60,59 @@ TEST_SUITE("ingest") {
 
   TEST_CASE("clock fit recovers offset and rate; outliers are kept out") {
     ClockFit f;
-    for (int k = 0; k < 1000; ++k) {
+    for (int k = 0; k < 2000; ++k) {  // 20 s: the gate applies after 10
       const double host = 1.7e9 + 0.01 * k;
       const double dev = 1000 + (host - 1.7e9) * (1 + 50e-6);
-      const double jitter = (k % 7 - 3) * 1e-5;  // receive latency scatter
-      CHECK(f.add_checked(dev, host + jitter));
+      const double latency = (k % 7) * 1e-5;  // receive latency, over a floor of 0
+      CHECK(f.add_checked(dev, host + latency));
     }
-    CHECK(f.rate_ppm() == doctest::Approx(50).epsilon(0.02));
-    CHECK(f.to_host(1000 + 5 * (1 + 50e-6)) == doctest::Approx(1.7e9 + 5).epsilon(1e-14));
-    CHECK(std::abs(f.to_host(1000 + 5 * (1 + 50e-6)) - (1.7e9 + 5)) < 1e-5);
-    CHECK_FALSE(f.add_checked(1000 + 10.5, 1.7e9 + 10.3));  // 0.2 s off: a jump
-    CHECK(f.count() == 1000);
+    CHECK(f.rate_ppm() == doctest::Approx(50).epsilon(0.001));
+    // the envelope is the send time: the latency floor, not its mean (a
+    // double at 1.7e9 s resolves 0.24 us)
+    CHECK(std::abs(f.to_host(1000 + 5 * (1 + 50e-6)) - (1.7e9 + 5)) < 3e-7);
+    CHECK(std::abs(f.to_device(f.to_host(1003)) - 1003) < 3e-7);
+    CHECK_FALSE(f.add_checked(1000 + 10.5, 1.7e9 + 10.3));  // 0.2 s early: the clock jumped
+    CHECK(f.count() == 2000);
+    CHECK(f.late() == 0);
+    CHECK(f.add_checked(1000 + 10.5, 1.7e9 + 10.7));  // 0.2 s late: added, counted late
+    CHECK(f.late() == 1);
+  }
+
+  TEST_CASE("clock fit: delays, however long and early, leave the line where it was") {
+    // A device 30 ppm slow against a host that stalls: every second, a
+    // stall of 20 to 300 ms holds back the frames in it, which then arrive
+    // at its end in a burst; the first stall comes in the first second. A
+    // mean through the samples would sit tens of ms late and tilt with
+    // where the stalls fell (the failure this replaced: an early stall
+    // tilted it 12%, and its gate then shut out every later sample).
+    std::mt19937_64 rng(5);
+    std::uniform_real_distribution<double> u(0, 1);
+    ClockFit f;
+    const double rate = -30e-6;
+    double stall_from = 0.2, stall_to = 0.2 + 0.3;
+    int frames = 0;
+    for (int k = 0; k < 25 * 600; ++k) {  // 25 Hz for 10 minutes
+      const double send = 0.04 * k;
+      if (send > stall_to) {
+        stall_from = std::floor(send) + 1 + u(rng) * 0.5;
+        stall_to = stall_from + 0.02 + 0.28 * u(rng);
+      }
+      double host = send + 0.0002 + 0.0003 * u(rng);  // the latency floor and scatter
+      if (send >= stall_from && send < stall_to) host = stall_to + 0.0001 * (send - stall_from);
+      const double dev = 500 + send * (1 + rate);
+      CHECK(f.add_checked(dev, 1.8e9 + host));
+      ++frames;
+    }
+    CHECK(f.count() == static_cast<std::size_t>(frames));
+    CHECK(f.rate_ppm() == doctest::Approx(-30).epsilon(0.05));  // within 1.5 ppm
+    // the floor, 0.2 ms, within the scatter of the fastest frames
+    for (double t : {1.0, 300.0, 599.0}) {
+      CAPTURE(t);
+      const double err = f.to_host(500 + t * (1 + rate)) - (1.8e9 + t);
+      CHECK(err > 0.0001);
+      CHECK(err < 0.0003);
+    }
+    CHECK(f.late() > 100);  // the stalls, seen
   }
 
   TEST_CASE("velocity pairs by tag; half pairs count as drops; malformed and unknown counted") {
@@ -107,6 +150,9 @@ TEST_SUITE("ingest") {
     CHECK_FALSE(in.health(kVelocity).stale(11.05));
     CHECK(in.health(kVelocity).stale(11.2));
     CHECK(in.health(kEncoder).stale(11));  // never seen
+    // and never before the floor, when one is set
+    CHECK_FALSE(in.health(kVelocity).stale(11.2, 0.3));
+    CHECK(in.health(kVelocity).stale(11.35, 0.3));
   }
 
   TEST_CASE("table status carries the fault's name from the DBC's value table") {

@@ -47,35 +47,66 @@ class AngleUnwrap {
   double turns_ = 0;
 };
 
-/// Least-squares line host = a + b device, updated one sample at a time
-/// (Welford's co-moments about the first sample, so it keeps full
-/// precision over hours). The receive latency scatters the host times; the
-/// fit averages it out.
+/// The line host = a + b device of one device clock against the host's
+/// receive times. A frame reaches the host some latency after the device
+/// stamped it, never before; the latency is a floor plus delays (a loaded
+/// host, a burst after a stall) that can last long and come in runs. So the
+/// fit is the lower envelope of the samples, not their mean: the line under
+/// every sample that lies closest to them on average (a linear programme,
+/// Moon, Skelly and Towsley, "Estimation and removal of clock skew from
+/// network delay measurements", 1999), solved on the lowest sample of each
+/// second of device time. Delays, however long or frequent, leave it where
+/// the undelayed frames put it; the latency floor is common to the
+/// device clocks of one bus and cancels when one is mapped onto another.
+/// The rate is held within 0.1% of the host's (crystals are within
+/// 0.01%), so a few seconds of samples cannot tilt it far.
 class ClockFit {
  public:
   void add(double device_s, double host_s);
-  /// Adds the pair unless, after 50 pairs, it is off the line by more than
-  /// `gate_s` (a clock jump or a stuck frame): then returns false.
+  /// Adds the pair unless, once the envelope spans 10 s, it lies more than
+  /// `gate_s` below it (a device clock that jumped, or a garbled tag):
+  /// then returns false. Late pairs are added (they cannot lower the
+  /// envelope) and counted late when more than `gate_s` above it.
   bool add_checked(double device_s, double host_s, double gate_s = 0.05);
   [[nodiscard]] std::size_t count() const { return n_; }
+  /// Pairs that came more than the gate late.
+  [[nodiscard]] std::size_t late() const { return late_; }
   /// Host time of a device time; with one sample, rate 1.
   [[nodiscard]] double to_host(double device_s) const;
   [[nodiscard]] double to_device(double host_s) const;
   /// Device rate against the host, ppm (device fast: negative slope - 1).
   [[nodiscard]] double rate_ppm() const;
-  /// host - fitted host, s.
+  /// host - fitted host, s: the pair's delay over the envelope.
   [[nodiscard]] double residual(double device_s, double host_s) const {
     return host_s - to_host(device_s);
   }
-  /// RMS residual, s.
+  /// RMS of the delays over the envelope, s.
   [[nodiscard]] double rms_s() const;
 
  private:
-  [[nodiscard]] double slope() const;
-  std::size_t n_ = 0;
+  struct Point {
+    double x, y;  ///< device, host about the first sample
+  };
+  struct Line {
+    double a = 0, b = 1;  ///< y = a + b x
+  };
+  /// Appends a point (ascending x) to a lower convex hull.
+  static void hull_push(std::vector<Point>& hull, const Point& p);
+  /// The hull's edge over the mean x, as a line held within the rate bound.
+  static Line edge_over(const std::vector<Point>& hull, double mean_x);
+  [[nodiscard]] const Line& line() const;
+  std::size_t n_ = 0, late_ = 0;
   double x0_ = 0, y0_ = 0;              // first sample: the origin
-  double mx_ = 0, my_ = 0;              // means about the origin
-  double cxx_ = 0, cxy_ = 0, cyy_ = 0;  // co-moments
+  double mx_ = 0, my_ = 0;              // means of all samples about the origin
+  double cxx_ = 0, cxy_ = 0, cyy_ = 0;  // their co-moments
+  std::vector<Point> hull_;             // lower hull of the finished seconds' lowest samples
+  std::size_t seconds_ = 0;             // finished seconds
+  double first_x_ = 0, last_x_ = 0, sum_x_ = 0;  // of their lowest samples
+  Point current_{0, 0};                          // lowest of the second under way
+  long current_k_ = -1;
+  Line gate_line_;  ///< the envelope of the finished seconds
+  mutable Line line_;
+  mutable bool line_valid_ = false;
 };
 
 /// A velocity sample: the pair INS_VelE and INS_VelN of one time tag.
@@ -120,8 +151,9 @@ struct StreamHealth {
   std::uint64_t dropped = 0;  ///< gaps in the device's time tags
   double first_host_s = NAN;
   double last_host_s = NAN;
-  /// Not seen for 10 nominal periods (or never seen).
-  [[nodiscard]] bool stale(double now_s) const;
+  /// Not seen for 10 nominal periods, and for at least `floor_s` (or never
+  /// seen).
+  [[nodiscard]] bool stale(double now_s, double floor_s = 0) const;
   [[nodiscard]] double age_s(double now_s) const { return now_s - last_host_s; }
   /// Mean rate since the first frame, Hz.
   [[nodiscard]] double rate_hz() const;

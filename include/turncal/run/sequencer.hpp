@@ -59,6 +59,10 @@ struct SequencerSettings {
   double start_tolerance_rad = 1.7e-4;  ///< closer than this to the start angle: no move (0.01 deg)
   double prepare_rate_rps = 10 * 0.017453292519943295;  ///< rate of the move to the start angle
   double grace_s = 1.0;  ///< after the start and after t0: a stream not yet heard is not lost
+  /// A stream is lost after 10 periods unseen, and never sooner than this
+  /// (stand seconds): the host's scheduling latency, which a virtual stand
+  /// running N times faster stretches N times in stand time.
+  double stale_floor_s = 0;
   /// Observe mode: the table has left its hold when it is this far from
   /// it (0.05 deg), and is at rest again after still_time_s within a tenth.
   double motion_threshold_rad = 8.7e-4;
