@@ -154,6 +154,43 @@ TEST_SUITE("estimator") {
       }
   }
 
+  /// A simulated tactical run with no noise, errors at a tenth of the
+  /// prior and the proof-mass offset at its full prior (a large turn jump),
+  /// and how far the model's transitions, fed an encoder record, stray from
+  /// its velocity in the minute after the turn.
+  struct TurnCase {
+    Scenario s = tactical();
+    est::XiVec xi = xi_of();
+    double psi_s = 37 * kDeg;
+    sim::Config cfg = sim_config(xi, psi_s);
+    sim::Run run = sim::simulate(cfg);
+    TableTrajectory table{cfg.profile};
+    est::EarthAt earth = est::EarthAt::at(s.site);
+
+    static est::XiVec xi_of() {
+      est::XiVec x = est::XiVec::Zero();
+      x(est::sxi::kParams + kIdx(est::sx::kR)) = 0.03;
+      x(est::sxi::kParams + kIdx(est::sx::kR) + 1) = -0.02;
+      return x;
+    }
+    [[nodiscard]] est::TimelineInput full() const { return timeline(s, psi_s, table, run.encoder); }
+    /// The worst velocity difference, m/s, and how the turn was taken.
+    std::pair<double, est::TurnSource> stray(const est::TimelineInput& tl) const {
+      est::StateVec x = est::initial_map(earth, psi_s) * xi;
+      double worst = 0;
+      auto rep = est::for_each_step(tl, [&](const est::TimelineStep& st) {
+        x = st.d->phi * x;
+        if (st.t_to < table.turn_end(0) || st.t_to > table.turn_end(0) + 60) return;
+        const auto k = static_cast<std::size_t>(std::llround(st.t_to * cfg.output_rate_hz));
+        const sim::VelocitySample& v = run.velocity[k];
+        worst = std::max(worst, std::hypot(x(est::sx::kDv) - v.ve, x(est::sx::kDv + 1) - v.vn));
+      });
+      REQUIRE(rep.ok());
+      REQUIRE(rep->turns.size() == 1);
+      return {worst, rep->turns[0]};
+    }
+  };
+
   TEST_CASE("an encoder gap in the turn falls back to the constant-rate closed form") {
     // Given a simulated run (noise off, errors at a tenth of the tactical
     // prior, proof-mass offset at its full prior so the turn jump is large)
@@ -162,47 +199,21 @@ TEST_SUITE("estimator") {
     // simulation, to the closed form's own error (model.md, 7: at 200 Hz
     // samples match the exact integrals to 1e-5; the plateau-rate formula
     // ignores the rate ramps, a few percent of Jc, Js).
-    const Scenario s = tactical();
-    est::XiVec xi = est::XiVec::Zero();
-    xi(est::sxi::kParams + kIdx(est::sx::kR)) = 0.03;
-    xi(est::sxi::kParams + kIdx(est::sx::kR) + 1) = -0.02;
-    const double psi_s = 37 * kDeg;
-    const sim::Config cfg = sim_config(xi, psi_s);
-    const sim::Run run = sim::simulate(cfg);
-    const TableTrajectory table(cfg.profile);
-    est::TimelineInput in = timeline(s, psi_s, table, run.encoder);
+    const TurnCase c;
+    est::TimelineInput in = c.full();
     std::erase_if(in.encoder, [&](const est::AngleSample& a) {
-      return a.t_s > table.turn_start(0) - 0.5 && a.t_s < table.turn_end(0) + 0.5;
+      return a.t_s > c.table.turn_start(0) - 0.5 && a.t_s < c.table.turn_end(0) + 0.5;
     });
-    const est::EarthAt earth = est::EarthAt::at(in.site);
-    auto propagate = [&](const est::TimelineInput& tl, double& worst_after_turn) {
-      est::StateVec x = est::initial_map(earth, psi_s) * xi;
-      worst_after_turn = 0;
-      return est::for_each_step(tl, [&](const est::TimelineStep& st) {
-        x = st.d->phi * x;
-        if (st.t_to < table.turn_end(0) || st.t_to > table.turn_end(0) + 60) return;
-        const auto k = static_cast<std::size_t>(std::llround(st.t_to * cfg.output_rate_hz));
-        const sim::VelocitySample& v = run.velocity[k];
-        worst_after_turn = std::max(worst_after_turn,
-                                    std::hypot(x(est::sx::kDv) - v.ve, x(est::sx::kDv + 1) - v.vn));
-      });
-    };
-    double worst = 0;
-    const auto rep = propagate(in, worst);
-    REQUIRE(rep.ok());
-    REQUIRE(rep->turns.size() == 1);
-    CHECK(rep->turns[0] == est::TurnSource::ClosedForm);
+    const auto [worst, source] = c.stray(in);
+    CHECK(source == est::TurnSource::ClosedForm);
     // the jump itself: |r| (Jc^2 + Js^2)^1/2 = |r| 2 Omega_bar for 180 deg
-    const double jump = std::hypot(0.03, 0.02) * 2 * table.peak_rate(0);
+    const double jump = std::hypot(0.03, 0.02) * 2 * c.table.peak_rate(0);
     MESSAGE("closed form: worst velocity difference in the minute after the turn "
             << worst << " m/s of a " << jump << " m/s jump");
     CHECK(worst < 0.05 * jump);
     // with the samples the same comparison is tight
-    est::TimelineInput full = timeline(s, psi_s, table, run.encoder);
-    double worst_full = 0;
-    const auto rep_full = propagate(full, worst_full);
-    REQUIRE(rep_full.ok());
-    CHECK(rep_full->turns[0] == est::TurnSource::Encoder);
+    const auto [worst_full, full_source] = c.stray(c.full());
+    CHECK(full_source == est::TurnSource::Encoder);
     MESSAGE("encoder samples: worst difference " << worst_full << " m/s");
     CHECK(worst_full < 0.01 * jump);
     CHECK(worst_full < worst);
@@ -224,61 +235,40 @@ TEST_SUITE("estimator") {
     // times larger. Limits: 1.3 times the full-rate error (a hole of
     // 0.2 s on the rate ramp measured 1.23 times), and a hole past 0.25 s
     // goes to the closed form.
-    const Scenario s = tactical();
-    est::XiVec xi = est::XiVec::Zero();
-    xi(est::sxi::kParams + kIdx(est::sx::kR)) = 0.03;
-    xi(est::sxi::kParams + kIdx(est::sx::kR) + 1) = -0.02;
-    const double psi_s = 37 * kDeg;
-    const sim::Config cfg = sim_config(xi, psi_s);
-    const sim::Run run = sim::simulate(cfg);
-    const TableTrajectory table(cfg.profile);
-    const est::EarthAt earth = est::EarthAt::at(s.site);
-    auto worst_of = [&](const est::TimelineInput& tl) {
-      est::StateVec x = est::initial_map(earth, psi_s) * xi;
-      double worst = 0;
-      auto rep = est::for_each_step(tl, [&](const est::TimelineStep& st) {
-        x = st.d->phi * x;
-        if (st.t_to < table.turn_end(0) || st.t_to > table.turn_end(0) + 60) return;
-        const auto k = static_cast<std::size_t>(std::llround(st.t_to * cfg.output_rate_hz));
-        const sim::VelocitySample& v = run.velocity[k];
-        worst = std::max(worst, std::hypot(x(est::sx::kDv) - v.ve, x(est::sx::kDv + 1) - v.vn));
-      });
-      REQUIRE(rep.ok());
-      return std::pair{worst, rep->turns[0]};
-    };
-    const double t1 = table.turn_start(0);
+    const TurnCase c;
+    const double t1 = c.table.turn_start(0);
     auto with_hole = [&](double at, double g) {
-      est::TimelineInput in = timeline(s, psi_s, table, run.encoder);
+      est::TimelineInput in = c.full();
       std::erase_if(in.encoder, [&](const est::AngleSample& a) {
         return a.t_s > t1 + at - 1e-9 && a.t_s < t1 + at + g;
       });
       return in;
     };
-    const auto [full, full_src] = worst_of(timeline(s, psi_s, table, run.encoder));
-    REQUIRE(full_src == est::TurnSource::Encoder);
+    const auto [full, full_source] = c.stray(c.full());
+    REQUIRE(full_source == est::TurnSource::Encoder);
     // holes on the ramp up (0 and 0.5 s in) and on the plateau (3 s in)
     for (double at : {0.0, 0.5, 3.0})
       for (double g : {0.08, 0.2}) {
         CAPTURE(at);
         CAPTURE(g);
-        const auto [w, src] = worst_of(with_hole(at, g));
-        CHECK(src == est::TurnSource::Encoder);
+        const auto [w, source] = c.stray(with_hole(at, g));
+        CHECK(source == est::TurnSource::Encoder);
         CHECK(w < 1.3 * full);
       }
     // the encoder at 25 Hz and at 5 Hz, with every sample on time
     for (std::size_t every : {8UL, 40UL}) {
       CAPTURE(every);
-      est::TimelineInput in = timeline(s, psi_s, table, run.encoder);
+      est::TimelineInput in = c.full();
       std::vector<est::AngleSample> kept;
       for (std::size_t k = 0; k < in.encoder.size(); ++k)
         if (k % every == 0) kept.push_back(in.encoder[k]);
       in.encoder = kept;
-      const auto [w, src] = worst_of(in);
-      CHECK(src == est::TurnSource::Encoder);
+      const auto [w, source] = c.stray(in);
+      CHECK(source == est::TurnSource::Encoder);
       CHECK(w < 1.3 * full);
     }
     // past the limit: the closed form
-    CHECK(worst_of(with_hole(0.5, 0.3)).second == est::TurnSource::ClosedForm);
+    CHECK(c.stray(with_hole(0.5, 0.3)).second == est::TurnSource::ClosedForm);
   }
 
   TEST_CASE("innovations of a simulated run are white and consistent; a wrong noise shows") {
