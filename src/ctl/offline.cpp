@@ -66,19 +66,39 @@ bool number(const char* s, double& v) {
   return end != s && *end == '\0';
 }
 
-/// The plan keys both replay and plan take: --set, --epoch, --mean, --sample.
-/// True when argv[i] was one (i moved past its value); `bad` says why not.
-bool plan_override(int argc, char** argv, int& i, std::vector<std::string>& out, std::string& bad) {
+/// The options replay and plan share: the configuration, the plan and its
+/// overrides (--set, and the short forms --epoch, --mean, --sample), the
+/// heading offset, the JSON output.
+struct SharedOptions {
+  std::string config = default_config();
+  std::string profile;
+  std::vector<std::string> overrides;
+  std::optional<double> heading_offset_rad;
+  std::string json_out;
+};
+
+/// True when argv[i] was a shared option (i moved past its value); `bad`
+/// says why its value is not one.
+bool shared_option(int argc, char** argv, int& i, SharedOptions& o, std::string& bad) {
   const std::string a = argv[i];
   const bool has = i + 1 < argc;
   double v = 0;
-  if (a == "--set" && has) {
-    out.emplace_back(argv[++i]);
+  if (a == "--config" && has) {
+    o.config = argv[++i];
+  } else if (a == "--profile" && has) {
+    o.profile = argv[++i];
+  } else if (a == "--set" && has) {
+    o.overrides.emplace_back(argv[++i]);
   } else if (a == "--epoch" && has) {
     if (!number(argv[++i], v)) bad = "--epoch needs seconds";
-    out.push_back("estimation.epoch_s=" + std::string(argv[i]));
+    o.overrides.push_back("estimation.epoch_s=" + std::string(argv[i]));
   } else if (a == "--mean" || a == "--sample") {
-    out.push_back("estimation.measurement=\"" + a.substr(2) + "\"");
+    o.overrides.push_back("estimation.measurement=\"" + a.substr(2) + "\"");
+  } else if (a == "--heading-offset" && has) {
+    if (!number(argv[++i], v)) bad = "--heading-offset needs degrees";
+    o.heading_offset_rad = v * std::numbers::pi / 180;
+  } else if (a == "--json" && has) {
+    o.json_out = argv[++i];
   } else {
     return false;
   }
@@ -90,30 +110,21 @@ bool plan_override(int argc, char** argv, int& i, std::vector<std::string>& out,
 int replay(int argc, char** argv, int i, bool as_json) {
   if (i >= argc) return usage("replay: missing LOG");
   const std::string log = argv[i++];
-  std::string config = default_config(), report_path, json_out, html_out, truth_path;
+  std::string report_path, html_out, truth_path;
   bool no_report = false;
+  SharedOptions so;
   run::ReplayOptions o;
   for (; i < argc; ++i) {
     const std::string a = argv[i];
     const bool has = i + 1 < argc;
-    double v = 0;
-    if (a == "--config" && has) {
-      config = argv[++i];
+    if (std::string bad; shared_option(argc, argv, i, so, bad)) {
+      if (!bad.empty()) return usage(("replay: " + bad).c_str());
     } else if (a == "--report" && has) {
       report_path = argv[++i];
     } else if (a == "--no-report") {
       no_report = true;
-    } else if (a == "--profile" && has) {
-      o.profile = argv[++i];
-    } else if (std::string bad; plan_override(argc, argv, i, o.overrides, bad)) {
-      if (!bad.empty()) return usage(("replay: " + bad).c_str());
     } else if (a == "--two-stage" || a == "--no-two-stage") {
       o.two_stage = a == "--two-stage";
-    } else if (a == "--heading-offset" && has) {
-      if (!number(argv[++i], v)) return usage("replay: --heading-offset needs degrees");
-      o.heading_offset_rad = v * std::numbers::pi / 180;
-    } else if (a == "--json" && has) {
-      json_out = argv[++i];
     } else if (a == "--html" && has) {
       html_out = argv[++i];
       o.html = true;
@@ -123,7 +134,10 @@ int replay(int argc, char** argv, int i, bool as_json) {
       return usage(("replay: unknown argument " + a).c_str());
     }
   }
-  auto cfg = load_config(config);
+  o.profile = so.profile;
+  o.overrides = so.overrides;
+  o.heading_offset_rad = so.heading_offset_rad;
+  auto cfg = load_config(so.config);
   if (!or_say(cfg)) return kUsage;
   auto db = load_databases(cfg->can);
   if (!or_say(db)) return kUsage;
@@ -158,7 +172,7 @@ int replay(int argc, char** argv, int i, bool as_json) {
   }
   auto r = run::replay_log(*cfg, *db, *roles, log, live.is_null() ? nullptr : &live, o);
   if (!or_say(r)) return kRefused;
-  if (!json_out.empty() && !write_text(json_out, r->report.dump(2) + "\n")) return kRefused;
+  if (!so.json_out.empty() && !write_text(so.json_out, r->report.dump(2) + "\n")) return kRefused;
   if (!html_out.empty() && !write_text(html_out, r->html)) return kRefused;
   if (as_json)
     std::printf("%s\n", r->report.dump(2).c_str());
@@ -174,42 +188,31 @@ int replay(int argc, char** argv, int i, bool as_json) {
 }
 
 int plan(int argc, char** argv, int i, bool as_json) {
-  std::string config = default_config(), profile, json_out;
-  std::vector<std::string> overrides;
+  SharedOptions so;
   run::PlanningSettings ps;
-  std::optional<double> heading;
   for (; i < argc; ++i) {
     const std::string a = argv[i];
     const bool has = i + 1 < argc;
     double v = 0;
-    if (a == "--config" && has) {
-      config = argv[++i];
-    } else if (a == "--profile" && has) {
-      profile = argv[++i];
-    } else if (std::string bad; plan_override(argc, argv, i, overrides, bad)) {
+    if (std::string bad; shared_option(argc, argv, i, so, bad)) {
       if (!bad.empty()) return usage(("plan: " + bad).c_str());
-    } else if (a == "--heading-offset" && has) {
-      if (!number(argv[++i], v)) return usage("plan: --heading-offset needs degrees");
-      heading = v * std::numbers::pi / 180;
     } else if (a == "--rate" && has) {
       if (!number(argv[++i], v) || !(v > 0)) return usage("plan: --rate needs the INS rate in Hz");
       ps.sample_rate_hz = v;
     } else if (a == "--no-sweep") {
       ps.sweep = false;
-    } else if (a == "--json" && has) {
-      json_out = argv[++i];
     } else {
       return usage(("plan: unknown argument " + a).c_str());
     }
   }
-  auto cfg = load_config(config);
+  auto cfg = load_config(so.config);
   if (!or_say(cfg)) return kUsage;
-  ps.heading_offset_rad = heading.value_or(cfg->stand.heading_offset_rad);
-  auto p = load_plan(profile.empty() ? cfg->daemon.profile.string() : profile, overrides);
+  ps.heading_offset_rad = so.heading_offset_rad.value_or(cfg->stand.heading_offset_rad);
+  auto p = load_plan(so.profile.empty() ? cfg->daemon.profile.string() : so.profile, so.overrides);
   if (!or_say(p)) return kUsage;
   auto j = run::plan_json(*p, ps);
   if (!or_say(j)) return kRefused;
-  if (!json_out.empty() && !write_text(json_out, j->dump(2) + "\n")) return kRefused;
+  if (!so.json_out.empty() && !write_text(so.json_out, j->dump(2) + "\n")) return kRefused;
   std::printf("%s", as_json ? (j->dump(2) + "\n").c_str() : run::plan_text(*j).c_str());
   return kOk;
 }
