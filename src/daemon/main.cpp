@@ -291,6 +291,10 @@ void Daemon::after_engine() {
   }
   if (engine->report_due()) {
     write_report(true);
+    // the run's samples (most of its memory) are in the report now: a
+    // service that idles between runs need not hold them
+    input.reset();
+    result.reset();
     engine->report_written(socketcan::realtime_ns(), true, "", out);
     return after_engine();
   }

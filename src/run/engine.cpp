@@ -19,7 +19,10 @@ Engine::Engine(const can::Database& db, const RoleMap& roles, Plan plan, Sequenc
       build_(build),
       time_(time),
       ingest_(db, roles),
-      seq_(std::move(seq)) {}
+      seq_(std::move(seq)) {
+  // the record runs from t0 (the first velocity sample) to t0 + duration + 1 s
+  record_.expect_span(plan_.profile.duration_s + 1.0);
+}
 
 void Engine::feed(const Event& e, std::vector<OutFrame>& out) {
   cmds_.clear();

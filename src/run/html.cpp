@@ -7,10 +7,12 @@
 #include <limits>
 #include <numbers>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "text_format.hpp"
 #include "turncal/config.hpp"
+#include "turncal/run/thin.hpp"
 
 namespace turncal::run {
 
@@ -56,9 +58,14 @@ struct Span {
   double from, to;
 };
 
-/// A line chart in SVG. Long series are cut to at most two points (the
-/// lowest and the highest) per horizontal pixel, so a one-hour 100 Hz
-/// record draws as what it is without a megabyte of path.
+// plot geometry, in SVG units
+constexpr double kW = 760, kH = 260, kL = 70, kR = 16, kT = 28, kB = 42;
+constexpr double kPlotW = kW - kL - kR, kPlotH = kH - kT - kB;
+
+/// A line chart in SVG. Long series are thinned to at most two points (the
+/// lowest and the highest) per half-pixel column, so a one-hour 100 Hz
+/// record draws as what it is without a megabyte of path; a series thinned
+/// before on the same axis draws the same.
 class Plot {
  public:
   Plot(std::string title, std::string x_label, std::string y_label, bool log_y = false)
@@ -100,8 +107,7 @@ std::vector<double> nice_ticks(double lo, double hi, int n) {
 }
 
 std::string Plot::svg() const {
-  constexpr double kW = 760, kH = 260, kL = 70, kR = 16, kT = 28, kB = 42;
-  const double pw = kW - kL - kR, ph = kH - kT - kB;
+  const double pw = kPlotW, ph = kPlotH;
   double x0 = std::numeric_limits<double>::infinity(), x1 = -x0, y0 = x0, y1 = -x0;
   for (const Series& s : series_)
     for (std::size_t i = 0; i < s.x.size(); ++i) {
@@ -130,6 +136,7 @@ std::string Plot::svg() const {
   y0 -= bars_ ? 0 : pad;
   y1 += pad;
   if (x1 == x0) x1 = x0 + 1;
+  const Axis axis{x0, x1, kL, pw};
   auto px = [&](double x) { return kL + (x - x0) / (x1 - x0) * pw; };
   auto py = [&](double y) { return kT + (1 - (ty(y) - y0) / (y1 - y0)) * ph; };
   // what the script needs to read values under the pointer
@@ -183,36 +190,14 @@ std::string Plot::svg() const {
              "\" height=\"" + fmt("%.1f", std::max(0.0, kT + ph - py(s.y[i]))) + "\" fill=\"" +
              s.color + "\"/>";
     } else {
-      // at most the lowest and highest point per pixel column, in time order
+      // at most the lowest and highest point per half-pixel column, and the ends
+      Thinned thin(axis);
+      for (std::size_t i = 0; i < s.x.size(); ++i)
+        if (!log_y_ || s.y[i] > 0) thin.add(s.x[i], s.y[i]);
+      const auto [xs, ys] = thin.take();
       std::string d;
-      long col = -1;
-      double lo = 0, hi = 0, lo_x = 0, hi_x = 0;
-      auto flush = [&] {
-        if (col < 0) return;
-        const bool lo_first = lo_x <= hi_x;
-        const double ax = lo_first ? lo_x : hi_x, ay = lo_first ? lo : hi;
-        const double bx = lo_first ? hi_x : lo_x, by = lo_first ? hi : lo;
-        d += (d.empty() ? "M" : "L") + fmt("%.1f", px(ax)) + "," + fmt("%.1f", py(ay));
-        if (ay != by) d += "L" + fmt("%.1f", px(bx)) + "," + fmt("%.1f", py(by));
-      };
-      for (std::size_t i = 0; i < s.x.size(); ++i) {
-        const double v = s.y[i];
-        if (!std::isfinite(v) || (log_y_ && v <= 0)) continue;
-        const long c = std::lround(px(s.x[i]) * 2);  // half-pixel columns
-        if (c != col) {
-          flush();
-          col = c;
-          lo = hi = v;
-          lo_x = hi_x = s.x[i];
-        } else if (v < lo) {
-          lo = v;
-          lo_x = s.x[i];
-        } else if (v > hi) {
-          hi = v;
-          hi_x = s.x[i];
-        }
-      }
-      flush();
+      for (std::size_t i = 0; i < xs.size(); ++i)
+        d += (i == 0 ? "M" : "L") + fmt("%.1f", px(xs[i])) + "," + fmt("%.1f", py(ys[i]));
       o += "<path class=\"line\" stroke=\"" + s.color + "\" d=\"" + d + "\"/>";
     }
     if (!s.name.empty()) {
@@ -411,16 +396,19 @@ std::string report_html(const json& r, const BuiltInput* input,
     o += "<h2>INS velocity and filter residuals</h2>";
     {
       const auto& v = input->input.velocity;
-      Series e{"east", kColors[0], {}, {}}, n{"north", kColors[1], {}, {}};
+      // thinned on the axis the plot will have (the samples' time span)
+      const double x0 = v.empty() ? 0 : v.front().t_s, x1 = v.empty() ? 1 : v.back().t_s;
+      const Axis axis{x0, x1 > x0 ? x1 : x0 + 1, kL, kPlotW};
+      Thinned e(axis), n(axis);
       for (const est::VelocityObs& s : v) {
-        e.x.push_back(s.t_s);
-        e.y.push_back(s.ve * 1e3);
-        n.x.push_back(s.t_s);
-        n.y.push_back(s.vn * 1e3);
+        e.add(s.t_s, s.ve * 1e3);
+        n.add(s.t_s, s.vn * 1e3);
       }
       Plot p("INS output velocity (on a still base: its error)", "time from t0, s", "mm/s");
-      p.add(std::move(e));
-      p.add(std::move(n));
+      auto [ex, ey] = e.take();
+      auto [nx, ny] = n.take();
+      p.add({"east", kColors[0], std::move(ex), std::move(ey)});
+      p.add({"north", kColors[1], std::move(nx), std::move(ny)});
       p.mark(turns);
       o += p.svg();
     }

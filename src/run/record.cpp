@@ -7,7 +7,17 @@ namespace turncal::run {
 
 void Record::add(const Sample& s) {
   if (const auto* v = std::get_if<VelocitySample>(&s)) {
-    velocity_.push_back(*v);
+    constexpr std::size_t kRateSamples = 256;
+    if (velocity_.size() == kRateSamples && expected_span_s_ > 0) {
+      const double seen = velocity_.back().t_s - velocity_.front().t_s;
+      if (seen > 0) {
+        const double rate = static_cast<double>(kRateSamples - 1) / seen;
+        // 2% above the rate seen: a clock a little fast still fits
+        const double n = rate * 1.02 * expected_span_s_;
+        if (n < 1e9) velocity_.reserve(std::max(kRateSamples, static_cast<std::size_t>(n)));
+      }
+    }
+    velocity_.push_back({v->t_ins_s, v->ve, v->vn});
     if (!ins_clock_.add_checked(v->t_ins_s, v->host_s)) ++clock_outliers_;
     return;
   }
@@ -44,8 +54,7 @@ est::EstimationInput input_of_plan(const Plan& plan, double sample_rate_hz) {
   return in;
 }
 
-Result<BuiltInput> build_input(const Record& record, const Plan& plan,
-                               const BuildSettings& settings) {
+Result<BuiltInput> build_input(Record& record, const Plan& plan, const BuildSettings& settings) {
   const ClockFit& ins = record.ins_clock();
   const ClockFit& table = record.table_clock();
   BuiltInput out;
@@ -55,17 +64,21 @@ Result<BuiltInput> build_input(const Record& record, const Plan& plan,
   if (enc_raw.empty()) return Error{"no table encoder frame in the record"};
   if (ins.count() == 0 || table.count() == 0)
     return Error{"no device clock could be fitted (no time-tagged frame of the INS or table)"};
-  const double t0 = vel.front().t_ins_s;
+  const double t0 = vel.front().t_s;
   out.t0_ins_s = t0;
   const double duration = plan.profile.duration_s;
 
   est::EstimationInput& in = out.input;
   in = input_of_plan(plan, settings.sample_rate_hz);
-  for (const VelocitySample& v : vel) {
-    const double t = v.t_ins_s - t0;
-    if (t > duration + 1e-6) break;
-    in.velocity.push_back({t, v.ve, v.vn});
+  // the velocity from t0, in place: the record's samples become the input's
+  in.velocity = record.take_velocity();
+  std::size_t used = 0;
+  for (est::VelocityObs& v : in.velocity) {
+    v.t_s -= t0;
+    if (v.t_s > duration + 1e-6) break;
+    ++used;
   }
+  in.velocity.resize(used);
   out.velocity_used = in.velocity.size();
   const double recorded = in.velocity.back().t_s;
   if (recorded < duration - 1.0)

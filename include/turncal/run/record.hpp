@@ -7,6 +7,7 @@
 #pragma once
 
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "turncal/estimation/estimator.hpp"
@@ -18,14 +19,25 @@ namespace turncal::run {
 
 /// Samples of one run. The encoder keeps both ends of each run of equal
 /// angles and every sample in between that moved, so a still table costs
-/// two samples however long it holds.
+/// two samples however long it holds. The INS velocity is most of a run's
+/// memory (an hour at 100 Hz is 8.6 MB): it is kept as the estimator takes
+/// it, 24 bytes a sample, allocated once for the span the run expects, and
+/// moved, not copied, into the estimation input.
 class Record {
  public:
+  /// The velocity samples should span about `span_s` of INS time: once the
+  /// rate is seen (on the first 256 samples), room for all of them is
+  /// reserved, so the vector never grows by doubling (which would hold old
+  /// and new storage, three times the data, at once).
+  void expect_span(double span_s) { expected_span_s_ = span_s; }
   void add(const Sample& s);
   /// Keeps the end of the encoder's last constant run; call before reading
   /// `encoder()` (safe to repeat, and to add more samples after).
   void close();
-  [[nodiscard]] const std::vector<VelocitySample>& velocity() const { return velocity_; }
+  /// The INS velocity, `t_s` on the INS clock (unwrapped), not yet from t0.
+  [[nodiscard]] const std::vector<est::VelocityObs>& velocity() const { return velocity_; }
+  /// Moves the velocity samples out; the record keeps its clocks and encoder.
+  std::vector<est::VelocityObs> take_velocity() { return std::exchange(velocity_, {}); }
   [[nodiscard]] const std::vector<EncoderSample>& encoder() const { return encoder_; }
   /// The device clocks fitted on the recorded samples alone, so that the
   /// same frames give the same mapping live and in a replay.
@@ -36,7 +48,8 @@ class Record {
  private:
   ClockFit ins_clock_, table_clock_;
   std::size_t clock_outliers_ = 0;
-  std::vector<VelocitySample> velocity_;
+  double expected_span_s_ = 0;
+  std::vector<est::VelocityObs> velocity_;
   std::vector<EncoderSample> encoder_;
   bool pending_ = false;
   EncoderSample last_{};
@@ -77,7 +90,8 @@ struct BuiltInput {
 est::EstimationInput input_of_plan(const Plan& plan, double sample_rate_hz);
 
 /// The estimation input of a recorded run of `plan` (the record closed).
-Result<BuiltInput> build_input(const Record& record, const Plan& plan,
-                               const BuildSettings& settings);
+/// Takes the record's velocity samples (moved, not copied: they are most
+/// of a run's memory), so it is built once per record.
+Result<BuiltInput> build_input(Record& record, const Plan& plan, const BuildSettings& settings);
 
 }  // namespace turncal::run

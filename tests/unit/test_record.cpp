@@ -1,0 +1,118 @@
+// The run's record and the plot thinning: what keeps a one-hour run's
+// memory at one copy of its velocity samples.
+#include <doctest/doctest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <random>
+
+#include "turncal/run/record.hpp"
+#include "turncal/run/thin.hpp"
+
+using namespace turncal;
+using namespace turncal::run;
+
+TEST_SUITE("record") {
+  TEST_CASE("the velocity is allocated once for the expected span, and moved out, not copied") {
+    Record r;
+    r.expect_span(3601);  // the tactical profile: duration + 1 s
+    constexpr double kHz = 100;
+    const auto n = static_cast<std::size_t>(3601 * kHz);
+    const est::VelocityObs* first_storage = nullptr;
+    std::size_t reallocations = 0;
+    for (std::size_t k = 0; k < n; ++k) {
+      const double t = 1000 + static_cast<double>(k) / kHz;
+      r.add(VelocitySample{t, 1.7e9 + t, 1e-3, -2e-3});
+      if (k == 256) first_storage = r.velocity().data();  // after the reserve
+      if (k > 256 && r.velocity().data() != first_storage) {
+        ++reallocations;
+        first_storage = r.velocity().data();
+      }
+    }
+    CHECK(reallocations == 0);
+    CHECK(r.velocity().capacity() >= n);
+    // 2% of slack for a fast clock, no more
+    CHECK(r.velocity().capacity() <= static_cast<std::size_t>(1.03 * static_cast<double>(n)));
+    REQUIRE(r.velocity().size() == n);
+    CHECK(r.velocity()[5].t_s == 1000.05);  // the INS clock, not yet from t0
+    const est::VelocityObs* storage = r.velocity().data();
+    const auto v = r.take_velocity();
+    CHECK(v.data() == storage);
+    CHECK(v.size() == n);
+    CHECK(r.velocity().empty());
+    CHECK(r.ins_clock().count() > 0);  // the clocks stay
+  }
+
+  TEST_CASE("without an expected span the record grows as it must") {
+    Record r;
+    for (int k = 0; k < 1000; ++k) r.add(VelocitySample{k * 0.01, 1.7e9 + k * 0.01, 0, 0});
+    CHECK(r.velocity().size() == 1000);
+  }
+}
+
+TEST_SUITE("thinning") {
+  TEST_CASE("of each half-pixel column, the first lowest and highest point, and the ends") {
+    const Axis axis{0, 3600, 70, 674};
+    std::mt19937 rng(11);
+    std::normal_distribution<double> noise(0, 1);
+    std::vector<double> x, y;
+    for (int k = 0; k <= 360000; ++k) {
+      x.push_back(k * 0.01);
+      y.push_back(k % 50000 == 7 ? std::numeric_limits<double>::quiet_NaN()  // skipped
+                                 : std::round(noise(rng) * 4) + (k == 123456 ? 100 : 0));
+    }
+    Thinned t(axis);
+    for (std::size_t i = 0; i < x.size(); ++i) t.add(x[i], y[i]);
+    const auto [tx, ty] = t.take();
+
+    // the same by brute force: per column, the first minimum and maximum;
+    // the first and the last point, the ends of the axis
+    std::vector<double> ex, ey;
+    auto keep = [&](std::size_t k) {
+      if (ex.empty() || ex.back() != x[k]) {
+        ex.push_back(x[k]);
+        ey.push_back(y[k]);
+      }
+    };
+    keep(0);
+    std::size_t i = 0;
+    while (i < x.size()) {
+      if (!std::isfinite(y[i])) {
+        ++i;
+        continue;
+      }
+      const long c = axis.column(x[i]);
+      std::size_t lo = i, hi = i, j = i;
+      for (; j < x.size() && (!std::isfinite(y[j]) || axis.column(x[j]) == c); ++j) {
+        if (!std::isfinite(y[j])) continue;
+        if (y[j] < y[lo]) lo = j;
+        if (y[j] > y[hi]) hi = j;
+      }
+      keep(std::min(lo, hi));
+      if (lo != hi) keep(std::max(lo, hi));
+      i = j;
+    }
+    keep(x.size() - 1);
+    CHECK(tx == ex);
+    CHECK(ty == ey);
+    // two points per half-pixel column at most: the drawing's resolution
+    CHECK(tx.size() <= 2 * (2 * 674 + 1) + 2);
+    CHECK(tx.size() > 2 * 674);  // noise fills every column with two
+    // the spike at sample 123456 is drawn
+    CHECK(std::find(tx.begin(), tx.end(), x[123456]) != tx.end());
+    // taking starts afresh
+    const auto [rx, ry] = t.take();
+    CHECK(rx.empty());
+  }
+
+  TEST_CASE("a constant stretch is one point per column, and the ends") {
+    Thinned t(Axis{0, 10, 0, 10});
+    for (int k = 0; k <= 1000; ++k) t.add(k * 0.01, 5.0);
+    const auto [x, y] = t.take();
+    CHECK(x.size() == 22);  // half-pixel columns 0..20, and the last point
+    CHECK(x.front() == 0.0);
+    CHECK(x.back() == 10.0);
+    for (const double v : y) CHECK(v == 5.0);
+  }
+}
