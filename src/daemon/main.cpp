@@ -291,10 +291,6 @@ void Daemon::after_engine() {
   }
   if (engine->report_due()) {
     write_report(true);
-    // the run's samples (most of its memory) are in the report now: a
-    // service that idles between runs need not hold them
-    input.reset();
-    result.reset();
     engine->report_written(socketcan::realtime_ns(), true, "", out);
     return after_engine();
   }
@@ -335,6 +331,10 @@ void Daemon::write_report(bool with_estimates) {
     warn("report not written: " + (!a ? a.error() : !b ? b.error() : c.error()).describe());
   else
     info("report written: " + (dir / (run_id + ".report.json")).string());
+  // the run's samples (most of its memory) are in the report now, or the
+  // run failed: a service that idles between runs need not hold them
+  input.reset();
+  result.reset();
 }
 
 void Daemon::index_report(const std::string& id, const json& report) {

@@ -79,6 +79,11 @@ class Plot {
   void bars() { bars_ = true; }
 
   [[nodiscard]] std::string svg() const;
+  /// The x axis of points spanning [x0, x1] (one unit wide if they do not
+  /// span): what a series can be thinned on before it is added.
+  [[nodiscard]] static Axis axis(double x0, double x1) {
+    return {x0, x1 == x0 ? x0 + 1 : x1, kL, kPlotW};
+  }
 
  private:
   [[nodiscard]] double ty(double v) const { return log_y_ ? std::log10(v) : v; }
@@ -135,8 +140,8 @@ std::string Plot::svg() const {
   const double pad = (y1 - y0) * 0.05;
   y0 -= bars_ ? 0 : pad;
   y1 += pad;
-  if (x1 == x0) x1 = x0 + 1;
-  const Axis axis{x0, x1, kL, pw};
+  const Axis axis = Plot::axis(x0, x1);
+  x1 = axis.x1;
   auto px = [&](double x) { return kL + (x - x0) / (x1 - x0) * pw; };
   auto py = [&](double y) { return kT + (1 - (ty(y) - y0) / (y1 - y0)) * ph; };
   // what the script needs to read values under the pointer
@@ -397,8 +402,7 @@ std::string report_html(const json& r, const BuiltInput* input,
     {
       const auto& v = input->input.velocity;
       // thinned on the axis the plot will have (the samples' time span)
-      const double x0 = v.empty() ? 0 : v.front().t_s, x1 = v.empty() ? 1 : v.back().t_s;
-      const Axis axis{x0, x1 > x0 ? x1 : x0 + 1, kL, kPlotW};
+      const Axis axis = v.empty() ? Plot::axis(0, 1) : Plot::axis(v.front().t_s, v.back().t_s);
       Thinned e(axis), n(axis);
       for (const est::VelocityObs& s : v) {
         e.add(s.t_s, s.ve * 1e3);

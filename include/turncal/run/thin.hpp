@@ -29,8 +29,7 @@ class Thinned {
   void add(double x, double y) {
     if (!std::isfinite(y)) return;
     const long c = axis_.column(x);
-    if (!seen_) keep({x, y});  // the first point
-    seen_ = true;
+    if (!open_) keep({x, y});  // the first point
     last_ = {x, y};
     if (!open_ || c != col_) {
       flush();
@@ -46,8 +45,8 @@ class Thinned {
   /// The points kept, x and y; the thinning starts afresh.
   std::pair<std::vector<double>, std::vector<double>> take() {
     flush();
-    if (seen_) keep(last_);
-    open_ = seen_ = false;
+    if (open_) keep(last_);
+    open_ = false;
     return {std::exchange(x_, {}), std::exchange(y_, {})};
   }
 
@@ -70,7 +69,7 @@ class Thinned {
     y_.push_back(p.y);
   }
   Axis axis_;
-  bool open_ = false, seen_ = false;
+  bool open_ = false;  ///< a point was added since the last take
   long col_ = 0;
   Point lo_{}, hi_{}, last_{};
   std::vector<double> x_, y_;
