@@ -544,6 +544,7 @@ Result<Database> Parser::run() {
     if (t.text == "VERSION") {
       TURNCAL_ASSIGN(v, expect(Token::String, "the version string"));
       db_.version = unescape(v.text);
+      db_.version_line = t.line;
     } else if (t.text == "NS_") {
       st = expect_punct(':');
       while (lx_.peek().kind != Token::End && !lx_.peek().line_start) lx_.next();

@@ -4,6 +4,7 @@
 
 #include <toml++/toml.h>
 #include <algorithm>
+#include <cctype>
 #include <fstream>
 #include <sstream>
 
@@ -313,12 +314,73 @@ Result<Config> load_config(const std::string& path) {
   return parse_config(ss.str(), path);
 }
 
+namespace {
+
+/// The reference stand's protocol (can-icd.md) is the one whose table
+/// commands are TBL_Command: a table command role names it.
+constexpr std::string_view kReferenceTableCommand = "TBL_Command";
+/// Revision 2 made TBL_Command.Target 1e-5 deg (it was 1e-6 deg).
+constexpr int kReferenceIcdRevision = 2;
+
+bool reference_protocol(const CanConfig& cfg) {
+  for (Role r : {Role::TableCommand, Role::TableCommandSeq, Role::TableCommandTarget,
+                 Role::TableCommandRateLimit})
+    if (cfg.roles[static_cast<std::size_t>(r)].message == kReferenceTableCommand) return true;
+  return false;
+}
+
+/// The revision a VERSION string states as "ICD N" ("turncal reference
+/// stand ICD 2"); -1 when it states none.
+int icd_revision(std::string_view version) {
+  for (std::size_t at = version.find("ICD"); at != std::string_view::npos;
+       at = version.find("ICD", at + 1)) {
+    if (at > 0 && std::isalnum(static_cast<unsigned char>(version[at - 1])) != 0) continue;
+    std::size_t i = at + 3;
+    if (i >= version.size() || version[i] != ' ') continue;
+    while (i < version.size() && version[i] == ' ') ++i;
+    const std::size_t digits = i;
+    int rev = 0;
+    while (i < version.size() && std::isdigit(static_cast<unsigned char>(version[i])) != 0 &&
+           i - digits < 6)
+      rev = rev * 10 + (version[i++] - '0');
+    if (i == digits) continue;
+    if (i < version.size() &&
+        (std::isalnum(static_cast<unsigned char>(version[i])) != 0 || version[i] == '.'))
+      continue;  // "ICD 2.1", "ICD 2b": not a plain revision
+    return rev;
+  }
+  return -1;
+}
+
+/// A DBC that defines the reference protocol's table command must state
+/// the ICD revision it follows: an older file kept in place would scale
+/// every move's Target by a factor of ten.
+Status check_reference_revision(const CanConfig& cfg, const can::Database& db,
+                                const std::string& path) {
+  if (!reference_protocol(cfg) || db.find(kReferenceTableCommand) == nullptr) return Status{Ok{}};
+  if (icd_revision(db.version) == kReferenceIcdRevision) return Status{Ok{}};
+  const std::string rev = std::to_string(kReferenceIcdRevision);
+  const std::string stated = db.version_line == 0 ? "it has no VERSION"
+                                                  : "its VERSION \"" + db.version +
+                                                        "\" does not state ICD revision " + rev;
+  return make_error(
+      "this DBC describes the reference stand's " + std::string(kReferenceTableCommand) + " but " +
+          stated + " (as VERSION \"turncal reference stand ICD " + rev +
+          "\" does): since revision " + rev +
+          " TBL_Command.Target is 1e-5 deg, not 1e-6 deg, and a file of an older revision " +
+          "would move the table ten times too far",
+      SourcePos{path, db.version_line, 0});
+}
+
+}  // namespace
+
 Result<can::Database> load_databases(const CanConfig& cfg) {
   can::Database merged;
   std::vector<std::string> origin;
   for (const auto& path : cfg.dbc_files) {
     auto db = can::load_dbc(path.string());
     if (!db) return std::move(db).error();
+    TURNCAL_TRY(check_reference_revision(cfg, *db, path.string()));
     if (merged.version.empty()) merged.version = db->version;
     for (auto& n : db->nodes) merged.nodes.push_back(n);
     for (auto& m : db->messages) {

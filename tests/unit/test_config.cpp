@@ -1,8 +1,12 @@
 #include <doctest/doctest.h>
 
+#include <unistd.h>
 #include <cmath>
+
+#include <filesystem>
 #include <fstream>
 #include <numbers>
+#include <sstream>
 #include <string>
 
 #include "turncal/config.hpp"
@@ -100,6 +104,77 @@ TEST_SUITE("config") {
     CHECK(roles.error().where.file == "stand.toml");
     CHECK(roles.error().where.line == 5);
     CHECK(roles.error().message.find("Angel") != std::string::npos);
+  }
+
+  TEST_CASE("a reference-protocol DBC must state ICD revision 2; an older one is refused") {
+    std::ifstream in(kSrc + "/config/reference-stand.dbc");
+    std::stringstream ss;
+    ss << in.rdbuf();
+    const std::string current = ss.str();
+    auto replaced = [](std::string text, const std::string& from, const std::string& to) {
+      for (auto at = text.find(from); at != std::string::npos; at = text.find(from, at + to.size()))
+        text.replace(at, from.size(), to);
+      return text;
+    };
+    // the file as ICD revision 1 had it
+    const std::string old = replaced(
+        replaced(current, "\"turncal reference stand ICD 2\"", "\"turncal reference stand 1.0\""),
+        "Target : 16|32@1- (1E-005,0) [-21474.83648|21474.83647]",
+        "Target : 16|32@1- (1E-006,0) [-2147.483648|2147.483647]");
+    REQUIRE(old != current);
+    const auto dir = std::filesystem::temp_directory_path() /
+                     ("turncal-test-config-" + std::to_string(::getpid()));
+    std::filesystem::create_directories(dir);
+    auto load = [&](const std::string& name, const std::string& text,
+                    const std::string& roles = "") {
+      std::ofstream(dir / name) << text;
+      auto cfg = parse_config("[can]\ndbc = [\"" + name + "\"]\n" + roles,
+                              (dir / "turncal.toml").string());
+      REQUIRE(cfg.ok());
+      return load_databases(cfg->can);
+    };
+    SUBCASE("the shipped DBC states revision 2 and loads") {
+      auto db = load("current.dbc", current);
+      REQUIRE_MESSAGE(db.ok(), (db.ok() ? "" : db.error().describe()));
+      CHECK(db->version == "turncal reference stand ICD 2");
+      CHECK(db->find("TBL_Command")->find_signal("Target")->factor == 1e-5);
+    }
+    SUBCASE("a revision 1 file (kept as a conffile, say) is refused, naming it") {
+      auto db = load("old.dbc", old);
+      REQUIRE_FALSE(db.ok());
+      CHECK(db.error().where.file == (dir / "old.dbc").string());
+      CHECK(db.error().where.line == 1);
+      CHECK(db.error().message.find("VERSION \"turncal reference stand 1.0\" does not state ICD "
+                                    "revision 2") != std::string::npos);
+      CHECK(db.error().message.find("ten times") != std::string::npos);
+      CHECK(db.error().describe().find("old.dbc:1: ") != std::string::npos);
+    }
+    SUBCASE("no VERSION, another revision, or a revision that is not plain are refused") {
+      for (const std::string& v : {std::string("turncal reference stand ICD 1"),
+                                   std::string("turncal reference stand ICD 3"),
+                                   std::string("turncal reference stand ICD 2.1"),
+                                   std::string("turncal reference stand 2"), std::string("ICD2")}) {
+        CAPTURE(v);
+        CHECK_FALSE(load("v.dbc", replaced(current, "turncal reference stand ICD 2", v)).ok());
+      }
+      auto none =
+          load("none.dbc", replaced(current, "VERSION \"turncal reference stand ICD 2\"", ""));
+      REQUIRE_FALSE(none.ok());
+      CHECK(none.error().message.find("it has no VERSION") != std::string::npos);
+      CHECK(load("v.dbc", replaced(current, "turncal reference stand ICD 2", "stand ICD 2 (2024)"))
+                .ok());
+    }
+    SUBCASE("a stand whose table commands are not TBL_Command is not held to the reference ICD") {
+      const std::string own = replaced(old, "TBL_Command", "Drive_Command");
+      const std::string roles =
+          "[can.roles]\ntable_command = \"Drive_Command.Command\"\n"
+          "table_command_seq = \"Drive_Command.Seq\"\n"
+          "table_command_target = \"Drive_Command.Target\"\n"
+          "table_command_rate_limit = \"Drive_Command.RateLimit\"\n";
+      auto db = load("own.dbc", own, roles);
+      REQUIRE_MESSAGE(db.ok(), (db.ok() ? "" : db.error().describe()));
+    }
+    std::filesystem::remove_all(dir);
   }
 
   TEST_CASE("a missing DBC file is named") {

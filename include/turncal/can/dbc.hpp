@@ -69,6 +69,7 @@ struct Message {
 
 struct Database {
   std::string version;
+  std::uint32_t version_line = 0;  ///< where VERSION is; 0: none
   std::vector<std::string> nodes;
   std::vector<Message> messages;
 
