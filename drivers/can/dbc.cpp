@@ -1,8 +1,10 @@
 #include "turncal/can/dbc.hpp"
 
+#include <algorithm>
 #include <bit>
 #include <charconv>
 #include <cmath>
+#include <cstdio>
 #include <fstream>
 #include <limits>
 #include <optional>
@@ -692,28 +694,128 @@ double raw_to_physical(const Signal& sig, std::uint64_t raw) {
   return base * sig.factor + sig.offset;
 }
 
-std::uint64_t physical_to_raw(const Signal& sig, double value) {
+namespace {
+
+/// The DBC gives a range unless it is [0|0] (or makes no sense).
+bool has_dbc_range(const Signal& sig) {
+  return !(sig.minimum == 0 && sig.maximum == 0) && sig.minimum <= sig.maximum;
+}
+
+/// The raw integer range of an integer signal.
+struct RawBounds {
+  long double lo, hi;
+};
+RawBounds raw_bounds(const Signal& sig) {
+  const int n = static_cast<int>(sig.length);
+  if (sig.is_signed) return {-std::ldexp(1.0L, n - 1), std::ldexp(1.0L, n - 1) - 1};
+  return {0, std::ldexp(1.0L, n) - 1};
+}
+
+/// A value's nearest raw step, clamped to the raw range, and whether it
+/// needed no clamping and lies in the DBC's range.
+struct RawStep {
+  std::uint64_t raw = 0;
+  bool fits = false;
+};
+
+RawStep to_raw(const Signal& sig, double value) {
+  auto in_dbc = [&] {
+    return !has_dbc_range(sig) || (value >= sig.minimum && value <= sig.maximum);
+  };
   switch (sig.type) {
-    case ValueType::Float32:
-      return std::bit_cast<std::uint32_t>(static_cast<float>((value - sig.offset) / sig.factor));
+    case ValueType::Float32: {
+      const double scaled = (value - sig.offset) / sig.factor;
+      const auto f = static_cast<float>(scaled);
+      const bool finite = std::isfinite(f) || !std::isfinite(scaled);  // no overflow to inf
+      return {std::bit_cast<std::uint32_t>(f), !std::isnan(value) && finite && in_dbc()};
+    }
     case ValueType::Float64:
-      return std::bit_cast<std::uint64_t>((value - sig.offset) / sig.factor);
+      return {std::bit_cast<std::uint64_t>((value - sig.offset) / sig.factor),
+              !std::isnan(value) && in_dbc()};
     case ValueType::Integer:
       break;
   }
-  if (std::isnan(value)) return 0;
+  if (std::isnan(value)) return {0, false};
   const long double scaled =
       std::nearbyint((static_cast<long double>(value) - static_cast<long double>(sig.offset)) /
                      static_cast<long double>(sig.factor));
-  if (sig.is_signed) {
-    const long double hi = std::ldexp(1.0L, static_cast<int>(sig.length) - 1) - 1;
-    const long double lo = -std::ldexp(1.0L, static_cast<int>(sig.length) - 1);
-    const long double c = scaled > hi ? hi : scaled < lo ? lo : scaled;
-    return static_cast<std::uint64_t>(static_cast<std::int64_t>(c)) & low_mask(sig.length);
+  const auto [lo, hi] = raw_bounds(sig);
+  const long double c = scaled > hi ? hi : scaled < lo ? lo : scaled;
+  // the DBC range, on the step the value encodes to (a value within half
+  // a step of an end encodes to the end)
+  const double step = static_cast<double>(c * static_cast<long double>(sig.factor) +
+                                          static_cast<long double>(sig.offset));
+  const double slack = std::abs(sig.factor) * 1e-6;
+  const bool in_range =
+      !has_dbc_range(sig) || (step >= sig.minimum - slack && step <= sig.maximum + slack);
+  const std::uint64_t raw =
+      sig.is_signed
+          ? static_cast<std::uint64_t>(static_cast<std::int64_t>(c)) & low_mask(sig.length)
+          : static_cast<std::uint64_t>(c);
+  return {raw, c == scaled && in_range};
+}
+
+/// Decimals of the signal's step (0.01: 2; 1e-5: 5; 2^-32 rev in deg: 8).
+int step_decimals(const Signal& sig) {
+  const double f = std::abs(sig.factor);
+  if (!(f > 0) || f >= 1) return 0;
+  return std::min(12, static_cast<int>(std::ceil(-std::log10(f) - 1e-9)));
+}
+
+std::string number(double v, int decimals) {
+  char buf[64];
+  if (std::isfinite(v) && std::abs(v) < 1e15)
+    std::snprintf(buf, sizeof buf, "%.*f", decimals, v);
+  else
+    std::snprintf(buf, sizeof buf, "%g", v);
+  return buf;
+}
+
+std::string with_unit(const Signal& sig, std::string text) {
+  return sig.unit.empty() ? text : text + " " + sig.unit;
+}
+
+/// "30000 deg does not fit TBL_Command.Target (-21474.83648 to 21474.83647 deg)"
+std::string misfit(const Signal& sig, const std::string& name, double value) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.12g", value);
+  return with_unit(sig, buf) + " does not fit " + name + " (" + describe_range(sig) + ")";
+}
+
+}  // namespace
+
+PhysicalRange physical_range(const Signal& sig) {
+  const double inf = std::numeric_limits<double>::infinity();
+  PhysicalRange r{-inf, inf};
+  if (sig.type == ValueType::Integer) {
+    const auto [lo, hi] = raw_bounds(sig);
+    const auto a = static_cast<double>(lo * static_cast<long double>(sig.factor) +
+                                       static_cast<long double>(sig.offset));
+    const auto b = static_cast<double>(hi * static_cast<long double>(sig.factor) +
+                                       static_cast<long double>(sig.offset));
+    r = {std::min(a, b), std::max(a, b)};
+  } else if (sig.type == ValueType::Float32) {
+    const double m = static_cast<double>(std::numeric_limits<float>::max()) * std::abs(sig.factor);
+    r = {sig.offset - m, sig.offset + m};
   }
-  const long double hi = std::ldexp(1.0L, static_cast<int>(sig.length)) - 1;
-  const long double c = scaled > hi ? hi : scaled < 0 ? 0 : scaled;
-  return static_cast<std::uint64_t>(c);
+  if (has_dbc_range(sig)) r = {std::max(r.lo, sig.minimum), std::min(r.hi, sig.maximum)};
+  return r;
+}
+
+std::string describe_range(const Signal& sig) {
+  const PhysicalRange r = physical_range(sig);
+  const int d = step_decimals(sig);
+  return with_unit(sig, number(r.lo, d) + " to " + number(r.hi, d));
+}
+
+bool fits(const Signal& sig, double value) {
+  return to_raw(sig, value).fits;
+}
+
+Result<std::uint64_t> physical_to_raw(const Signal& sig, double value) {
+  const RawStep r = to_raw(sig, value);
+  if (!r.fits) return make_error(misfit(sig, "signal " + sig.name, value));
+  return r.raw;
 }
 
 FrameCodec::FrameCodec(const Database& db) : db_(&db) {
@@ -757,24 +859,58 @@ DecodeStatus FrameCodec::decode(const Frame& f, std::span<double> out, const Mes
   return DecodeStatus::Ok;
 }
 
-Frame FrameCodec::encode(const Message& msg, std::span<const double> values) {
+namespace {
+
+/// The frame of `msg` from `values`; the index of the first signal whose
+/// value does not fit, or -1.
+Frame build(const Message& msg, std::span<const double> values, std::ptrdiff_t& misfit_at) {
+  misfit_at = -1;
   Frame f;
   f.id = msg.id;
   f.extended = msg.extended;
   f.fd = msg.fd;
   f.len = static_cast<std::uint8_t>(msg.size);
   const std::span<std::uint8_t> payload(f.data.data(), f.len);
+  auto note = [&](std::size_t i, bool ok) {
+    if (!ok && misfit_at < 0) misfit_at = static_cast<std::ptrdiff_t>(i);
+  };
   std::optional<std::uint64_t> selector;
   for (std::size_t i = 0; i < msg.signals.size() && i < values.size(); ++i)
-    if (msg.signals[i].mux == MuxRole::Multiplexor)
-      selector = physical_to_raw(msg.signals[i], values[i]);
+    if (msg.signals[i].mux == MuxRole::Multiplexor) {
+      if (std::isnan(values[i])) {
+        selector = 0;  // its bits stay 0
+        continue;
+      }
+      const RawStep r = to_raw(msg.signals[i], values[i]);
+      note(i, r.fits);
+      selector = r.raw;
+    }
   for (std::size_t i = 0; i < msg.signals.size() && i < values.size(); ++i) {
     const Signal& s = msg.signals[i];
     if (std::isnan(values[i])) continue;
     if (s.mux == MuxRole::Multiplexed && (!selector || s.mux_value != *selector)) continue;
-    insert_raw(s, payload, physical_to_raw(s, values[i]));
+    const RawStep r = to_raw(s, values[i]);
+    note(i, r.fits);
+    insert_raw(s, payload, r.raw);
   }
   return f;
+}
+
+}  // namespace
+
+Result<Frame> FrameCodec::encode_checked(const Message& msg, std::span<const double> values) {
+  std::ptrdiff_t bad = -1;
+  Frame f = build(msg, values, bad);
+  if (bad >= 0) {
+    const auto i = static_cast<std::size_t>(bad);
+    return make_error(misfit(msg.signals[i], msg.name + "." + msg.signals[i].name, values[i]));
+  }
+  return f;
+}
+
+Frame FrameCodec::encode(const Message& msg, std::span<const double> values) {
+  std::ptrdiff_t bad = -1;
+  return build(msg, values, bad);
 }
 
 }  // namespace turncal::can

@@ -37,34 +37,40 @@ sim::Config draw_truth(const Plan& plan, std::uint64_t seed) {
 ScriptedHost::ScriptedHost(const Plan& plan, const RoleMap& roles, double heading_offset_rad)
     : plan_(plan), roles_(roles), heading_offset_(heading_offset_rad) {}
 
-can::Frame ScriptedHost::frame(Role any,
-                               std::initializer_list<std::pair<Role, double>> values) const {
-  return roles_.encode(any, values);
+void ScriptedHost::send(std::vector<StandFrame>& out, double t, bool ins_side, Role any,
+                        std::initializer_list<std::pair<Role, double>> values) {
+  auto f = roles_.encode_checked(any, values);
+  if (!f) {
+    // as turncald does: nothing clipped goes out, the run ends with why
+    if (!error_) error_ = make_error("scripted host: " + f.error().message);
+    done_ = true;
+    return;
+  }
+  out.push_back({t, ins_side, *f});
 }
 
 void ScriptedHost::step(double t, const VirtualStand& stand, std::vector<StandFrame>& out) {
   // heartbeat from "the main loop", 10 Hz
   while (static_cast<double>(heartbeat_k_) / 10 <= t) {
     const double th = static_cast<double>(heartbeat_k_) / 10;
-    out.push_back({th, false,
-                   frame(Role::HeartbeatCounter,
-                         {{Role::HeartbeatCounter, static_cast<double>(heartbeat_k_ % 256)},
-                          {Role::HeartbeatState, done_ ? 0.0 : 1.0}})});
+    send(out, th, false, Role::HeartbeatCounter,
+         {{Role::HeartbeatCounter, static_cast<double>(heartbeat_k_ % 256)},
+          {Role::HeartbeatState, done_ ? 0.0 : 1.0}});
     ++heartbeat_k_;
   }
+  if (error_) return;
   if (!enabled_ && t >= kEnableAt) {
-    out.push_back(
-        {t, false,
-         frame(Role::TableCommand, {{Role::TableCommand, 4}, {Role::TableCommandSeq, ++seq_}})});
+    send(out, t, false, Role::TableCommand,
+         {{Role::TableCommand, 4}, {Role::TableCommandSeq, ++seq_}});
     enabled_ = true;
   }
   if (!aligning_ && t >= kAlignAt) {
     const double heading = heading_offset_ - stand.table().angle(t);
-    out.push_back({t, true,
-                   frame(Role::InsCommand, {{Role::InsCommand, 1},
-                                            {Role::InsCommandAlignDuration, plan_.profile.align_s},
-                                            {Role::InsCommandHeading, heading / kDeg},
-                                            {Role::InsCommandSeq, ++seq_}})});
+    send(out, t, true, Role::InsCommand,
+         {{Role::InsCommand, 1},
+          {Role::InsCommandAlignDuration, plan_.profile.align_s},
+          {Role::InsCommandHeading, heading / kDeg},
+          {Role::InsCommandSeq, ++seq_}});
     aligning_ = true;
   }
   const double t0 = stand.ins().t0();
@@ -72,12 +78,11 @@ void ScriptedHost::step(double t, const VirtualStand& stand, std::vector<StandFr
   if (next_turn_ < plan_.profile.turns.size() &&
       t >= t0 + plan_.profile.turns[next_turn_].start_s) {
     const TurnSpec& turn = plan_.profile.turns[next_turn_++];
-    out.push_back(
-        {t, false,
-         frame(Role::TableCommand, {{Role::TableCommand, 2},
-                                    {Role::TableCommandSeq, ++seq_},
-                                    {Role::TableCommandTarget, turn.angle_rad / kDeg},
-                                    {Role::TableCommandRateLimit, turn.max_rate_rps / kDeg}})});
+    send(out, t, false, Role::TableCommand,
+         {{Role::TableCommand, 2},
+          {Role::TableCommandSeq, ++seq_},
+          {Role::TableCommandTarget, turn.angle_rad / kDeg},
+          {Role::TableCommandRateLimit, turn.max_rate_rps / kDeg}});
   }
   if (t >= t0 + plan_.profile.duration_s) done_ = true;
 }
@@ -114,6 +119,7 @@ Status run_offline(const Plan& plan, const CanConfig& can, const can::Database& 
   const auto base_ns = static_cast<std::int64_t>(std::llround(start_time_s * 1e9));
   while (!loop.done()) {
     loop.tick({}, frames);
+    if (const Error* e = loop.error()) return *e;
     for (const StandFrame& f : frames) {
       rec.time_ns = base_ns + static_cast<std::int64_t>(std::llround(f.t_s * 1e9));
       rec.interface = f.ins_side ? can.ins_interface : can.table_interface;

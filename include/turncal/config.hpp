@@ -156,6 +156,11 @@ struct RoleMap {
   /// other signal 0.
   [[nodiscard]] can::Frame encode(Role any,
                                   std::initializer_list<std::pair<Role, double>> values) const;
+  /// The same for a frame to a device: only the given role signals are set
+  /// (every other signal's bits are 0), and a value that does not fit its
+  /// signal is an error naming it and its range, never saturated.
+  [[nodiscard]] Result<can::Frame> encode_checked(
+      Role any, std::initializer_list<std::pair<Role, double>> values) const;
 };
 
 /// Merges the DBC files of a configuration into one database; a message

@@ -432,6 +432,18 @@ can::Frame RoleMap::encode(Role any, std::initializer_list<std::pair<Role, doubl
   return can::FrameCodec::encode(m, v);
 }
 
+Result<can::Frame> RoleMap::encode_checked(
+    Role any, std::initializer_list<std::pair<Role, double>> values) const {
+  const can::Message& m = *(*this)[any].message;
+  std::vector<double> v(m.signals.size(), std::numeric_limits<double>::quiet_NaN());
+  for (const auto& [r, x] : values) {
+    if (std::isnan(x))  // NaN would leave the signal 0: a command nobody meant
+      return make_error(m.name + "." + (*this)[r].signal->name + ": the value is not a number");
+    v[(*this)[r].signal_index] = x;
+  }
+  return can::FrameCodec::encode_checked(m, v);
+}
+
 std::vector<std::pair<std::uint32_t, bool>> RoleMap::receive_ids(bool ins) const {
   std::vector<std::pair<std::uint32_t, bool>> out;
   for (std::size_t i = 0; i < kRoleCount; ++i) {

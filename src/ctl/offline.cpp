@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "turncal/config.hpp"
+#include "turncal/run/engine.hpp"
 #include "turncal/run/planning.hpp"
 #include "turncal/run/replay.hpp"
 #include "turncal/run/report.hpp"
@@ -208,8 +209,25 @@ int plan(int argc, char** argv, int i, bool as_json) {
   auto cfg = load_config(so.config);
   if (!or_say(cfg)) return kUsage;
   ps.heading_offset_rad = so.heading_offset_rad.value_or(cfg->stand.heading_offset_rad);
-  auto p = load_plan(so.profile.empty() ? cfg->daemon.profile.string() : so.profile, so.overrides);
+  const std::string profile = so.profile.empty() ? cfg->daemon.profile.string() : so.profile;
+  auto p = load_plan(profile, so.overrides);
   if (!or_say(p)) return kUsage;
+  // the plan on this stand, as a start checks it: the table's limits and
+  // what its command signals carry
+  auto db = load_databases(cfg->can);
+  if (!or_say(db)) return kUsage;
+  auto roles = resolve_roles(cfg->can, *db);
+  if (!or_say(roles)) return kUsage;
+  run::SequencerSettings q;
+  q.profile = p->profile;
+  q.start_angle_rad = p->start_angle_rad;
+  q.limits = cfg->stand.limits;
+  q.commands = run::command_signals(*roles);
+  if (const std::string bad = run::check_plan(q); !bad.empty()) {
+    std::fprintf(stderr, "turncalctl: %s: the stand would refuse this plan: %s\n", profile.c_str(),
+                 bad.c_str());
+    return kRefused;
+  }
   auto j = run::plan_json(*p, ps);
   if (!or_say(j)) return kRefused;
   if (!so.json_out.empty() && !write_text(so.json_out, j->dump(2) + "\n")) return kRefused;

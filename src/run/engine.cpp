@@ -10,6 +10,30 @@ namespace turncal::run {
 
 namespace {
 constexpr double kDeg = std::numbers::pi / 180;
+
+/// The range of a role's signal, its DBC value times `to_si`.
+SignalSpan span_of(const RoleMap& roles, Role r, double to_si) {
+  const ResolvedRole& rr = roles[r];
+  const can::PhysicalRange p = can::physical_range(*rr.signal);
+  return {rr.message->name + "." + rr.signal->name, p.lo * to_si, p.hi * to_si,
+          can::describe_range(*rr.signal)};
+}
+
+SequencerSettings with_commands(SequencerSettings s, const RoleMap& roles) {
+  s.commands = command_signals(roles);
+  return s;
+}
+
+bool is_move(TableCode c) {
+  return c == TableCode::MoveAbsolute || c == TableCode::MoveRelative;
+}
+
+}  // namespace
+
+CommandSignals command_signals(const RoleMap& roles) {
+  return {span_of(roles, Role::TableCommandTarget, kDeg),
+          span_of(roles, Role::TableCommandRateLimit, kDeg),
+          span_of(roles, Role::InsCommandAlignDuration, 1)};
 }
 
 Engine::Engine(const can::Database& db, const RoleMap& roles, Plan plan, SequencerSettings seq,
@@ -19,7 +43,7 @@ Engine::Engine(const can::Database& db, const RoleMap& roles, Plan plan, Sequenc
       build_(build),
       time_(time),
       ingest_(db, roles),
-      seq_(std::move(seq)) {
+      seq_(with_commands(std::move(seq), roles)) {
   // the record runs from t0 (the first velocity sample) to t0 + duration + 1 s
   record_.expect_span(plan_.profile.duration_s + 1.0);
 }
@@ -27,20 +51,38 @@ Engine::Engine(const can::Database& db, const RoleMap& roles, Plan plan, Sequenc
 void Engine::feed(const Event& e, std::vector<OutFrame>& out) {
   cmds_.clear();
   seq_.step(e, cmds_);
+  // Commands are encoded checked, never saturated: a value that does not
+  // fit its signal (the plan check should have refused it) sends nothing
+  // and fails the run, with a quick stop.
+  std::string unsent;
   for (const Command& c : cmds_) {
     if (const auto* t = std::get_if<TableCommand>(&c)) {
-      out.push_back({false, roles_.encode(Role::TableCommand,
-                                          {{Role::TableCommand, static_cast<double>(t->code)},
-                                           {Role::TableCommandSeq, t->seq},
-                                           {Role::TableCommandTarget, t->target_rad / kDeg},
-                                           {Role::TableCommandRateLimit, t->rate_rps / kDeg}})});
+      auto f = is_move(t->code)
+                   ? roles_.encode_checked(Role::TableCommand,
+                                           {{Role::TableCommand, static_cast<double>(t->code)},
+                                            {Role::TableCommandSeq, t->seq},
+                                            {Role::TableCommandTarget, t->target_rad / kDeg},
+                                            {Role::TableCommandRateLimit, t->rate_rps / kDeg}})
+                   : roles_.encode_checked(Role::TableCommand,
+                                           {{Role::TableCommand, static_cast<double>(t->code)},
+                                            {Role::TableCommandSeq, t->seq}});
+      if (!f) {
+        unsent = "table command not sent: " + f.error().message;
+        break;
+      }
+      out.push_back({false, *f});
       ++commands_sent_;
     } else if (const auto* i = std::get_if<InsCommand>(&c)) {
-      out.push_back(
-          {true, roles_.encode(Role::InsCommand, {{Role::InsCommand, static_cast<double>(i->code)},
-                                                  {Role::InsCommandAlignDuration, i->align_s},
-                                                  {Role::InsCommandHeading, i->heading_rad / kDeg},
-                                                  {Role::InsCommandSeq, i->seq}})});
+      auto f =
+          roles_.encode_checked(Role::InsCommand, {{Role::InsCommand, static_cast<double>(i->code)},
+                                                   {Role::InsCommandAlignDuration, i->align_s},
+                                                   {Role::InsCommandHeading, i->heading_rad / kDeg},
+                                                   {Role::InsCommandSeq, i->seq}});
+      if (!f) {
+        unsent = "INS command not sent: " + f.error().message;
+        break;
+      }
+      out.push_back({true, *f});
       ++commands_sent_;
     } else if (std::holds_alternative<RunEstimation>(c)) {
       estimation_due_ = true;
@@ -48,6 +90,12 @@ void Engine::feed(const Event& e, std::vector<OutFrame>& out) {
       report_due_ = true;
     }
   }
+  if (unsent.empty()) return;
+  if (seq_.phase() == Phase::Turn) unsent = "turn " + std::to_string(seq_.index()) + ": " + unsent;
+  // ends the run with the reason and a quick stop (as an abort: the
+  // sequencer has no event of its own for a host fault yet)
+  const double t = std::visit([](const auto& ev) { return ev.t_s; }, e);
+  feed(AbortRequest{t, unsent}, out);
 }
 
 void Engine::start(std::int64_t now_ns, std::vector<OutFrame>& out) {

@@ -22,6 +22,13 @@ std::string deg(double rad) {
   return buf;
 }
 
+/// "target 30000 deg does not fit TBL_Command.Target (-21474.83648 to 21474.83647 deg)"
+std::string misfit(const char* what, double v, const char* unit, const SignalSpan& sig) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%s %.10g %s", what, v, unit);
+  return buf + (" does not fit " + sig.name + " (" + sig.range + ")");
+}
+
 // the events carry the codes as numbers
 constexpr int code(TableState s) {
   return static_cast<int>(s);
@@ -71,6 +78,17 @@ std::string check_plan(const SequencerSettings& s) {
   if (!l.contains(angle))
     return "start angle " + deg(angle) + " is outside the table's angle limits [" +
            deg(l.angle_min_rad) + ", " + deg(l.angle_max_rad) + "]";
+  // what goes into the command signals: the move to the start angle (half
+  // a turn at most, either way), the alignment, each turn's delta and rate
+  const CommandSignals none;
+  const CommandSignals& c = s.observe ? none : s.commands;
+  const std::string prepare = "the move to the start angle: ";
+  if (!c.target.holds(kPi) || !c.target.holds(-kPi))
+    return prepare + misfit("target", 180, "deg", c.target);
+  if (const double r = std::min(l.max_rate_rps, s.prepare_rate_rps); !c.rate_limit.holds(r))
+    return prepare + misfit("rate", r / kDeg, "deg/s", c.rate_limit);
+  if (!c.align_duration.holds(s.profile.align_s))
+    return "the alignment: " + misfit("length", s.profile.align_s, "s", c.align_duration);
   double last_start = -1;
   for (std::size_t i = 0; i < s.profile.turns.size(); ++i) {
     const TurnSpec& t = s.profile.turns[i];
@@ -81,6 +99,10 @@ std::string check_plan(const SequencerSettings& s) {
     if (!(t.max_accel_rps2 > 0) || t.max_accel_rps2 > l.max_accel_rps2 * (1 + 1e-9))
       return name + ": acceleration " + deg(t.max_accel_rps2) + "/s^2 is beyond the limit " +
              deg(l.max_accel_rps2) + "/s^2";
+    if (!c.target.holds(t.angle_rad))
+      return name + ": " + misfit("target", t.angle_rad / kDeg, "deg", c.target);
+    if (!c.rate_limit.holds(t.max_rate_rps))
+      return name + ": " + misfit("rate", t.max_rate_rps / kDeg, "deg/s", c.rate_limit);
     angle += t.angle_rad;
     if (!l.contains(angle))
       return name + ": end angle " + deg(angle) + " is outside the table's angle limits [" +

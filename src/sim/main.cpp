@@ -490,6 +490,7 @@ int live(const Options& o) {
         fds.push_back({s.fd(), static_cast<short>(POLLIN | (s.tx_pending() ? POLLOUT : 0)), 0});
     ::poll(fds.data(), fds.size(), std::max(0, static_cast<int>(std::ceil(wait_s * 1e3))));
   }
+  if (const Error* e = loop.error()) return fail(*e);
   const auto& c = loop.stand().counts();
   std::uint64_t overflow = 0;
   for (const socketcan::Socket& s : sockets) overflow += s.stats().tx_overflow;

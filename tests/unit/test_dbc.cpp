@@ -174,11 +174,56 @@ TEST_SUITE("dbc") {
       f.error = true;
       CHECK(codec.decode(f, out) == DecodeStatus::NotData);
     }
-    SUBCASE("physical values saturate at the raw range") {
-      const Signal* speed = db->find("Engine")->find_signal("Speed");
-      CHECK(physical_to_raw(*speed, 1e9) == 0xFFFF);
-      CHECK(physical_to_raw(*speed, -5) == 0);
-      CHECK(physical_to_raw(*speed, 12.34) == 123);
+    SUBCASE("a value that does not fit its signal is refused, never saturated") {
+      const Signal* speed = db->find("Engine")->find_signal("Speed");  // u16, 0.1, [0|6553.5]
+      CHECK(*physical_to_raw(*speed, 12.34) == 123);
+      CHECK(*physical_to_raw(*speed, 6553.5) == 0xFFFF);
+      CHECK(*physical_to_raw(*speed, 0) == 0);
+      CHECK(*physical_to_raw(*speed, -0.04) == 0);  // within half a step: rounds to the end
+      for (double v : {1e9, 6553.6, -5.0, -0.06, std::nan(""), HUGE_VAL}) {
+        CAPTURE(v);
+        CHECK_FALSE(fits(*speed, v));
+        const auto r = physical_to_raw(*speed, v);
+        REQUIRE_FALSE(r.ok());
+        CHECK(r.error().message.find("does not fit signal Speed (0.0 to 6553.5 km/h)") !=
+              std::string::npos);
+      }
+      // the frame codec names the message too; the unchecked path clamps
+      const std::vector<double> values = {1e9, 2, 0};
+      const auto f = FrameCodec::encode_checked(*db->find("Engine"), values);
+      REQUIRE_FALSE(f.ok());
+      CHECK(f.error().message == "1000000000 km/h does not fit Engine.Speed (0.0 to 6553.5 km/h)");
+      const std::vector<double> good = {12.3, 2, 0};
+      REQUIRE(FrameCodec::encode_checked(*db->find("Engine"), good).ok());
+      CHECK(extract_raw(*speed, FrameCodec::encode(*db->find("Engine"), values).payload()) ==
+            0xFFFF);
+    }
+    SUBCASE("the DBC's [min|max] narrows the raw range; [0|0] gives none") {
+      // s8 with offset -40 carries -168 to 87; the file says [-40|215]: -40 to 87
+      const Signal* temp = db->find("Engine")->find_signal("Temp");
+      CHECK(physical_range(*temp).lo == -40);
+      CHECK(physical_range(*temp).hi == 87);
+      CHECK(fits(*temp, -40));
+      CHECK(fits(*temp, 87));
+      CHECK_FALSE(fits(*temp, -41));
+      CHECK_FALSE(fits(*temp, 88));
+      const Signal* f32 = db->find("Ext")->find_signal("F32");
+      CHECK(fits(*f32, -1.5));
+      CHECK_FALSE(fits(*f32, 1e39));                            // beyond a float
+      const Signal* low = db->find("Ext")->find_signal("Low");  // u16, [0|65535]
+      CHECK(fits(*low, 65535));
+      const Signal* high = db->find("Ext")->find_signal("High");  // u24, factor 2, offset 1, [0|0]
+      CHECK(physical_range(*high).hi == 2.0 * 16777215 + 1);
+      CHECK(fits(*high, 2.0 * 16777215 + 1));
+      CHECK_FALSE(fits(*high, 2.0 * 16777216 + 1));
+      Signal narrow = *low;
+      narrow.minimum = 10;
+      narrow.maximum = 20;
+      CHECK(fits(narrow, 10));
+      CHECK(fits(narrow, 20));
+      CHECK_FALSE(fits(narrow, 21));
+      CHECK_FALSE(fits(narrow, 9));
+      CHECK(describe_range(narrow) == "10 to 20");
     }
   }
 
@@ -295,7 +340,7 @@ TEST_SUITE("dbc") {
         const Signal& s = m.signals[i];
         CHECK(extract_raw(s, payload) == raws[i]);
         if (s.length <= 52) {  // exactly representable in a double
-          CHECK(physical_to_raw(s, raw_to_physical(s, raws[i])) == raws[i]);
+          CHECK(*physical_to_raw(s, raw_to_physical(s, raws[i])) == raws[i]);
         }
         ++signals_checked;
       }
@@ -322,7 +367,7 @@ TEST_SUITE("dbc") {
     const Signal* d64 = db->find("Wide")->find_signal("D64");
     std::vector<std::uint8_t> payload(64, 0);
     for (double v : {0.0, -1.0, 3.141592653589793, 1e300, -2.5e-300}) {
-      insert_raw(*d64, payload, physical_to_raw(*d64, v));
+      insert_raw(*d64, payload, *physical_to_raw(*d64, v));
       CHECK(raw_to_physical(*d64, extract_raw(*d64, payload)) == v);
     }
   }

@@ -90,9 +90,25 @@ Result<Database> load_dbc(const std::string& path);
 void insert_raw(const Signal& sig, std::span<std::uint8_t> data, std::uint64_t raw);
 /// Raw bits to the physical value (sign, float type, factor, offset).
 [[nodiscard]] double raw_to_physical(const Signal& sig, std::uint64_t raw);
-/// Physical value to raw bits: rounded to the nearest step, saturated to the
-/// signal's range.
-[[nodiscard]] std::uint64_t physical_to_raw(const Signal& sig, double value);
+/// The physical values a signal can carry: its raw range through factor and
+/// offset, narrowed to the DBC's [min|max] where the file gives one ([0|0]
+/// gives none). A float signal: what the float holds, through factor and
+/// offset, narrowed the same way.
+struct PhysicalRange {
+  double lo = 0;
+  double hi = 0;
+};
+[[nodiscard]] PhysicalRange physical_range(const Signal& sig);
+/// The range for people, to the signal's step, with its unit:
+/// "-21474.83648 to 21474.83647 deg".
+[[nodiscard]] std::string describe_range(const Signal& sig);
+/// True when `value` encodes into `sig` without saturating: a number whose
+/// nearest step is inside the raw range and the DBC's [min|max].
+[[nodiscard]] bool fits(const Signal& sig, double value);
+/// Physical value to raw bits, rounded to the nearest step. A value that
+/// does not fit is an error naming the signal and its range, never
+/// saturated: a clipped command would move a device somewhere else.
+[[nodiscard]] Result<std::uint64_t> physical_to_raw(const Signal& sig, double value);
 /// Raw bits as a signed integer (sign-extended when the signal is signed).
 [[nodiscard]] std::int64_t raw_to_integer(const Signal& sig, std::uint64_t raw);
 
@@ -141,7 +157,14 @@ class FrameCodec {
   /// by the multiplexor are set to NaN.
   DecodeStatus decode(const Frame& frame, std::span<double> out,
                       const Message** msg = nullptr) const;
-  /// Builds a frame of `msg` from physical values (signal order).
+  /// Builds a frame of `msg` from physical values (signal order; NaN leaves
+  /// a signal's bits 0). A value that does not fit its signal is an error
+  /// naming "Message.Signal", the value and the range: what goes to a
+  /// device is built with this.
+  static Result<Frame> encode_checked(const Message& msg, std::span<const double> values);
+  /// The same unchecked, for values that fit by construction (a virtual
+  /// device's own readings at its frame rates, test fixtures): one that
+  /// does not fit is clamped to its signal's raw range.
   static Frame encode(const Message& msg, std::span<const double> values);
 
  private:

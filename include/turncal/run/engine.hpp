@@ -56,9 +56,15 @@ struct Live {
 /// a table refuses to start a move without a recent heartbeat.
 OutFrame heartbeat_frame(const RoleMap& roles, std::uint8_t counter, int host_state);
 
+/// The ranges of the table's and the INS's command signals as the roles
+/// resolve them (DBC units: deg, deg/s, s), in SI units for the plan check.
+CommandSignals command_signals(const RoleMap& roles);
+
 class Engine {
  public:
-  /// `db` and `roles` must outlive it.
+  /// `db` and `roles` must outlive it. The plan is checked against the
+  /// command signals of `roles` at the start (`seq.commands` is set from
+  /// them); a command that does not fit at run time fails the run.
   Engine(const can::Database& db, const RoleMap& roles, Plan plan, SequencerSettings seq,
          BuildSettings build, TimeBase time);
 

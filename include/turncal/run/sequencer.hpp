@@ -42,11 +42,30 @@ const char* to_string(Phase p);
   return p == Phase::Done || p == Phase::Aborted || p == Phase::Failed;
 }
 
+/// What one command signal carries, in SI units, as its DBC gives it.
+struct SignalSpan {
+  std::string name;  ///< "TBL_Command.Target"; empty: not checked
+  double lo = -INFINITY;
+  double hi = INFINITY;
+  std::string range;  ///< the DBC's, for people: "-21474.83648 to 21474.83647 deg"
+  [[nodiscard]] bool holds(double v) const { return name.empty() || (v >= lo && v <= hi); }
+};
+
+/// The stand's command signals a plan's values go into.
+struct CommandSignals {
+  SignalSpan target;          ///< the table's move target (a relative move's delta), rad
+  SignalSpan rate_limit;      ///< the table's move rate limit, rad/s
+  SignalSpan align_duration;  ///< the INS alignment length, s
+};
+
 struct SequencerSettings {
   Profile profile;             ///< holds and turns, times from t0
   double start_angle_rad = 0;  ///< table angle at t0
   double heading_offset_rad = 0;
   StandLimits limits;  ///< turncal.toml [stand]
+  /// In command mode every move and the alignment must fit these (the
+  /// engine sets them from the DBC), or the plan is refused.
+  CommandSignals commands;
   bool observe = false;
   /// A recording that ends anywhere after t0 (a damaged log) is estimated
   /// over what there is; otherwise only one that ends in the last hold.
@@ -73,8 +92,9 @@ struct SequencerSettings {
   std::uint8_t ins_seq_base = 0;
 };
 
-/// Checks the profile against the limits before any command goes out;
-/// empty when it fits, else why not.
+/// Checks the profile against the limits, and in command mode against the
+/// command signals, before any command goes out; empty when it fits, else
+/// why not.
 std::string check_plan(const SequencerSettings& s);
 
 // ---- events (host time t_s on each) ----

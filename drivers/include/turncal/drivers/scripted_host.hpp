@@ -6,6 +6,7 @@
 #pragma once
 
 #include <memory>
+#include <optional>
 #include <span>
 #include <vector>
 
@@ -28,13 +29,19 @@ class ScriptedHost {
   ScriptedHost(const Plan& plan, const RoleMap& roles, double heading_offset_rad);
   /// Host frames due in (last t, t], given the stand's state at t.
   void step(double t, const VirtualStand& stand, std::vector<StandFrame>& out);
-  /// True once the run has gone `duration_s` past t0.
+  /// True once the run has gone `duration_s` past t0, or a command did
+  /// not fit its signal.
   [[nodiscard]] bool done() const { return done_; }
+  /// Why the run ended early: a command that did not fit (nothing clipped
+  /// is sent); nullptr otherwise.
+  [[nodiscard]] const Error* error() const { return error_ ? &*error_ : nullptr; }
   static constexpr double kEnableAt = 1.0;  ///< stand time of the enable, s
   static constexpr double kAlignAt = 2.0;   ///< stand time of the alignment command, s
 
  private:
-  can::Frame frame(Role any, std::initializer_list<std::pair<Role, double>> values) const;
+  /// Encodes (checked) and appends a frame, or records the error and ends.
+  void send(std::vector<StandFrame>& out, double t, bool ins_side, Role any,
+            std::initializer_list<std::pair<Role, double>> values);
   Plan plan_;
   const RoleMap& roles_;
   double heading_offset_;
@@ -42,6 +49,7 @@ class ScriptedHost {
   std::uint8_t seq_ = 0;
   std::size_t next_turn_ = 0;
   bool enabled_ = false, aligning_ = false, done_ = false;
+  std::optional<Error> error_;
 };
 
 /// The virtual stand in 1 ms ticks of simulated time, with an optional
@@ -61,6 +69,8 @@ class StandLoop {
   [[nodiscard]] double next_time() const { return static_cast<double>(k_) * kTick; }
   /// The scripted host has finished its run (never, without a script).
   [[nodiscard]] bool done() const { return host_ != nullptr && host_->done(); }
+  /// Why the scripted host ended its run early, or nullptr.
+  [[nodiscard]] const Error* error() const { return host_ != nullptr ? host_->error() : nullptr; }
   [[nodiscard]] const VirtualStand& stand() const { return stand_; }
 
  private:
