@@ -306,13 +306,17 @@ Result<std::optional<LogRecord>> LogReader::next() {
 // ---- writer ----
 
 LogWriter::LogWriter(LogWriter&& o) noexcept
-    : fd_(std::exchange(o.fd_, -1)), buf_(std::move(o.buf_)), records_(o.records_) {}
+    : fd_(std::exchange(o.fd_, -1)),
+      buf_(std::move(o.buf_)),
+      records_(o.records_),
+      written_(o.written_) {}
 LogWriter& LogWriter::operator=(LogWriter&& o) noexcept {
   if (this != &o) {
     (void)close();
     fd_ = std::exchange(o.fd_, -1);
     buf_ = std::move(o.buf_);
     records_ = o.records_;
+    written_ = o.written_;
   }
   return *this;
 }
@@ -344,10 +348,14 @@ Status LogWriter::flush() {
   while (done < buf_.size()) {
     const ssize_t n = ::write(fd_, buf_.data() + done, buf_.size() - done);
     if (n < 0 && errno == EINTR) continue;
-    if (n < 0) {
+    if (n <= 0) {
+      const int err = n == 0 ? EIO : errno;
       buf_.erase(buf_.begin(), buf_.begin() + static_cast<std::ptrdiff_t>(done));
-      return make_error(std::string("log write failed: ") + std::strerror(errno));
+      return make_error(std::string("log write failed: ") + std::strerror(err));
     }
+    written_ += static_cast<std::uint64_t>(
+        std::count(buf_.begin() + static_cast<std::ptrdiff_t>(done),
+                   buf_.begin() + static_cast<std::ptrdiff_t>(done) + n, '\n'));
     done += static_cast<std::size_t>(n);
   }
   buf_.clear();
@@ -365,8 +373,10 @@ Status LogWriter::sync() {
 Status LogWriter::close() {
   if (fd_ < 0) return Status{Ok{}};
   auto st = flush();
-  ::close(fd_);
+  const bool closed = ::close(fd_) == 0;
+  const int err = errno;
   fd_ = -1;
+  if (st && !closed) return make_error(std::string("log close failed: ") + std::strerror(err));
   return st;
 }
 

@@ -78,7 +78,8 @@ Socket::Socket(Socket&& o) noexcept
       ifindex_(o.ifindex_),
       last_ovfl_(o.last_ovfl_),
       txq_(std::move(o.txq_)),
-      stats_(o.stats_) {}
+      stats_(o.stats_),
+      busy_errno_(o.busy_errno_) {}
 
 Socket& Socket::operator=(Socket&& o) noexcept {
   if (this != &o) {
@@ -90,6 +91,7 @@ Socket& Socket::operator=(Socket&& o) noexcept {
     last_ovfl_ = o.last_ovfl_;
     txq_ = std::move(o.txq_);
     stats_ = o.stats_;
+    busy_errno_ = o.busy_errno_;
   }
   return *this;
 }
@@ -125,7 +127,7 @@ Status Socket::open_socket() {
   const int one = 1;
   if (opt_.fd && ::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_FD_FRAMES, &one, sizeof one) != 0)
     return fail("CAN_RAW_FD_FRAMES");
-  if (opt_.receive_own &&
+  if ((opt_.receive_own || opt_.confirm) &&
       ::setsockopt(fd, SOL_CAN_RAW, CAN_RAW_RECV_OWN_MSGS, &one, sizeof one) != 0)
     return fail("CAN_RAW_RECV_OWN_MSGS");
   if (!opt_.filters.empty()) {
@@ -226,6 +228,11 @@ Result<std::size_t> Socket::receive(RxBatch& out, std::size_t max_batches) {
         }
       }
       if (tf.time_ns == 0) tf.time_ns = realtime_ns();
+      if (opt_.confirm && (m.msg_hdr.msg_flags & MSG_CONFIRM) != 0) {
+        ++stats_.tx_confirmed;  // our own frame, echoed: it went out
+        out.confirmed.push_back(tf);
+        continue;
+      }
       if (tf.frame.error) {
         ++stats_.rx_error_frames;
         for (const auto& e : can::decode_error_frame(tf)) out.events.push_back(e);
@@ -248,51 +255,59 @@ Socket::TxResult Socket::write_frame(const can::Frame& f) {
     const ssize_t n = ::write(fd_, &k, size);
     if (n == static_cast<ssize_t>(size)) return TxResult::Sent;
     if (n < 0 && errno == EINTR) continue;
-    if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == ENOBUFS))
+    if (n < 0 && (errno == EAGAIN || errno == EWOULDBLOCK || errno == ENOBUFS)) {
+      busy_errno_ = errno == ENOBUFS ? ENOBUFS : EAGAIN;
       return TxResult::Busy;
+    }
     return TxResult::Failed;
   }
 }
 
-Status Socket::send(const can::Frame& f) {
+Result<TxOutcome> Socket::send(const can::Frame& f) {
   if (f.fd && !opt_.fd)
     return make_error(opt_.interface + ": CAN FD frame on a socket opened for classic CAN");
   if (f.len > (f.fd ? can::kMaxFdLen : can::kMaxClassicLen))
     return make_error(opt_.interface + ": frame payload too long");
   if (fd_ < 0) {
     ++stats_.tx_failed;
-    return Status{Ok{}};
+    return TxOutcome::Dropped;
   }
   if (txq_.empty()) {
     switch (write_frame(f)) {
       case TxResult::Sent:
         ++stats_.tx_frames;
-        return Status{Ok{}};
+        return TxOutcome::Sent;
       case TxResult::Failed:
         ++stats_.tx_failed;
-        return Status{Ok{}};
+        return TxOutcome::Dropped;
       case TxResult::Busy:
         break;
     }
   }
   if (txq_.size() >= opt_.tx_queue_limit) {
     ++stats_.tx_overflow;
-    return Status{Ok{}};
+    return TxOutcome::Dropped;
   }
   txq_.push_back(f);
   ++stats_.tx_queued;
-  return Status{Ok{}};
+  return TxOutcome::Queued;
 }
 
-std::size_t Socket::flush() {
+std::size_t Socket::flush(std::vector<can::Frame>* sent) {
   while (!txq_.empty() && fd_ >= 0) {
     const TxResult r = write_frame(txq_.front());
     if (r == TxResult::Busy) break;
-    if (r == TxResult::Sent)
+    if (r == TxResult::Sent) {
       ++stats_.tx_frames;
-    else
+      if (sent != nullptr) sent->push_back(txq_.front());
+    } else {
       ++stats_.tx_failed;
+    }
     txq_.pop_front();
+  }
+  if (fd_ < 0 && !txq_.empty()) {  // gone: what waits can never go
+    stats_.tx_failed += txq_.size();
+    txq_.clear();
   }
   return txq_.size();
 }

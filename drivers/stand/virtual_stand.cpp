@@ -197,6 +197,7 @@ void VirtualStand::receive(double t, const can::Frame& frame) {
                          u8(role_value(Role::TableCommandSeq, v)),
                          role_value(Role::TableCommandTarget, v) * kDeg,
                          role_value(Role::TableCommandRateLimit, v) * kDeg};
+    if (c.code == TableCommandCode::QuickStop) ++counts_.quick_stops;
     if (!table_.command(t, c)) ++counts_.refused;
   } else if (msg == roles_[Role::InsCommand].message) {
     ++counts_.ins_commands;

@@ -98,9 +98,16 @@ struct DaemonConfig {
   std::filesystem::path socket = "/run/turncal/control.sock";  ///< unless socket-activated
   std::string socket_group;  ///< group of the control socket; empty: the daemon's
   std::filesystem::path
-      profile;           ///< the plan a start runs unless it names one (set by parse_config)
+      profile;  ///< the plan a start runs unless it names one (set by parse_config)
+  /// Where a plan a start names without a path comes from (set by
+  /// parse_config: "profiles" beside the configuration file by default).
+  std::filesystem::path profiles_directory;
   bool observe = false;  ///< follow a stand someone else drives
   double heartbeat_hz = 10;
+  std::uint32_t max_clients = 16;  ///< control connections at once; more are refused
+  /// A control client that leaves replies unread this long, or sends nothing
+  /// and watches nothing this long, is dropped (real seconds).
+  double client_idle_s = 60;
   /// A stream is lost after 10 periods unseen and never sooner than this,
   /// real milliseconds: the host's scheduling latency.
   double stale_floor_ms = 50;

@@ -217,14 +217,18 @@ Status read_stand(const toml::table& t, const std::string& file, StandConfig& s)
 
 Status read_daemon(const toml::table& t, const std::string& file, DaemonConfig& d) {
   Reader r(t, file, "daemon.");
-  TURNCAL_TRY(r.no_unknown_keys({"state_directory", "socket", "socket_group", "profile", "observe",
-                                 "heartbeat_hz", "stale_floor_ms"}));
-  std::string state = d.state_directory.string(), sock = d.socket.string(), prof;
+  TURNCAL_TRY(r.no_unknown_keys({"state_directory", "socket", "socket_group", "profile",
+                                 "profiles_directory", "observe", "heartbeat_hz", "stale_floor_ms",
+                                 "max_clients", "client_idle_s"}));
+  std::string state = d.state_directory.string(), sock = d.socket.string(), prof, profiles;
   TURNCAL_TRY(r.string("state_directory", state));
   TURNCAL_TRY(r.string("socket", sock));
   TURNCAL_TRY(r.string("socket_group", d.socket_group));
   TURNCAL_TRY(r.string("profile", prof));
+  TURNCAL_TRY(r.string("profiles_directory", profiles));
   TURNCAL_TRY(r.boolean("observe", d.observe));
+  TURNCAL_TRY(r.integer("max_clients", d.max_clients, 1, 256));
+  TURNCAL_TRY(r.number("client_idle_s", d.client_idle_s, 1, 3600));
   TURNCAL_TRY(r.number("heartbeat_hz", d.heartbeat_hz, 2, 100));
   TURNCAL_TRY(r.number("stale_floor_ms", d.stale_floor_ms, 0, 1000));
   const std::filesystem::path base = std::filesystem::path(file).parent_path();
@@ -233,6 +237,10 @@ Status read_daemon(const toml::table& t, const std::string& file, DaemonConfig& 
   if (!prof.empty())
     d.profile =
         std::filesystem::path(prof).is_absolute() ? std::filesystem::path(prof) : base / prof;
+  if (!profiles.empty())
+    d.profiles_directory = std::filesystem::path(profiles).is_absolute()
+                               ? std::filesystem::path(profiles)
+                               : base / profiles;
   return Status{Ok{}};
 }
 
@@ -281,6 +289,7 @@ Result<Config> parse_config(std::string_view text, const std::string& file) {
   Config cfg;
   cfg.source = file;
   cfg.daemon.profile = std::filesystem::path(file).parent_path() / "profiles" / "tactical.toml";
+  cfg.daemon.profiles_directory = std::filesystem::path(file).parent_path() / "profiles";
   for (auto&& [k, v] : root) {
     if (k.str() != "can" && k.str() != "stand" && k.str() != "daemon" && k.str() != "tolerances")
       return make_error("unknown section or key '" + std::string(k.str()) + "'",

@@ -21,9 +21,11 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <limits>
 #include <nlohmann/json.hpp>
+#include <sstream>
 #include <string>
 
 #include "offline.hpp"
@@ -160,7 +162,8 @@ int turncal::ctl::usage(const char* why) {
   std::fprintf(stderr,
                "turncalctl: %s\n"
                "usage: turncalctl [--socket PATH] [--json] COMMAND\n"
-               "  start [--profile PLAN.toml] [--watch]   start a run\n"
+               "  start [--profile PLAN.toml|NAME] [--watch]   start a run (a file is sent as its\n"
+               "        text; a NAME is a plan in the daemon's profiles directory)\n"
                "        [--observe]                       follow a stand another host drives\n"
                "        [--heading-offset DEG]            INS mounting on the table, this run\n"
                "        [--unit ID]                       the INS under test (serial number)\n"
@@ -221,9 +224,26 @@ int main(int argc, char** argv) {
   if (cmd == "start") {
     for (; i < argc; ++i) {
       const std::string a = argv[i];
-      if (a == "--profile" && i + 1 < argc)
-        req["profile"] = argv[++i];
-      else if (a == "--watch")
+      if (a == "--profile" && i + 1 < argc) {
+        // a file is read here, as the operator, and sent as its text: the
+        // daemon opens no path a client names. A bare name that is no file
+        // here names a plan in the daemon's profiles directory.
+        const std::string plan = argv[++i];
+        std::error_code ec;
+        if (plan.find('/') != std::string::npos || std::filesystem::is_regular_file(plan, ec)) {
+          std::ifstream in(plan, std::ios::binary);
+          std::stringstream ss;
+          ss << in.rdbuf();
+          if (!in || ss.str().empty()) {
+            std::fprintf(stderr, "turncalctl: cannot read the plan %s\n", plan.c_str());
+            return 2;
+          }
+          req["plan_text"] = ss.str();
+          req["plan_name"] = plan;
+        } else {
+          req["profile"] = plan;
+        }
+      } else if (a == "--watch")
         then_watch = true;
       else if (a == "--observe")
         req["observe"] = true;

@@ -156,6 +156,11 @@ int replay(int argc, char** argv, int i, bool as_json) {
         std::fprintf(stderr, "turncalctl: %s: not a turncal report\n", report_path.c_str());
         return kUsage;
       }
+      if (const std::string why = run::check_report(live); !why.empty()) {
+        std::fprintf(stderr, "turncalctl: %s: unreadable report: %s\n", report_path.c_str(),
+                     why.c_str());
+        return kUsage;
+      }
       if (!live.contains("profile") || !live["profile"].contains("toml")) {
         std::fprintf(stderr,
                      "turncalctl: %s has no profile to replay with (an interrupted run's "

@@ -3,8 +3,18 @@
 // stream, JSON lines) and the signals; the run engine (src/run) does the
 // experiment; a worker thread runs the estimation so that the loop and the
 // watchdog keep going; the recorder keeps every frame of a run, both
-// directions, in a candump log in the state directory; the report is
-// written atomically next to it.
+// directions, in a candump log in the state directory (state_dir.hpp); the
+// control protocol is a pure function (control.hpp). This file is the
+// loop's wiring.
+//
+// Faults of the host are the run's faults: a log that cannot be written, a
+// CAN interface that goes down, an exception in a callback (never let out
+// of the loop) each fail the run with the reason and stop the table; a
+// quick stop is repeated until the table reports it stopped.
+//
+// Fairness: timers (heartbeat, ticks, the watchdog) run at a higher
+// priority than the CAN and control sockets, and one wakeup reads at most
+// kRxBatches x 64 frames of a socket, so no flood starves them.
 //
 //   turncald [--config FILE] [--state-dir DIR] [--socket PATH]
 #include <fcntl.h>
@@ -15,11 +25,12 @@
 #include <systemd/sd-daemon.h>
 #include <systemd/sd-event.h>
 #include <systemd/sd-journal.h>
+#include <time.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
-#include <cctype>
 #include <cerrno>
 #include <csignal>
 #include <cstdio>
@@ -27,7 +38,6 @@
 #include <ctime>
 #include <filesystem>
 #include <fstream>
-#include <map>
 #include <memory>
 #include <numbers>
 #include <optional>
@@ -37,17 +47,19 @@
 #include <utility>
 #include <vector>
 
+#include "control.hpp"
+#include "state_dir.hpp"
 #include "turncal/can/candump.hpp"
 #include "turncal/config.hpp"
 #include "turncal/drivers/socketcan.hpp"
 #include "turncal/plan.hpp"
 #include "turncal/run/engine.hpp"
-#include "turncal/run/history.hpp"
 #include "turncal/run/html.hpp"
 #include "turncal/run/replay.hpp"
 #include "turncal/run/report.hpp"
 
 using namespace turncal;
+using namespace turncal::daemon;
 using nlohmann::json;
 namespace fs = std::filesystem;
 
@@ -55,7 +67,12 @@ namespace {
 
 constexpr std::size_t kMaxRequest = 64 * 1024;  ///< bytes of one control request line
 constexpr std::size_t kMaxQueued = 4 << 20;     ///< bytes of replies a client may leave unread
-constexpr std::size_t kRxBatches = 4;           ///< recvmmsg calls per receive, kBatchFrames each
+/// recvmmsg calls of one socket per wakeup, kBatchFrames each: the budget
+/// that lets the timers run under any flood
+constexpr std::size_t kRxBatches = 4;
+constexpr std::uint64_t kTxRetryUs = 5000;           ///< retry of a full device queue (ENOBUFS)
+constexpr std::uint64_t kAcceptBackoffUs = 1000000;  ///< out of descriptors: accept again after
+constexpr int64_t kPrioTimers = SD_EVENT_PRIORITY_IMPORTANT;
 
 bool g_journal = false;  // under systemd: structured journal entries
 
@@ -71,49 +88,18 @@ void say(int priority, const std::string& run_id, const char* phase, const std::
                run_id.empty() ? "" : ": ", msg.c_str());
 }
 
+std::uint64_t monotonic_us() {
+  timespec ts{};
+  ::clock_gettime(CLOCK_MONOTONIC, &ts);
+  return static_cast<std::uint64_t>(ts.tv_sec) * 1000000 +
+         static_cast<std::uint64_t>(ts.tv_nsec) / 1000;
+}
+
 std::string read_file(const fs::path& p) {
   std::ifstream in(p, std::ios::binary);
   std::stringstream ss;
   ss << in.rdbuf();
   return ss.str();
-}
-
-/// Temp file, fsync, rename, fsync of the folder: the file is whole or absent.
-Status write_atomic(const fs::path& path, const std::string& data) {
-  const fs::path tmp = path.string() + ".tmp";
-  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
-  if (fd < 0) return make_error("cannot create " + tmp.string() + ": " + std::strerror(errno));
-  std::size_t off = 0;
-  while (off < data.size()) {
-    const ssize_t n = ::write(fd, data.data() + off, data.size() - off);
-    if (n < 0 && errno == EINTR) continue;
-    if (n < 0) {
-      ::close(fd);
-      return make_error("cannot write " + tmp.string() + ": " + std::strerror(errno));
-    }
-    off += static_cast<std::size_t>(n);
-  }
-  const bool synced = ::fsync(fd) == 0;
-  ::close(fd);
-  if (!synced || ::rename(tmp.c_str(), path.c_str()) != 0)
-    return make_error("cannot put " + path.string() + " in place: " + std::strerror(errno));
-  const int dfd = ::open(path.parent_path().c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dfd >= 0) {
-    ::fsync(dfd);
-    ::close(dfd);
-  }
-  return Status{Ok{}};
-}
-
-/// What the index keeps of a report (a discarded json: one that does not parse).
-json report_summary(const json& r) {
-  if (!r.is_object()) return json::value_t::discarded;
-  json s = json::object();
-  for (const char* k : {"run_id", "status", "unit", "start_time_unix_s", "estimates"})
-    if (r.contains(k)) s[k] = r[k];
-  s["profile"] = {{"name", r.contains("profile") ? r["profile"].value("name", "") : ""}};
-  s["verdict"] = {{"pass", r.contains("verdict") ? r["verdict"].value("pass", false) : false}};
-  return s;
 }
 
 std::string utc_id(std::int64_t ns) {
@@ -125,19 +111,33 @@ std::string utc_id(std::int64_t ns) {
   return buf;
 }
 
-/// A unit identity that is safe in a file listing and a log line.
-bool valid_unit(const std::string& u) {
-  if (u.empty() || u.size() > 64) return false;
-  for (const char c : u)
-    if (!std::isalnum(static_cast<unsigned char>(c)) && c != '-' && c != '_' && c != '.')
-      return false;
-  return true;
+const char* link_name(socketcan::LinkState l) {
+  switch (l) {
+    case socketcan::LinkState::Up:
+      return "up";
+    case socketcan::LinkState::Down:
+      return "down";
+    case socketcan::LinkState::Gone:
+      return "gone";
+  }
+  return "?";
 }
 
 struct Options {
   std::string config = std::string(TURNCAL_DATA_DIR) + "/turncal.toml";
   std::string state_dir;
   std::string socket;
+};
+
+/// One CAN interface: its socket, its event source, what it did before
+/// the run (for the report's per-run figures).
+class Daemon;
+struct Port {
+  Daemon* owner = nullptr;
+  std::optional<socketcan::Socket> sock;
+  sd_event_source* src = nullptr;
+  int registered_fd = -1;
+  socketcan::Stats at_run_start;
 };
 
 struct Client;
@@ -149,13 +149,16 @@ class Daemon {
   can::Database db;
   RoleMap roles;
   sd_event* ev = nullptr;
-  std::optional<socketcan::Socket> ins_sock, table_sock;  // table_sock empty: one interface
-  sd_event_source *ins_src = nullptr, *table_src = nullptr;
+  std::array<Port, 2> ports;  ///< INS side, table side (empty: one interface)
+  sd_event_source* tx_retry = nullptr;
+  sd_event_source* listen_src = nullptr;
+  sd_event_source* accept_again = nullptr;
   int listen_fd = -1;
   std::vector<std::unique_ptr<Client>> clients;
   bool stopping = false;
   std::uint64_t timer_ticks = 0;  ///< watchers get the status every 5th
   std::uint8_t heartbeat_counter = 0;
+  std::optional<StateDir> state;
 
   // the run
   std::unique_ptr<run::Engine> engine;
@@ -163,6 +166,7 @@ class Daemon {
   std::string unit;  ///< the INS under test of this run
   fs::path log_path;
   std::optional<can::LogWriter> log;
+  std::string log_error;  ///< the first write error of this run's log
   std::int64_t run_start_ns = 0;
   run::Phase last_phase = run::Phase::Idle;
   bool report_done = true;
@@ -174,6 +178,7 @@ class Daemon {
   std::atomic<bool> worker_busy{false};
   std::vector<run::OutFrame> out;
   socketcan::RxBatch rx;
+  std::vector<can::Frame> flushed;
 
   [[nodiscard]] const char* phase_name() const {
     return engine ? run::to_string(engine->sequencer().phase()) : "idle";
@@ -183,21 +188,29 @@ class Daemon {
   }
   void info(const std::string& m) const { say(LOG_INFO, run_id, phase_name(), m); }
   void warn(const std::string& m) const { say(LOG_WARNING, run_id, phase_name(), m); }
+  void error(const std::string& m) const { say(LOG_ERR, run_id, phase_name(), m); }
 
+  Port& port(bool ins_side) { return (ins_side || !ports[1].sock) ? ports[0] : ports[1]; }
   Status setup();
   void send_out();
+  void flush_port(Port& p);
+  void update_io(Port& p);
+  void recover_ports();
+  void log_record(const can::LogRecord& r);
+  void log_sync();
+  void host_fault(const std::string& what);
+  void log_fault(const std::string& what);
+  void internal_error(const char* where, const char* what);
   void after_engine();
-  void on_can(socketcan::Socket& s, bool ins_side);
-  json status() const;
-  json start(const json& req);
+  void on_can(Port& p);
+  [[nodiscard]] json can_json(bool since_run_start) const;
+  [[nodiscard]] json status() const;
+  json start(const StartRequest& req);
   void write_report(bool with_estimates);
   void report_interrupted_runs();
-  /// The reports kept, by run id, cut to what `reports` and `history` need:
-  /// read once at start-up, kept up to date as reports are written, so a
-  /// request never reads the state directory while a run's frames arrive.
-  std::map<std::string, json> index;
-  void index_report(const std::string& id, const json& report);
+  void handle_request(Client& c, const std::string& line);
   void broadcast_watch();
+  void reap_clients();
 };
 
 struct Client {
@@ -206,6 +219,8 @@ struct Client {
   sd_event_source* src = nullptr;
   std::string in;
   bool watching = false;
+  std::uint64_t last_request_us = 0;  ///< monotonic
+  std::uint64_t unread_since_us = 0;  ///< monotonic; 0: nothing waits
   ~Client() {
     sd_event_source_unref(src);
     ::close(fd);
@@ -221,7 +236,7 @@ struct Client {
       broken = true;
       return;
     }
-    out += j.dump() + "\n";
+    out += j.dump(-1, ' ', false, json::error_handler_t::replace) + "\n";
     flush();
   }
   void flush() {
@@ -234,25 +249,191 @@ struct Client {
       }
       out.erase(0, static_cast<std::size_t>(n));
     }
+    if (out.empty())
+      unread_since_us = 0;
+    else if (unread_since_us == 0)
+      unread_since_us = monotonic_us();
     // a client being closed is not read any more (EPOLLIN would fire forever)
     if (src != nullptr)
       sd_event_source_set_io_events(
-          src, (close_after ? 0U : EPOLLIN) | (out.empty() || broken ? 0U : EPOLLOUT));
+          src, (close_after || broken ? 0U : EPOLLIN) | (out.empty() || broken ? 0U : EPOLLOUT));
   }
   [[nodiscard]] bool done() const { return broken || (close_after && out.empty()); }
 };
 
+// ---- the log ----
+
+void Daemon::log_record(const can::LogRecord& r) {
+  if (!log) return;
+  if (auto st = log->write(r); !st) log_fault(st.error().describe());
+}
+
+void Daemon::log_sync() {
+  if (!log) return;
+  if (auto st = log->sync(); !st) log_fault(st.error().describe());
+}
+
+/// A fault of the host fails the run with the reason (and a quick stop);
+/// the log goes on.
+void Daemon::host_fault(const std::string& what) {
+  if (!running()) return;
+  error("run failed: " + what);
+  engine->fault(socketcan::realtime_ns(), what, out);
+}
+
+/// The log cannot be written: it is closed where it stands, so what it
+/// holds replays, and the run fails; nothing of it is called done.
+void Daemon::log_fault(const std::string& what) {
+  if (!log_error.empty() || !engine) return;
+  std::string why = what;
+  if (log) {
+    why += ": log kept up to line " + std::to_string(log->records_written());
+    (void)log->close();  // the error is the one above
+    log.reset();
+  }
+  log_error = why;
+  host_fault(why);
+}
+
+void Daemon::internal_error(const char* where, const char* what) {
+  error(std::string("internal error in ") + where + ": " + what);
+  if (running()) {
+    try {
+      engine->fault(socketcan::realtime_ns(),
+                    std::string("internal error in ") + where + ": " + what, out);
+      send_out();
+    } catch (...) {  // nothing more to do than to keep the loop
+    }
+  }
+}
+
+// ---- CAN ----
+
+/// Our frames are logged when the kernel echoes them (on_can), never when
+/// only queued; a dropped frame is counted, not logged.
 void Daemon::send_out() {
   for (const run::OutFrame& o : out) {
-    socketcan::Socket& s = (o.ins_side || !table_sock) ? *ins_sock : *table_sock;
-    if (!s.send(o.frame)) warn("cannot send a frame on " + s.interface());
-    if (log) {
-      can::LogRecord r{socketcan::realtime_ns(), s.interface(), o.frame};
-      (void)log->write(r);
+    Port& p = port(o.ins_side);
+    auto r = p.sock->send(o.frame);
+    if (!r) {
+      warn(r.error().describe());
+    } else if (*r == socketcan::TxOutcome::Dropped) {
+      warn(p.sock->interface() + ": a frame was dropped (" + link_name(p.sock->link()) +
+           ", queue " + std::to_string(p.sock->tx_queue_depth()) + ")");
     }
   }
   out.clear();
+  for (Port& p : ports)
+    if (p.sock) update_io(p);
 }
+
+void Daemon::flush_port(Port& p) {
+  if (!p.sock || !p.sock->tx_pending()) return;
+  p.sock->flush(&flushed);
+  flushed.clear();  // logged on their echo
+  update_io(p);
+}
+
+/// EPOLLOUT while the socket's buffer holds frames back; the retry timer
+/// while the device's queue does (ENOBUFS shows in no poll).
+void Daemon::update_io(Port& p) {
+  if (p.src != nullptr)
+    sd_event_source_set_io_events(
+        p.src, EPOLLIN | (p.sock->tx_wait() == socketcan::TxWait::Writable ? EPOLLOUT : 0U));
+  if (p.sock->tx_wait() == socketcan::TxWait::Retry && tx_retry != nullptr) {
+    int enabled = SD_EVENT_OFF;
+    sd_event_source_get_enabled(tx_retry, &enabled);
+    if (enabled == SD_EVENT_OFF) {
+      std::uint64_t now = 0;
+      sd_event_now(ev, CLOCK_MONOTONIC, &now);
+      sd_event_source_set_time(tx_retry, now + kTxRetryUs);
+      sd_event_source_set_enabled(tx_retry, SD_EVENT_ONESHOT);
+    }
+  }
+}
+
+int on_can_io(sd_event_source*, int, uint32_t revents, void* u);
+
+/// A socket re-opened by try_recover() has a new descriptor: a new source.
+void Daemon::recover_ports() {
+  for (Port& p : ports) {
+    if (!p.sock || p.sock->link() == socketcan::LinkState::Up) continue;
+    rx.clear();
+    const bool up = p.sock->try_recover(rx);
+    for (const auto& e : rx.events) warn(p.sock->interface() + ": " + can::describe(e));
+    if (p.sock->fd() != p.registered_fd) {
+      p.src = sd_event_source_unref(p.src);
+      p.registered_fd = p.sock->fd();
+      if (p.registered_fd >= 0) {
+        sd_event_add_io(ev, &p.src, p.registered_fd, EPOLLIN, on_can_io, &p);
+        sd_event_source_set_description(p.src, "can");
+      }
+    }
+    if (up) {
+      info(p.sock->interface() + " is back; " + std::to_string(p.sock->tx_queue_depth()) +
+           " frame(s) waiting go out");
+      flush_port(p);
+    }
+  }
+}
+
+void Daemon::on_can(Port& p) {
+  rx.clear();
+  auto n = p.sock->receive(rx, kRxBatches);
+  if (!n) {
+    warn(n.error().describe());
+    return;
+  }
+  const std::string& iface = p.sock->interface();
+  for (const auto& e : rx.events) {
+    warn(iface + ": " + can::describe(e));
+    if (e.kind == can::BusEventKind::InterfaceBack) {
+      info(iface + " is back; " + std::to_string(p.sock->tx_queue_depth()) +
+           " frame(s) waiting go out");
+      flush_port(p);
+    }
+    if ((e.kind == can::BusEventKind::InterfaceDown ||
+         e.kind == can::BusEventKind::InterfaceGone) &&
+        running())
+      host_fault("CAN interface " + iface + " " +
+                 (e.kind == can::BusEventKind::InterfaceDown ? "went down" : "disappeared"));
+  }
+  for (const can::TimedFrame& f : rx.confirmed) log_record({f.time_ns, iface, f.frame});
+  for (const can::TimedFrame& f : rx.frames) {
+    log_record({f.time_ns, iface, f.frame});
+    if (engine) engine->on_frame(f, out);
+  }
+  if (log) {
+    if (auto st = log->flush(); !st) log_fault(st.error().describe());
+  }
+  if (p.sock->link() != socketcan::LinkState::Up && p.src != nullptr && p.sock->fd() < 0) {
+    p.src = sd_event_source_unref(p.src);  // gone: recovered on the timer
+    p.registered_fd = -1;
+  }
+  after_engine();
+}
+
+json Daemon::can_json(bool since_run_start) const {
+  json can = json::object();
+  for (const Port& p : ports) {
+    if (!p.sock) continue;
+    const socketcan::Stats& s = p.sock->stats();
+    const socketcan::Stats z = since_run_start ? p.at_run_start : socketcan::Stats{};
+    can[p.sock->interface()] = {
+        {"link", link_name(p.sock->link())},
+        {"rx_frames", s.rx_frames - z.rx_frames},
+        {"rx_dropped", s.rx_dropped - z.rx_dropped},
+        {"tx_frames", s.tx_frames - z.tx_frames},
+        {"tx_confirmed", s.tx_confirmed - z.tx_confirmed},
+        {"tx_queue_depth", p.sock->tx_queue_depth()},
+        {"tx_queued", s.tx_queued - z.tx_queued},
+        {"tx_dropped", (s.tx_overflow - z.tx_overflow) + (s.tx_failed - z.tx_failed)},
+        {"recoveries", s.recoveries - z.recoveries}};
+  }
+  return can;
+}
+
+// ---- the run ----
 
 void Daemon::after_engine() {
   send_out();  // the heartbeat goes out between runs too
@@ -266,7 +447,7 @@ void Daemon::after_engine() {
               ? ""
               : " (" + engine->sequencer().course().reason + ")"));
     sd_notifyf(0, "STATUS=%s %s", run_id.c_str(), run::to_string(p));
-    if (log) (void)log->sync();  // each phase end is on disk
+    log_sync();  // each phase end is on disk
     broadcast_watch();
   }
   if (engine->estimation_due() && !worker_busy) {
@@ -279,30 +460,38 @@ void Daemon::after_engine() {
     worker_busy = true;
     if (worker.joinable()) worker.join();
     worker = std::thread([this] {
-      auto r = est::estimate(input->input);
-      if (r) {
-        result = std::move(*r);
-      } else {
-        est_error = r.error().describe();
+      try {
+        auto r = est::estimate(input->input);
+        if (r) {
+          result = std::move(*r);
+        } else {
+          est_error = r.error().describe();
+        }
+      } catch (const std::exception& e) {
+        est_error = std::string("internal error: ") + e.what();
       }
       const char c = 1;
-      (void)!::write(done_pipe[1], &c, 1);
+      while (::write(done_pipe[1], &c, 1) < 0 && errno == EINTR) {
+      }
     });
   }
   if (engine->report_due()) {
     write_report(true);
-    engine->report_written(socketcan::realtime_ns(), true, "", out);
+    engine->report_written(socketcan::realtime_ns(), log_error.empty(), log_error, out);
     return after_engine();
   }
   if (run::finished(p) && !report_done) write_report(false);
 }
 
+/// The report, on disk before the run is called done: a report that cannot
+/// be written leaves log_error set, and the run ends failed with it.
 void Daemon::write_report(bool with_estimates) {
   report_done = true;
   if (log) {
-    (void)log->sync();
-    (void)log->close();
+    auto st = log->sync();
+    auto cl = log->close();
     log.reset();
+    if (!st || !cl) log_error = (!st ? st : cl).error().describe();
   }
   run::ReportContext ctx;
   ctx.run_id = run_id;
@@ -319,54 +508,60 @@ void Daemon::write_report(bool with_estimates) {
   ctx.tolerances = cfg.tolerances;
   ctx.mode = engine->sequencer().settings().observe ? "observe" : "command";
   ctx.unit = unit;
-  const bool est = with_estimates && result && input;
-  const json j = run::report_json(ctx, *engine, est ? &*input : nullptr, est ? &*result : nullptr);
-  const fs::path dir = cfg.daemon.state_directory;
-  auto a = write_atomic(dir / (run_id + ".report.json"), j.dump(2) + "\n");
-  auto b = write_atomic(dir / (run_id + ".report.txt"), run::report_text(j));
-  auto c = write_atomic(dir / (run_id + ".report.html"),
-                        run::report_html(j, est ? &*input : nullptr, est ? &*result : nullptr));
-  if (a) index_report(run_id, j);
-  if (!a || !b || !c)
-    warn("report not written: " + (!a ? a.error() : !b ? b.error() : c.error()).describe());
-  else
-    info("report written: " + (dir / (run_id + ".report.json")).string());
+  ctx.can = can_json(true);
+  const bool est = with_estimates && result && input && log_error.empty();
+  json j = run::report_json(ctx, *engine, est ? &*input : nullptr, est ? &*result : nullptr);
+  if (!log_error.empty() && with_estimates) {
+    // the run was to be done, but its log is not whole: it is not done
+    j["status"] = "failed";
+    j["reason"] = "log not written whole: " + log_error;
+  }
+  auto a = state->write_atomic(run_id + ".report.json", j.dump(2) + "\n");
+  auto b = state->write_atomic(run_id + ".report.txt", run::report_text(j));
+  auto c = state->write_atomic(run_id + ".report.html", run::report_html(j, est ? &*input : nullptr,
+                                                                         est ? &*result : nullptr));
+  if (a) state->index_report(run_id, j);
+  if (!a || !b || !c) {
+    const std::string why = (!a ? a.error() : !b ? b.error() : c.error()).describe();
+    error("report not written: " + why);
+    if (log_error.empty()) log_error = "report not written: " + why;
+  } else {
+    info("report written: " + (state->path() / (run_id + ".report.json")).string());
+  }
   // the run's samples (most of its memory) are in the report now, or the
   // run failed: a service that idles between runs need not hold them
   input.reset();
   result.reset();
 }
 
-void Daemon::index_report(const std::string& id, const json& report) {
-  index[id] = report_summary(report);
-}
-
 /// A log with no report: a run that was killed. Its log replays up to that
 /// moment; the report says so.
 void Daemon::report_interrupted_runs() {
-  std::error_code ec;
-  for (const auto& e : fs::directory_iterator(cfg.daemon.state_directory, ec)) {
-    const std::string name = e.path().filename().string();
-    if (!name.ends_with(".log")) continue;
-    const std::string id = name.substr(0, name.size() - 4);
-    const fs::path rep = e.path().parent_path() / (id + ".report.json");
-    if (fs::exists(rep)) continue;
-    auto dg = run::sha256_file(e.path().string());
+  for (const std::string& id : state->logs_without_report()) {
+    const fs::path log_file = state->path() / (id + ".log");
+    auto dg = run::sha256_file(log_file.string());
     if (!dg) {
       say(LOG_WARNING, id, "interrupted", dg.error().describe());
       continue;
     }
     const std::uint64_t lines = dg->lines;
     const json j = {{"format", "turncal-report-1"},
+                    {"schema_version", run::kReportSchemaVersion},
                     {"run_id", id},
                     {"status", "interrupted"},
                     {"reason", "the daemon stopped during the run (killed or crashed)"},
-                    {"log", {{"file", name}, {"sha256", dg->sha256}, {"lines", lines}}},
+                    {"log", {{"file", id + ".log"}, {"sha256", dg->sha256}, {"lines", lines}}},
                     {"verdict", {{"pass", false}, {"checks", json::array()}}}};
-    if (write_atomic(rep, j.dump(2) + "\n")) index_report(id, j);
-    (void)write_atomic(e.path().parent_path() / (id + ".report.txt"), run::report_text(j));
-    (void)write_atomic(e.path().parent_path() / (id + ".report.html"),
-                       run::report_html(j, nullptr, nullptr));
+    auto a = state->write_atomic(id + ".report.json", j.dump(2) + "\n");
+    if (a) state->index_report(id, j);
+    auto b = state->write_atomic(id + ".report.txt", run::report_text(j));
+    auto c = state->write_atomic(id + ".report.html", run::report_html(j, nullptr, nullptr));
+    if (!a || !b || !c)
+      say(LOG_ERR, id, "interrupted",
+          "report not written: " + (!a   ? a.error()
+                                    : !b ? b.error()
+                                         : c.error())
+                                       .describe());
     say(LOG_WARNING, id, "interrupted",
         "run " + id + " was interrupted; its log (" + std::to_string(lines) + " frames) is kept");
   }
@@ -374,13 +569,8 @@ void Daemon::report_interrupted_runs() {
 
 json Daemon::status() const {
   json j = {{"ok", true}, {"phase", phase_name()}, {"run_id", run_id}};
-  // what the sockets took since the daemon started, and what the kernel lost
-  json can = json::object();
-  for (const auto* s : {&ins_sock, &table_sock})
-    if (*s)
-      can[(*s)->interface()] = {{"rx_frames", (*s)->stats().rx_frames},
-                                {"rx_dropped", (*s)->stats().rx_dropped}};
-  j["can"] = can;
+  // what the sockets did since the daemon started, and what waits or was lost
+  j["can"] = can_json(false);
   if (!engine) return j;
   const auto& s = engine->sequencer();
   const double now = engine->stand_s(socketcan::realtime_ns());
@@ -408,48 +598,68 @@ json Daemon::status() const {
   return j;
 }
 
-json Daemon::start(const json& req) {
+json Daemon::start(const StartRequest& req) {
   if (running()) return {{"ok", false}, {"error", "a run is in progress: " + run_id}};
   if (worker_busy) return {{"ok", false}, {"error", "the last run's estimation is still running"}};
-  std::string profile = cfg.daemon.profile.string();
-  if (req.contains("profile") && req["profile"].is_string()) profile = req["profile"];
-  auto plan = load_plan(profile);
+  // the plan: the operator's text, a name in the profiles directory, or the
+  // configured default; never a path a client names
+  Result<Plan> plan = make_error("no plan");
+  std::string from;
+  if (!req.plan_text.empty()) {
+    from = req.plan_name + " (sent by the client)";
+    plan = parse_plan(req.plan_text, req.plan_name);
+  } else if (!req.plan_name.empty()) {
+    const std::string file =
+        req.plan_name.ends_with(".toml") ? req.plan_name : req.plan_name + ".toml";
+    const fs::path p = cfg.daemon.profiles_directory / file;
+    from = p.string();
+    std::error_code ec;
+    if (!fs::is_regular_file(p, ec))
+      return {{"ok", false},
+              {"error", "no plan '" + req.plan_name + "' in the profiles directory " +
+                            cfg.daemon.profiles_directory.string()}};
+    plan = load_plan(p.string());
+  } else {
+    from = cfg.daemon.profile.string();
+    plan = load_plan(from);
+  }
   if (!plan) return {{"ok", false}, {"error", plan.error().describe()}};
   run::SequencerSettings q;
   q.profile = plan->profile;
   q.start_angle_rad = plan->start_angle_rad;
   q.heading_offset_rad = cfg.stand.heading_offset_rad;
   q.limits = cfg.stand.limits;
-  q.observe = cfg.daemon.observe || req.value("observe", false);
+  q.observe = cfg.daemon.observe || req.observe;
   q.stale_floor_s = cfg.daemon.stale_floor_ms * 1e-3 * cfg.stand.time_scale;
-  if (req.contains("heading_offset_deg")) {
-    if (!req["heading_offset_deg"].is_number())
-      return {{"ok", false}, {"error", "heading_offset_deg: expected a number of degrees"}};
-    q.heading_offset_rad = req["heading_offset_deg"].get<double>() * std::numbers::pi / 180;
+  if (req.heading_offset_deg)
+    q.heading_offset_rad = *req.heading_offset_deg * std::numbers::pi / 180;
+  {
+    // refused before a log is opened or a run id given: nothing to record
+    run::SequencerSettings checked = q;
+    checked.commands = run::command_signals(roles);
+    if (const std::string bad = run::check_plan(checked); !bad.empty())
+      return {{"ok", false}, {"error", "plan refused: " + bad}};
   }
-  std::string unit_id = cfg.stand.unit;
-  if (req.contains("unit")) {
-    if (!req["unit"].is_string() || !valid_unit(req["unit"].get<std::string>()))
-      return {
-          {"ok", false},
-          {"error", "unit: expected the INS identity, 1 to 64 letters, digits, '-', '_' or '.'"}};
-    unit_id = req["unit"].get<std::string>();
-  }
+  const std::string unit_id = req.unit.value_or(cfg.stand.unit);
   if (engine) {
     q.table_seq_base = static_cast<std::uint8_t>(engine->commands_sent() + 100);
     q.ins_seq_base = q.table_seq_base;
   }
   const std::int64_t now = socketcan::realtime_ns();
-  run_start_ns = now;
-  run_id = utc_id(now);
+  std::string id = utc_id(now);
   // two runs within a second: the second gets a suffix, no log is overwritten
-  for (int k = 2; fs::exists(cfg.daemon.state_directory / (run_id + ".log")); ++k)
-    run_id = utc_id(now) + "-" + std::to_string(k);
-  log_path = cfg.daemon.state_directory / (run_id + ".log");
-  auto w = can::LogWriter::open(log_path.string());
+  for (int k = 2; state->has_log(id); ++k) id = utc_id(now) + "-" + std::to_string(k);
+  const fs::path path = state->path() / (id + ".log");
+  auto w = can::LogWriter::open(path.string());
   if (!w) return {{"ok", false}, {"error", w.error().describe()}};
+  run_start_ns = now;
+  run_id = id;
+  log_path = path;
   log.emplace(std::move(*w));
+  log_error.clear();
   unit = unit_id;
+  for (Port& p : ports)
+    if (p.sock) p.at_run_start = p.sock->stats();
   run::BuildSettings b;
   b.heading_offset_rad = q.heading_offset_rad;
   engine = std::make_unique<run::Engine>(db, roles, *plan, q, b,
@@ -459,50 +669,176 @@ json Daemon::start(const json& req) {
   est_error.clear();
   report_done = false;
   last_phase = run::Phase::Idle;
-  info("run started: " + plan->name + " from " + profile + (unit.empty() ? "" : ", unit " + unit));
+  info("run started: " + plan->name + " from " + from + (unit.empty() ? "" : ", unit " + unit));
   engine->start(now, out);
   after_engine();
   return {{"ok", true}, {"run_id", run_id}, {"log", log_path.string()}};
 }
 
+// ---- control clients ----
+
 void Daemon::broadcast_watch() {
   const json s = status();
   for (auto& c : clients)
     if (c->watching) c->reply(s);
+  // clients are dropped in reap_clients(), never here: a request being
+  // served may have called this
+}
+
+/// Drops the clients that are done, broken, idle or that leave replies unread.
+void Daemon::reap_clients() {
+  const std::uint64_t now = monotonic_us();
+  const auto idle = static_cast<std::uint64_t>(cfg.daemon.client_idle_s * 1e6);
+  for (auto& c : clients) {
+    if (c->unread_since_us != 0 && now - c->unread_since_us > idle) {
+      warn("control client dropped: its replies were left unread for " +
+           std::to_string(static_cast<int>(cfg.daemon.client_idle_s)) + " s");
+      c->broken = true;
+    } else if (!c->watching && c->out.empty() && now - c->last_request_us > idle) {
+      c->broken = true;  // connected, asking nothing
+    }
+  }
   std::erase_if(clients, [](const auto& c) { return c->done(); });
 }
 
-void Daemon::on_can(socketcan::Socket& s, bool /*ins_side*/) {
-  for (;;) {
-    rx.clear();
-    auto n = s.receive(rx, kRxBatches);
-    if (!n) {
-      warn(n.error().describe());
+void Daemon::handle_request(Client& c, const std::string& line) {
+  View v;
+  v.status = [this] { return status(); };
+  v.running = running();
+  v.index = &state->index();
+  v.read_report = [this](const std::string& id) { return state->read_report(id); };
+  Outcome o = dispatch(line, v);
+  if (o.watch) c.watching = true;
+  if (o.action) {
+    if (const auto* s = std::get_if<StartRequest>(&*o.action)) {
+      o.reply = start(*s);
+    } else if (const auto* a = std::get_if<AbortRequest>(&*o.action)) {
+      engine->abort(socketcan::realtime_ns(), a->reason, out);
+      after_engine();
+      o.reply = {{"ok", true}, {"run_id", run_id}};
+    }
+  }
+  c.reply(o.reply);
+}
+
+template <class F>
+int guarded(Daemon* d, const char* where, F&& f) {
+  try {
+    f();
+  } catch (const std::exception& e) {
+    d->internal_error(where, e.what());
+  } catch (...) {
+    d->internal_error(where, "unknown exception");
+  }
+  return 0;
+}
+
+int on_client(sd_event_source*, int fd, uint32_t revents, void* u) {
+  auto* c = static_cast<Client*>(u);
+  Daemon& d = *c->d;
+  guarded(&d, "a control request", [&] {
+    if (revents & EPOLLOUT) c->flush();
+    if (revents & (EPOLLHUP | EPOLLERR)) c->broken = true;
+    if ((revents & EPOLLIN) && !c->close_after && !c->broken) {
+      char buf[4096];
+      const ssize_t n = ::recv(fd, buf, sizeof buf, MSG_DONTWAIT);
+      if (n == 0 || (n < 0 && errno != EAGAIN && errno != EINTR)) {
+        // the client closed: what it asked is answered, then it is dropped
+        c->close_after = true;
+      } else if (n > 0) {
+        c->last_request_us = monotonic_us();
+        c->in.append(buf, static_cast<std::size_t>(n));
+        std::size_t nl;
+        while (!c->close_after && !c->broken && (nl = c->in.find('\n')) != std::string::npos) {
+          const std::string line = c->in.substr(0, nl);
+          c->in.erase(0, nl + 1);
+          if (line.size() > kMaxRequest) {
+            c->reply({{"ok", false}, {"error", "request too large"}});
+            c->close_after = true;
+          } else {
+            d.handle_request(*c, line);
+          }
+        }
+        if (!c->close_after && c->in.size() > kMaxRequest) {
+          c->reply(
+              {{"ok", false},
+               {"error", "request too large (over " + std::to_string(kMaxRequest) + " bytes)"}});
+          c->close_after = true;
+        }
+      }
+    }
+    if (c->close_after) c->in.clear();
+    c->flush();  // sends what is left, and sets the events still wanted
+  });
+  // the one place a client is freed while its own callback runs: after it
+  if (c->done()) std::erase_if(d.clients, [&](const auto& p) { return p.get() == c; });
+  return 0;
+}
+
+int on_accept_again(sd_event_source*, uint64_t, void* u) {
+  auto* d = static_cast<Daemon*>(u);
+  sd_event_source_set_enabled(d->listen_src, SD_EVENT_ON);
+  return 0;
+}
+
+int on_accept(sd_event_source*, int fd, uint32_t, void* u) {
+  auto* d = static_cast<Daemon*>(u);
+  return guarded(d, "accept", [&] {
+    const int cfd = ::accept4(fd, nullptr, nullptr, SOCK_NONBLOCK | SOCK_CLOEXEC);
+    if (cfd < 0) {
+      if (errno == EMFILE || errno == ENFILE || errno == ENOBUFS || errno == ENOMEM) {
+        // the pending connection stays readable: without a pause the loop spins
+        d->warn(std::string("cannot accept a control connection: ") + std::strerror(errno) +
+                "; accepting again in 1 s");
+        sd_event_source_set_enabled(d->listen_src, SD_EVENT_OFF);
+        std::uint64_t now = 0;
+        sd_event_now(d->ev, CLOCK_MONOTONIC, &now);
+        sd_event_source_set_time(d->accept_again, now + kAcceptBackoffUs);
+        sd_event_source_set_enabled(d->accept_again, SD_EVENT_ONESHOT);
+      }
       return;
     }
-    for (const auto& ev_ : rx.events) warn(s.interface() + ": " + can::describe(ev_));
-    for (const can::TimedFrame& f : rx.frames) {
-      if (log) (void)log->write({f.time_ns, s.interface(), f.frame});
-      if (engine) engine->on_frame(f, out);
+    if (d->clients.size() >= d->cfg.daemon.max_clients) {
+      const std::string msg = "{\"ok\":false,\"error\":\"too many control connections (" +
+                              std::to_string(d->cfg.daemon.max_clients) + ")\"}\n";
+      (void)!::send(cfd, msg.data(), msg.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
+      ::close(cfd);
+      d->warn("control connection refused: " + std::to_string(d->clients.size()) + " open");
+      return;
     }
-    if (log) (void)log->flush();
-    after_engine();
-    // a short read drained the socket: no second recvmmsg just to see EAGAIN
-    if (*n < kRxBatches * socketcan::Socket::kBatchFrames) return;
-  }
+    struct ucred cred {};
+    socklen_t len = sizeof cred;
+    if (::getsockopt(cfd, SOL_SOCKET, SO_PEERCRED, &cred, &len) == 0)
+      d->info("control connection from pid " + std::to_string(cred.pid) + " uid " +
+              std::to_string(cred.uid) + " gid " + std::to_string(cred.gid));
+    auto c = std::make_unique<Client>();
+    c->d = d;
+    c->fd = cfd;
+    c->last_request_us = monotonic_us();
+    if (sd_event_add_io(d->ev, &c->src, cfd, EPOLLIN, on_client, c.get()) < 0) {
+      d->warn("cannot watch a control connection");
+      return;  // the destructor closes it
+    }
+    d->clients.push_back(std::move(c));
+  });
 }
 
 // ---- sd-event callbacks ----
 
-int on_can_ins(sd_event_source*, int, uint32_t, void* u) {
-  auto* d = static_cast<Daemon*>(u);
-  d->on_can(*d->ins_sock, true);
-  return 0;
+int on_can_io(sd_event_source*, int, uint32_t revents, void* u) {
+  auto* p = static_cast<Port*>(u);
+  Daemon* d = p->owner;
+  return guarded(d, "CAN", [&] {
+    if (revents & EPOLLOUT) d->flush_port(*p);
+    if (revents & (EPOLLIN | EPOLLERR)) d->on_can(*p);
+  });
 }
-int on_can_table(sd_event_source*, int, uint32_t, void* u) {
+
+int on_tx_retry(sd_event_source*, uint64_t, void* u) {
   auto* d = static_cast<Daemon*>(u);
-  d->on_can(*d->table_sock, false);
-  return 0;
+  return guarded(d, "CAN send", [&] {
+    for (Port& p : d->ports) d->flush_port(p);
+  });
 }
 
 int on_timer(sd_event_source* s, uint64_t usec, void* u) {
@@ -510,163 +846,54 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
   const double period_s = 1.0 / (d->cfg.daemon.heartbeat_hz * d->cfg.stand.time_scale);
   sd_event_source_set_time(s, usec + static_cast<uint64_t>(period_s * 1e6));
   sd_event_source_set_enabled(s, SD_EVENT_ON);
-  if (d->engine) {
-    // what has arrived counts before anything is judged lost
-    d->on_can(*d->ins_sock, true);
-    if (d->table_sock) d->on_can(*d->table_sock, false);
-    d->engine->tick(socketcan::realtime_ns(), d->out);
-  }
-  // the heartbeat goes out from this loop, between runs too: a table will not
-  // start a move for a host it has not heard from
-  const bool observing = d->running() && d->engine->sequencer().settings().observe;
-  if (!d->cfg.daemon.observe && !observing)
-    d->out.push_back(run::heartbeat_frame(d->roles, d->heartbeat_counter++,
-                                          d->engine ? d->engine->sequencer().host_state() : 0));
-  d->after_engine();
-  if (d->stopping && !d->running() && !d->worker_busy) sd_event_exit(d->ev, 0);
-  if (++d->timer_ticks % 5 == 0) d->broadcast_watch();
-  return 0;
+  return guarded(d, "the timer", [&] {
+    d->recover_ports();
+    if (d->engine) {
+      // what has arrived counts before anything is judged lost (one budget's worth)
+      for (Port& p : d->ports)
+        if (p.sock && p.sock->fd() >= 0) d->on_can(p);
+      d->engine->tick(socketcan::realtime_ns(), d->out);
+    }
+    // the heartbeat goes out from this loop, between runs too: a table will not
+    // start a move for a host it has not heard from
+    const bool observing = d->running() && d->engine->sequencer().settings().observe;
+    if (!d->cfg.daemon.observe && !observing)
+      d->out.push_back(run::heartbeat_frame(d->roles, d->heartbeat_counter++,
+                                            d->engine ? d->engine->sequencer().host_state() : 0));
+    d->after_engine();
+    if (d->stopping && !d->running() && !d->worker_busy) sd_event_exit(d->ev, 0);
+    if (++d->timer_ticks % 5 == 0) d->broadcast_watch();
+    d->reap_clients();
+  });
 }
 
 int on_signal(sd_event_source*, const struct signalfd_siginfo* si, void* u) {
   auto* d = static_cast<Daemon*>(u);
-  const char* name = si->ssi_signo == SIGTERM ? "SIGTERM" : "SIGINT";
-  d->info(std::string(name) + " received");
-  d->stopping = true;
-  sd_notify(0, "STOPPING=1");
-  if (d->running()) {
-    d->engine->signal(socketcan::realtime_ns(), name, d->out);
-    d->after_engine();
-  }
-  if (!d->running() && !d->worker_busy) sd_event_exit(d->ev, 0);
-  return 0;
+  return guarded(d, "a signal", [&] {
+    const char* name = si->ssi_signo == SIGTERM ? "SIGTERM" : "SIGINT";
+    d->info(std::string(name) + " received");
+    d->stopping = true;
+    sd_notify(0, "STOPPING=1");
+    if (d->running()) {
+      d->engine->signal(socketcan::realtime_ns(), name, d->out);
+      d->after_engine();
+    }
+    if (!d->running() && !d->worker_busy) sd_event_exit(d->ev, 0);
+  });
 }
 
 int on_worker_done(sd_event_source*, int fd, uint32_t, void* u) {
   auto* d = static_cast<Daemon*>(u);
-  char c;
-  (void)!::read(fd, &c, 1);
-  if (d->worker.joinable()) d->worker.join();
-  d->worker_busy = false;
-  if (d->engine)
-    d->engine->estimation_done(socketcan::realtime_ns(), d->result.has_value(), d->est_error,
-                               d->out);
-  d->after_engine();
-  return 0;
-}
-
-void handle_request(Client& c, const std::string& line) {
-  Daemon& d = *c.d;
-  json req;
-  try {
-    req = json::parse(line);
-  } catch (const json::exception& e) {
-    return c.reply({{"ok", false}, {"error", std::string("malformed request: ") + e.what()}});
-  }
-  if (!req.is_object() || !req.contains("cmd") || !req["cmd"].is_string())
-    return c.reply({{"ok", false}, {"error", "malformed request: expected {\"cmd\": ...}"}});
-  const std::string cmd = req["cmd"];
-  if (cmd == "status") return c.reply(d.status());
-  if (cmd == "watch") {
-    c.watching = true;
-    return c.reply(d.status());
-  }
-  if (cmd == "start") return c.reply(d.start(req));
-  if (cmd == "abort") {
-    if (!d.running()) return c.reply({{"ok", false}, {"error", "no run in progress"}});
-    d.engine->abort(socketcan::realtime_ns(), req.value("reason", std::string()), d.out);
-    d.after_engine();
-    return c.reply({{"ok", true}, {"run_id", d.run_id}});
-  }
-  if (cmd == "reports") {
-    json list = json::array();
-    for (const auto& [id, r] : d.index) {
-      const bool ok = r.is_object();
-      list.push_back({{"run_id", id},
-                      {"status", ok ? r.value("status", "?") : "unreadable"},
-                      {"unit", ok && r.contains("unit") ? r["unit"] : json(nullptr)},
-                      {"pass", ok && r.contains("verdict") ? r["verdict"]["pass"] : json(false)}});
-    }
-    return c.reply({{"ok", true}, {"reports", list}});
-  }
-  if (cmd == "history") {
-    if (!req.contains("unit") || !req["unit"].is_string())
-      return c.reply({{"ok", false}, {"error", "history: expected a unit"}});
-    std::vector<json> all;
-    all.reserve(d.index.size());
-    for (const auto& [id, r] : d.index) all.push_back(r);
-    const json h = run::history_json(req["unit"].get<std::string>(), all);
-    return c.reply({{"ok", true}, {"history", h}, {"text", run::history_text(h)}});
-  }
-  if (cmd == "report") {
-    const std::string id = req.value("run_id", std::string());
-    if (id.empty() || id.find('/') != std::string::npos || id.find("..") != std::string::npos)
-      return c.reply({{"ok", false}, {"error", "report: expected a run_id"}});
-    const fs::path p = d.cfg.daemon.state_directory / (id + ".report.json");
-    if (!fs::exists(p)) return c.reply({{"ok", false}, {"error", "no report " + id}});
-    json r = json::parse(read_file(p), nullptr, false);
-    if (r.is_discarded())
-      return c.reply({{"ok", false}, {"error", "report " + id + " unreadable"}});
-    return c.reply({{"ok", true}, {"report", r}, {"text", run::report_text(r)}});
-  }
-  c.reply({{"ok", false}, {"error", "unknown command '" + cmd + "'"}});
-}
-
-int on_client(sd_event_source*, int fd, uint32_t revents, void* u) {
-  auto* c = static_cast<Client*>(u);
-  Daemon& d = *c->d;
-  auto drop = [&] { std::erase_if(d.clients, [&](const auto& p) { return p.get() == c; }); };
-  if (revents & EPOLLOUT) c->flush();
-  if (revents & (EPOLLHUP | EPOLLERR)) c->broken = true;
-  if ((revents & EPOLLIN) && !c->close_after && !c->broken) {
-    char buf[4096];
-    const ssize_t n = ::recv(fd, buf, sizeof buf, MSG_DONTWAIT);
-    if (n == 0 || (n < 0 && errno != EAGAIN && errno != EINTR)) {
-      // the client closed: what it asked is answered, then it is dropped
-      c->close_after = true;
-    } else if (n > 0) {
-      c->in.append(buf, static_cast<std::size_t>(n));
-      std::size_t nl;
-      while (!c->close_after && (nl = c->in.find('\n')) != std::string::npos) {
-        const std::string line = c->in.substr(0, nl);
-        c->in.erase(0, nl + 1);
-        if (line.size() > kMaxRequest) {
-          c->reply({{"ok", false}, {"error", "request too large"}});
-          c->close_after = true;
-        } else {
-          handle_request(*c, line);
-        }
-      }
-      if (!c->close_after && c->in.size() > kMaxRequest) {
-        c->reply({{"ok", false},
-                  {"error", "request too large (over " + std::to_string(kMaxRequest) + " bytes)"}});
-        c->close_after = true;
-      }
-    }
-  }
-  if (c->close_after) c->in.clear();
-  if (c->done())
-    drop();
-  else
-    c->flush();  // sends what is left, and sets the events still wanted
-  return 0;
-}
-
-int on_accept(sd_event_source*, int fd, uint32_t, void* u) {
-  auto* d = static_cast<Daemon*>(u);
-  const int cfd = ::accept4(fd, nullptr, nullptr, SOCK_NONBLOCK | SOCK_CLOEXEC);
-  if (cfd < 0) return 0;
-  struct ucred cred {};
-  socklen_t len = sizeof cred;
-  if (::getsockopt(cfd, SOL_SOCKET, SO_PEERCRED, &cred, &len) == 0)
-    d->info("control connection from pid " + std::to_string(cred.pid) + " uid " +
-            std::to_string(cred.uid) + " gid " + std::to_string(cred.gid));
-  auto c = std::make_unique<Client>();
-  c->d = d;
-  c->fd = cfd;
-  sd_event_add_io(d->ev, &c->src, cfd, EPOLLIN, on_client, c.get());
-  d->clients.push_back(std::move(c));
-  return 0;
+  return guarded(d, "the estimation's end", [&] {
+    char c;
+    (void)!::read(fd, &c, 1);
+    if (d->worker.joinable()) d->worker.join();
+    d->worker_busy = false;
+    if (d->engine)
+      d->engine->estimation_done(socketcan::realtime_ns(), d->result.has_value(), d->est_error,
+                                 d->out);
+    d->after_engine();
+  });
 }
 
 Status Daemon::setup() {
@@ -680,18 +907,12 @@ Status Daemon::setup() {
   db = std::move(d);
   TURNCAL_ASSIGN(r, resolve_roles(cfg.can, db));
   roles = r;
-  std::error_code ec;
-  fs::create_directories(cfg.daemon.state_directory, ec);
-  if (ec)
-    return make_error("cannot create the state directory " + cfg.daemon.state_directory.string() +
-                      ": " + ec.message());
+  state.emplace(cfg.daemon.state_directory);
+  TURNCAL_TRY(state->create());
   report_interrupted_runs();
-  for (const auto& e : fs::directory_iterator(cfg.daemon.state_directory, ec)) {
-    const std::string n = e.path().filename().string();
-    if (!n.ends_with(".report.json")) continue;
-    const std::string id = n.substr(0, n.size() - 12);
-    if (!index.contains(id)) index_report(id, json::parse(read_file(e.path()), nullptr, false));
-  }
+  state->load_index();
+  for (const auto& [id, e] : state->index())
+    if (!e.unreadable.empty()) say(LOG_WARNING, id, "idle", "report unreadable: " + e.unreadable);
 
   auto open_sock = [&](const std::string& iface) -> Result<socketcan::Socket> {
     socketcan::Options so;
@@ -699,16 +920,18 @@ Status Daemon::setup() {
     so.fd = cfg.can.fd;
     so.tx_queue_limit = cfg.can.tx_queue_frames;
     so.rcvbuf_bytes = static_cast<int>(cfg.can.rx_buffer_bytes);
+    so.confirm = true;  // a frame is logged as sent when the kernel echoes it
     return socketcan::Socket::open(so);
   };
   TURNCAL_ASSIGN(is, open_sock(cfg.can.ins_interface));
-  ins_sock.emplace(std::move(is));
+  ports[0].sock.emplace(std::move(is));
   if (cfg.can.table_interface != cfg.can.ins_interface) {
     TURNCAL_ASSIGN(ts, open_sock(cfg.can.table_interface));
-    table_sock.emplace(std::move(ts));
+    ports[1].sock.emplace(std::move(ts));
   }
 
   // the control socket: systemd's, or our own
+  std::error_code ec;
   const int n = sd_listen_fds(1);
   if (n > 1) return make_error("expected one socket from systemd, got " + std::to_string(n));
   if (n == 1) {
@@ -720,13 +943,15 @@ Status Daemon::setup() {
     if (path.size() >= sizeof a.sun_path) return make_error("socket path too long: " + path);
     fs::create_directories(cfg.daemon.socket.parent_path(), ec);
     listen_fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
+    if (listen_fd < 0) return make_error(std::string("socket(AF_UNIX): ") + std::strerror(errno));
     a.sun_family = AF_UNIX;
     std::memcpy(a.sun_path, path.c_str(), path.size());
     ::unlink(path.c_str());
     if (::bind(listen_fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0 ||
         ::listen(listen_fd, 16) != 0)
       return make_error("cannot listen on " + path + ": " + std::strerror(errno));
-    ::chmod(path.c_str(), 0660);
+    if (::chmod(path.c_str(), 0660) != 0)
+      return make_error("cannot chmod " + path + ": " + std::strerror(errno));
     if (!cfg.daemon.socket_group.empty()) {
       const group* g = ::getgrnam(cfg.daemon.socket_group.c_str());
       if (g == nullptr) return make_error("no group '" + cfg.daemon.socket_group + "'");
@@ -736,21 +961,43 @@ Status Daemon::setup() {
   }
   if (::pipe2(done_pipe, O_CLOEXEC | O_NONBLOCK) != 0) return make_error("pipe failed");
 
-  sd_event_default(&ev);
+  auto check = [](int rc, const char* what) -> Status {
+    if (rc < 0) return make_error(std::string("sd-event: ") + what + ": " + std::strerror(-rc));
+    return Status{Ok{}};
+  };
+  TURNCAL_TRY(check(sd_event_default(&ev), "sd_event_default"));
   sigset_t ss;
   sigemptyset(&ss);
   sigaddset(&ss, SIGTERM);
   sigaddset(&ss, SIGINT);
   sigprocmask(SIG_BLOCK, &ss, nullptr);
-  sd_event_add_signal(ev, nullptr, SIGTERM, on_signal, this);
-  sd_event_add_signal(ev, nullptr, SIGINT, on_signal, this);
-  sd_event_add_io(ev, &ins_src, ins_sock->fd(), EPOLLIN, on_can_ins, this);
-  if (table_sock) sd_event_add_io(ev, &table_src, table_sock->fd(), EPOLLIN, on_can_table, this);
-  sd_event_add_io(ev, nullptr, listen_fd, EPOLLIN, on_accept, this);
-  sd_event_add_io(ev, nullptr, done_pipe[0], EPOLLIN, on_worker_done, this);
+  TURNCAL_TRY(check(sd_event_add_signal(ev, nullptr, SIGTERM, on_signal, this), "SIGTERM"));
+  TURNCAL_TRY(check(sd_event_add_signal(ev, nullptr, SIGINT, on_signal, this), "SIGINT"));
+  for (Port& p : ports) {
+    p.owner = this;
+    if (!p.sock) continue;
+    p.registered_fd = p.sock->fd();
+    TURNCAL_TRY(check(sd_event_add_io(ev, &p.src, p.registered_fd, EPOLLIN, on_can_io, &p), "CAN"));
+  }
+  TURNCAL_TRY(
+      check(sd_event_add_io(ev, &listen_src, listen_fd, EPOLLIN, on_accept, this), "listen"));
+  TURNCAL_TRY(
+      check(sd_event_add_io(ev, nullptr, done_pipe[0], EPOLLIN, on_worker_done, this), "worker"));
   uint64_t now = 0;
   sd_event_now(ev, CLOCK_MONOTONIC, &now);
-  sd_event_add_time(ev, nullptr, CLOCK_MONOTONIC, now, 1000, on_timer, this);
+  sd_event_source* timer = nullptr;
+  TURNCAL_TRY(
+      check(sd_event_add_time(ev, &timer, CLOCK_MONOTONIC, now, 1000, on_timer, this), "timer"));
+  // the heartbeat, the ticks and the watchdog before any socket
+  sd_event_source_set_priority(timer, kPrioTimers);
+  TURNCAL_TRY(check(sd_event_add_time(ev, &tx_retry, CLOCK_MONOTONIC, now, 1000, on_tx_retry, this),
+                    "retry timer"));
+  sd_event_source_set_priority(tx_retry, kPrioTimers);
+  sd_event_source_set_enabled(tx_retry, SD_EVENT_OFF);
+  TURNCAL_TRY(
+      check(sd_event_add_time(ev, &accept_again, CLOCK_MONOTONIC, now, 1000, on_accept_again, this),
+            "accept timer"));
+  sd_event_source_set_enabled(accept_again, SD_EVENT_OFF);
   sd_event_set_watchdog(ev, 1);  // WATCHDOG=1 from the loop itself, when WatchdogSec= asks
   return Status{Ok{}};
 }
@@ -790,6 +1037,7 @@ int main(int argc, char** argv) {
   const int r = sd_event_loop(d.ev);
   if (d.worker.joinable()) d.worker.join();
   d.clients.clear();
+  for (Port& p : d.ports) p.src = sd_event_source_unref(p.src);
   sd_event_unref(d.ev);
   return r < 0 ? 1 : 0;
 }

@@ -92,10 +92,9 @@ void Engine::feed(const Event& e, std::vector<OutFrame>& out) {
   }
   if (unsent.empty()) return;
   if (seq_.phase() == Phase::Turn) unsent = "turn " + std::to_string(seq_.index()) + ": " + unsent;
-  // ends the run with the reason and a quick stop (as an abort: the
-  // sequencer has no event of its own for a host fault yet)
+  // a fault of the host: the run fails with the reason and a quick stop
   const double t = std::visit([](const auto& ev) { return ev.t_s; }, e);
-  feed(AbortRequest{t, unsent}, out);
+  feed(HostFault{t, unsent}, out);
 }
 
 void Engine::start(std::int64_t now_ns, std::vector<OutFrame>& out) {
@@ -108,6 +107,10 @@ void Engine::abort(std::int64_t now_ns, const std::string& reason, std::vector<O
 
 void Engine::signal(std::int64_t now_ns, const std::string& name, std::vector<OutFrame>& out) {
   feed(SignalEvent{stand_s(now_ns), name}, out);
+}
+
+void Engine::fault(std::int64_t now_ns, const std::string& what, std::vector<OutFrame>& out) {
+  feed(HostFault{stand_s(now_ns), what}, out);
 }
 
 void Engine::end_of_input(std::int64_t now_ns, std::vector<OutFrame>& out) {

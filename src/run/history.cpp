@@ -19,7 +19,8 @@ json history_json(const std::string& unit, const std::vector<json>& reports) {
   for (const json& r : reports) {
     if (!r.is_object() || !r.contains("unit") || !r["unit"].is_string() || r["unit"] != unit)
       continue;
-    if (r.value("status", std::string()) != "done" || !r.contains("estimates")) {
+    if (r.value("status", std::string()) != "done" || !r.contains("estimates") ||
+        !r["estimates"].is_object()) {
       ++other;
       continue;
     }
@@ -38,11 +39,16 @@ json history_json(const std::string& unit, const std::vector<json>& reports) {
       values[name].emplace_back(e["value"].get<double>(), e["sigma"].get<double>());
       units[name] = e.value("unit", std::string());
     }
-    list.push_back({{"run_id", r->value("run_id", std::string())},
-                    {"start_time_unix_s", start(r)},
-                    {"profile", (*r)["profile"].value("name", std::string())},
-                    {"pass", (*r)["verdict"].value("pass", false)},
-                    {"estimates", est}});
+    // reports are type-checked before they get here (check_report), but a
+    // report may lack a section
+    const bool has_profile = r->contains("profile") && (*r)["profile"].is_object();
+    const bool has_verdict = r->contains("verdict") && (*r)["verdict"].is_object();
+    list.push_back(
+        {{"run_id", r->value("run_id", std::string())},
+         {"start_time_unix_s", start(r)},
+         {"profile", has_profile ? (*r)["profile"].value("name", std::string()) : std::string()},
+         {"pass", has_verdict && (*r)["verdict"].value("pass", false)},
+         {"estimates", est}});
   }
   json params = json::object();
   for (const auto& [name, vs] : values) {

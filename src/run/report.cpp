@@ -217,6 +217,7 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
   const double now = seq.course().marks.empty() ? 0 : seq.course().marks.back().t_s;
   json j;
   j["format"] = "turncal-report-1";
+  j["schema_version"] = kReportSchemaVersion;
   j["run_id"] = ctx.run_id;
   // written in the report phase, the report is that of a finished run
   j["status"] = to_string(seq.phase() == Phase::Report ? Phase::Done : seq.phase());
@@ -280,7 +281,10 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
   }
   j["phases"] = phases;
   j["t0_from_start_s"] = std::isnan(course.t0_s) ? json(nullptr) : json(course.t0_s - t_start);
-  j["quick_stop"] = {{"sent", course.quick_stop_sent}, {"acknowledged", course.quick_stop_acked}};
+  j["quick_stop"] = {{"sent", course.quick_stop_sent},
+                     {"acknowledged", course.quick_stop_acked},
+                     {"times", course.quick_stops_sent}};
+  if (!ctx.can.is_null()) j["can"] = ctx.can;
   if (!std::isnan(course.heading_given_rad)) j["heading_given_rad"] = course.heading_given_rad;
   if (input != nullptr) {
     json achieved = json::array();
@@ -444,6 +448,193 @@ std::string report_text(const json& r, const json* truth) {
     line(std::string("  verdict: ") + (v["pass"].get<bool>() ? "PASS" : "FAIL"));
   }
   return out;
+}
+
+namespace {
+
+/// One field's expected JSON type, for check_report.
+enum class Kind : std::uint8_t { String, Number, Integer, Boolean, Object, Array };
+
+const char* kind_name(Kind k) {
+  switch (k) {
+    case Kind::String:
+      return "a string";
+    case Kind::Number:
+      return "a number";
+    case Kind::Integer:
+      return "an integer";
+    case Kind::Boolean:
+      return "true or false";
+    case Kind::Object:
+      return "an object";
+    case Kind::Array:
+      return "an array";
+  }
+  return "?";
+}
+
+bool is(const json& j, Kind k) {
+  switch (k) {
+    case Kind::String:
+      return j.is_string();
+    case Kind::Number:
+      return j.is_number();
+    case Kind::Integer:
+      return j.is_number_integer();
+    case Kind::Boolean:
+      return j.is_boolean();
+    case Kind::Object:
+      return j.is_object();
+    case Kind::Array:
+      return j.is_array();
+  }
+  return false;
+}
+
+/// The first field of a report with the wrong type, as "path: expected
+/// KIND"; the reader functions below record it and go on quietly.
+class Checker {
+ public:
+  /// `key` of object `j` (at `path`), if present (or required), of kind `k`.
+  bool field(const json& j, const std::string& path, const char* key, Kind k,
+             bool required = false) {
+    if (!j.contains(key)) {
+      if (required) fail(path + key, "missing");
+      return false;
+    }
+    const json& v = j[key];
+    if (v.is_null() && !required) return false;
+    if (!is(v, k)) {
+      fail(path + key, std::string("expected ") + kind_name(k));
+      return false;
+    }
+    return true;
+  }
+  /// Every element of an array, or every value of an object, of kind `k`.
+  bool each(const json& j, const std::string& path, Kind k) {
+    for (const auto& [name, v] : j.items())
+      if (!is(v, k)) {
+        fail(path + (j.is_array() ? "[" + name + "]" : "." + name),
+             std::string("expected ") + kind_name(k));
+        return false;
+      }
+    return true;
+  }
+  void fail(const std::string& path, const std::string& what) {
+    if (error.empty()) error = path + ": " + what;
+  }
+  std::string error;
+};
+
+}  // namespace
+
+std::string check_report(const json& r) {
+  if (!r.is_object()) return "not a JSON object";
+  Checker c;
+  if (c.field(r, "", "schema_version", Kind::Integer) &&
+      r["schema_version"].get<std::int64_t>() > kReportSchemaVersion)
+    return "schema_version " + r["schema_version"].dump() + " is newer than this turncal reads (" +
+           std::to_string(kReportSchemaVersion) + ")";
+  for (const char* k : {"format", "run_id", "status", "reason", "mode", "software_version"})
+    c.field(r, "", k, Kind::String);
+  c.field(r, "", "unit", Kind::String);  // null: not named
+  for (const char* k : {"start_time_unix_s", "end_time_unix_s"}) c.field(r, "", k, Kind::Number);
+  if (c.field(r, "", "site", Kind::Object))
+    for (const char* k : {"latitude_rad", "height_m"}) c.field(r["site"], "site.", k, Kind::Number);
+  if (c.field(r, "", "profile", Kind::Object)) {
+    const json& p = r["profile"];
+    for (const char* k : {"name", "file", "toml"}) c.field(p, "profile.", k, Kind::String);
+    for (const char* k : {"align_s", "duration_s"}) c.field(p, "profile.", k, Kind::Number);
+  }
+  if (c.field(r, "", "log", Kind::Object)) {
+    for (const char* k : {"file", "sha256"}) c.field(r["log"], "log.", k, Kind::String);
+    c.field(r["log"], "log.", "lines", Kind::Integer);
+  }
+  if (c.field(r, "", "time_base", Kind::Object))
+    for (const char* k : {"epoch_us", "scale"})
+      c.field(r["time_base"], "time_base.", k, Kind::Number);
+  if (c.field(r, "", "settings", Kind::Object)) {
+    const json& s = r["settings"];
+    for (const char* k : {"two_stage", "observe"}) c.field(s, "settings.", k, Kind::Boolean);
+    for (const char* k : {"heading_offset_rad", "stale_floor_s"})
+      c.field(s, "settings.", k, Kind::Number);
+  }
+  if (c.field(r, "", "replay", Kind::Object)) {
+    const json& p = r["replay"];
+    c.field(p, "replay.", "of_live_report", Kind::Boolean);
+    if (c.field(p, "replay.", "overrides", Kind::Array))
+      c.each(p["overrides"], "replay.overrides", Kind::String);
+    if (c.field(p, "replay.", "missing_roles", Kind::Array))
+      c.each(p["missing_roles"], "replay.missing_roles", Kind::String);
+    if (c.field(p, "replay.", "damage", Kind::Object)) {
+      c.field(p["damage"], "replay.damage.", "line", Kind::Integer);
+      c.field(p["damage"], "replay.damage.", "what", Kind::String);
+    }
+  }
+  if (c.field(r, "", "turns_achieved", Kind::Array))
+    for (std::size_t i = 0; i < r["turns_achieved"].size(); ++i) {
+      const json& t = r["turns_achieved"][i];
+      const std::string at = "turns_achieved[" + std::to_string(i) + "]";
+      if (!is(t, Kind::Object)) {
+        c.fail(at, "expected an object");
+        break;
+      }
+      for (const char* k : {"angle_rad", "peak_rate_rps", "start_s", "end_s"})
+        c.field(t, at + ".", k, Kind::Number, true);
+    }
+  if (c.field(r, "", "estimates", Kind::Object))
+    for (const auto& [name, e] : r["estimates"].items()) {
+      const std::string at = "estimates." + name;
+      if (!is(e, Kind::Object)) {
+        c.fail(at, "expected an object");
+        break;
+      }
+      for (const char* k : {"value", "sigma", "prior_sigma"})
+        c.field(e, at + ".", k, Kind::Number, true);
+      c.field(e, at + ".", "unit", Kind::String);
+    }
+  if (c.field(r, "", "combinations", Kind::Array))
+    for (std::size_t i = 0; i < r["combinations"].size(); ++i) {
+      const json& m = r["combinations"][i];
+      const std::string at = "combinations[" + std::to_string(i) + "]";
+      if (!is(m, Kind::Object)) {
+        c.fail(at, "expected an object");
+        break;
+      }
+      c.field(m, at + ".", "lead", Kind::String, true);
+      if (c.field(m, at + ".", "coefficients", Kind::Object, true))
+        c.each(m["coefficients"], at + ".coefficients", Kind::Number);
+      for (const char* k : {"value", "sigma"}) c.field(m, at + ".", k, Kind::Number, true);
+    }
+  if (c.field(r, "", "innovations", Kind::Object)) {
+    const json& i = r["innovations"];
+    c.field(i, "innovations.", "nis_mean", Kind::Number, true);
+    c.field(i, "innovations.", "white", Kind::Boolean, true);
+    if (c.field(i, "innovations.", "nis_95_interval", Kind::Array, true) &&
+        c.each(i["nis_95_interval"], "innovations.nis_95_interval", Kind::Number) &&
+        i["nis_95_interval"].size() != 2)
+      c.fail("innovations.nis_95_interval", "expected two numbers");
+  }
+  if (c.field(r, "", "verdict", Kind::Object)) {
+    const json& v = r["verdict"];
+    c.field(v, "verdict.", "pass", Kind::Boolean, true);
+    if (c.field(v, "verdict.", "checks", Kind::Array))
+      for (std::size_t i = 0; i < v["checks"].size(); ++i) {
+        const json& k = v["checks"][i];
+        const std::string at = "verdict.checks[" + std::to_string(i) + "]";
+        if (!is(k, Kind::Object)) {
+          c.fail(at, "expected an object");
+          break;
+        }
+        c.field(k, at + ".", "pass", Kind::Boolean, true);
+        c.field(k, at + ".", "parameter", Kind::String, true);
+        if (c.field(k, at + ".", "value", Kind::Number)) {
+          c.field(k, at + ".", "sigma", Kind::Number, true);
+          c.field(k, at + ".", "unit", Kind::String, true);
+        }
+      }
+  }
+  return c.error;
 }
 
 }  // namespace turncal::run

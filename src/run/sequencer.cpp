@@ -153,9 +153,12 @@ void Sequencer::fail(double t, const std::string& why, std::vector<Command>& out
     awaiting_what_ = "quick stop";
     table(TableCode::QuickStop, t, out);
     course_.quick_stop_sent = true;
+    course_.quick_stops_sent = 1;
     stopping_ = true;
     stop_then_ = then;
-    stop_deadline_ = t + s_.ack_timeout_s;
+    stop_first_seq_ = seq_;
+    stop_deadline_ = t + s_.quick_stop_give_up_s;
+    stop_repeat_at_ = t + s_.quick_stop_repeat_s;
     return;
   }
   may_move_ = false;
@@ -204,6 +207,9 @@ void Sequencer::step(const Event& e, std::vector<Command>& out) {
             course_.reason = why;
             enter(Phase::Aborted, ev.t_s);
           }
+        } else if constexpr (std::is_same_v<E, HostFault>) {
+          if (phase_ == Phase::Idle || phase_ == Phase::Estimate || phase_ == Phase::Report) return;
+          fail(ev.t_s, ev.what, out);
         } else if constexpr (std::is_same_v<E, EndOfInput>) {
           if (finished(phase_) || phase_ == Phase::Estimate || phase_ == Phase::Report) return;
           const bool last_hold =
@@ -245,9 +251,18 @@ void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
   if (stopping_) {
     if (t > stop_deadline_) {
       stopping_ = false;
-      course_.reason += "; the quick stop was not acknowledged within " +
-                        std::to_string(s_.ack_timeout_s).substr(0, 4) + " s";
+      char buf[160];
+      std::snprintf(buf, sizeof buf,
+                    "; THE TABLE DID NOT REPORT STOPPED within %.1f s of the quick stop (sent %d "
+                    "times): check the table",
+                    s_.quick_stop_give_up_s, course_.quick_stops_sent);
+      course_.reason += buf;
       enter(stop_then_, t);
+    } else if (t >= stop_repeat_at_) {
+      // a quick stop may have been lost (a full queue, a bus down): again
+      table(TableCode::QuickStop, t, out);
+      ++course_.quick_stops_sent;
+      stop_repeat_at_ = t + s_.quick_stop_repeat_s;
     }
     return;
   }
@@ -339,7 +354,10 @@ void Sequencer::on_table(const TableStatusEvent& e, std::vector<Command>& out) {
   const bool acked = awaiting_ack_ && e.ack == *awaiting_ack_;
   if (acked) awaiting_ack_.reset();
   if (stopping_) {
-    if (acked || (e.ack == seq_ && e.state == kQuickStopped)) {
+    // any of our quick stops acknowledged, or the table at rest in quick stop
+    const bool stop_acked = static_cast<std::uint8_t>(e.ack - stop_first_seq_) <=
+                            static_cast<std::uint8_t>(seq_ - stop_first_seq_);
+    if (acked || (stop_acked && (e.state == kQuickStopped || e.state == kFault))) {
       course_.quick_stop_acked = true;
       stopping_ = false;
       may_move_ = false;

@@ -47,6 +47,7 @@ struct Options {
   double speed = 1;
   std::string ins_interface, table_interface;
   std::string out, truth;
+  std::string state_out;  // the stand's own state at exit, as JSON
   std::string profile = std::string(TURNCAL_DATA_DIR) + "/profiles/tactical.toml";
   std::string config = std::string(TURNCAL_DATA_DIR) + "/turncal.toml";
   std::uint64_t seed = 1;
@@ -175,7 +176,10 @@ Status apply_rates(const std::string& spec, stand::StandSetup& s) {
 int usage(const char* why) {
   if (why != nullptr) std::fprintf(stderr, "turncal-sim: %s\n", why);
   std::fprintf(stderr,
-               "usage: turncal-sim [--speed N] [--scripted-host] [--truth TRUTH.json] [common]\n"
+               "usage: turncal-sim [--speed N] [--scripted-host] [--truth TRUTH.json]\n"
+               "                   [--state-out STATE.json] [common]\n"
+               "        (--state-out: the table's state, the host frames and the heartbeat's\n"
+               "        gaps as the stand saw them, written when it stops)\n"
                "       turncal-sim --offline --out RUN.log --truth TRUTH.json [common]\n"
                "common: [--profile PLAN.toml] [--config turncal.toml] [--seed N]\n"
                "        [--heading-offset DEG] [--ins-interface IF] [--table-interface IF]\n"
@@ -227,10 +231,11 @@ bool parse(int argc, char** argv, Options& o, std::string& err) {
          : a == "--rates"       ? o.rates
                                 : o.angle_limits) = v;
     } else if (a == "--out" || a == "--truth" || a == "--profile" || a == "--config" ||
-               a == "--ins-interface" || a == "--table-interface") {
+               a == "--ins-interface" || a == "--table-interface" || a == "--state-out") {
       const char* v = value();
       if (v == nullptr) return false;
       std::string& dst = a == "--out"             ? o.out
+                         : a == "--state-out"     ? o.state_out
                          : a == "--truth"         ? o.truth
                          : a == "--profile"       ? o.profile
                          : a == "--config"        ? o.config
@@ -454,6 +459,11 @@ int live(const Options& o) {
   std::vector<can::Frame> due;
   socketcan::RxBatch rx;
   double max_lag_s = 0;
+  // the host heartbeat as the table receives it (kernel receive times, stand s)
+  const can::Message* hb = (*roles)[Role::HeartbeatCounter].message;
+  double hb_last = NAN, hb_max_gap = 0, hb_sum_gap = 0;
+  std::uint64_t hb_gaps = 0;
+  std::vector<double> hb_gap_list;
   while (g_stop == 0 && !loop.done()) {
     for (socketcan::Socket& s : sockets) {
       rx.clear();
@@ -463,9 +473,19 @@ int live(const Options& o) {
       }
       auto got = s.receive(rx);
       if (!got) return fail(got.error());
-      for (const can::TimedFrame& f : rx.frames)
-        from_bus.emplace_back(static_cast<double>(f.time_ns - kernel0_ns) * 1e-9 * o.speed,
-                              f.frame);
+      for (const can::TimedFrame& f : rx.frames) {
+        const double at = static_cast<double>(f.time_ns - kernel0_ns) * 1e-9 * o.speed;
+        from_bus.emplace_back(at, f.frame);
+        if (hb != nullptr && f.frame.id == hb->id && f.frame.extended == hb->extended) {
+          if (!std::isnan(hb_last)) {
+            hb_max_gap = std::max(hb_max_gap, at - hb_last);
+            hb_sum_gap += at - hb_last;
+            ++hb_gaps;
+            hb_gap_list.push_back(at - hb_last);
+          }
+          hb_last = at;
+        }
+      }
     }
     const double target = std::chrono::duration<double>(Clock::now() - wall0).count() * o.speed;
     // how far behind real time the stand fell (its frames then go out late, in a burst)
@@ -492,6 +512,38 @@ int live(const Options& o) {
   }
   if (const Error* e = loop.error()) return fail(*e);
   const auto& c = loop.stand().counts();
+  if (!o.state_out.empty()) {
+    // what the stand itself says at the end: what a test of the host's
+    // faults checks (did the table stop, did our quick stop reach it)
+    const double now = loop.next_time();
+    // the heartbeat's gaps more than 20% off their mean (the host's period)
+    const double mean_gap = hb_gaps > 0 ? hb_sum_gap / static_cast<double>(hb_gaps) : 0.0;
+    std::uint64_t off = 0;
+    for (const double g : hb_gap_list) off += std::abs(g - mean_gap) > 0.2 * mean_gap;
+    const auto st = loop.stand().table().status(now);
+    const nlohmann::json j = {{"stand_time_s", now},
+                              {"table",
+                               {{"state", static_cast<int>(st.state)},
+                                {"fault", static_cast<int>(st.fault)},
+                                {"rate_dps", st.rate_rps / kDeg},
+                                {"angle_deg", loop.stand().table().angle(now) / kDeg}}},
+                              {"counts",
+                               {{"host_frames", c.host_frames},
+                                {"host_undecodable", c.host_undecodable},
+                                {"table_commands", c.table_commands},
+                                {"quick_stops", c.quick_stops},
+                                {"refused", c.refused},
+                                {"heartbeats", c.heartbeats}}},
+                              {"heartbeat",
+                               {{"gaps", hb_gaps},
+                                {"mean_gap_s", mean_gap},
+                                {"max_gap_s", hb_max_gap},
+                                {"gaps_off_20_percent", off}}}};
+    std::ofstream f(o.state_out);
+    f << j.dump(2) << "\n";
+    f.close();
+    if (!f) return fail(make_error("cannot write " + o.state_out));
+  }
   std::uint64_t overflow = 0;
   for (const socketcan::Socket& s : sockets) overflow += s.stats().tx_overflow;
   std::fprintf(stderr,

@@ -12,6 +12,7 @@
 #include <sstream>
 #include <thread>
 
+#include "daemon_stand.hpp"
 #include "hil.hpp"
 #include "process.hpp"
 #include "turncal/can/candump.hpp"
@@ -19,103 +20,7 @@
 using namespace turncal;
 using hil::Child;
 using namespace std::chrono_literals;
-
-namespace {
-
-const std::string kSim = TURNCAL_SIM_BIN;
-const std::string kDaemon = TURNCAL_DAEMON_BIN;
-const std::string kCtl = TURNCAL_CTL_BIN;
-const std::string kSrc = TURNCAL_SOURCE_DIR;
-// The stand at 4x with its fast streams at 25 Hz (the ICD: velocity 100 Hz,
-// encoder 200 Hz). At the ICD's rates and 4x, "stale after 10 periods" is
-// 12 ms of real time, shorter than the scheduling slack of a user-mode Linux
-// guest running the stand, the daemon and the tests on one virtual CPU.
-constexpr int kSpeed = 4;
-constexpr const char* kRates = "25:25";
-
-std::string slurp(const hil::fs::path& p) {
-  std::ifstream in(p);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-/// A short plan (20 s alignment, 120 s, +180 deg at `turn_s`) and a daemon
-/// configuration for it, in `dir`.
-void write_stand(const hil::fs::path& dir, const std::string& iface, bool observe = false,
-                 int turn_s = 60) {
-  std::ifstream in(kSrc + "/config/profiles/tactical.toml");
-  std::stringstream ss;
-  ss << in.rdbuf();
-  std::string plan = ss.str();
-  auto set = [&](const std::string& key, const std::string& value) {
-    const auto at = plan.find("\n" + key + " = ");
-    REQUIRE(at != std::string::npos);
-    const auto end = plan.find('\n', at + 1);
-    plan.replace(at + 1, end - at - 1, key + " = " + value);
-  };
-  set("duration_s", "120");
-  set("align_s", "20");
-  set("start_s", std::to_string(turn_s));
-  std::ofstream(dir / "short.toml") << plan;
-  std::ofstream(dir / "turncal.toml")
-      << "[can]\nins_interface = \"" << iface << "\"\ntable_interface = \"" << iface
-      << "\"\ndbc = [\"" << kSrc << "/config/reference-stand.dbc\"]\n"
-      << "[stand]\ntime_scale = " << kSpeed << "\n"
-      << "[daemon]\nstate_directory = \"" << (dir / "state").string() << "\"\nsocket = \""
-      << (dir / "control.sock").string()
-      << "\"\nprofile = \"short.toml\"\nobserve = " << (observe ? "true" : "false") << "\n";
-}
-
-/// turncalctl with these arguments; its exit status, its stdout in `out`.
-int ctl(const hil::fs::path& dir, std::vector<std::string> args, const std::string& out = "ctl.out",
-        std::chrono::milliseconds timeout = 10000ms) {
-  args.insert(args.begin(), {kCtl, "--socket", (dir / "control.sock").string()});
-  Child c(args, dir, dir / out);
-  return c.wait(timeout);
-}
-
-/// Polls the daemon's status until its phase is `phase`.
-bool wait_phase(const hil::fs::path& dir, const std::string& phase,
-                std::chrono::milliseconds timeout) {
-  for (auto end = std::chrono::steady_clock::now() + timeout;
-       std::chrono::steady_clock::now() < end; std::this_thread::sleep_for(50ms))
-    if (ctl(dir, {"--json", "status"}, "st.json") == 0 &&
-        slurp(dir / "st.json").find("\"phase\": \"" + phase + "\"") != std::string::npos)
-      return true;
-  return false;
-}
-
-Child start_sim(const hil::fs::path& dir, const std::string& seed = "3") {
-  return Child({kSim, "--config", (dir / "turncal.toml").string(), "--profile",
-                (dir / "short.toml").string(), "--speed", std::to_string(kSpeed), "--rates", kRates,
-                "--seed", seed, "--truth", "truth.json"},
-               dir);
-}
-
-/// Sends raw bytes to the control socket; the first reply line.
-std::string raw_request(const hil::fs::path& sock, const std::string& bytes) {
-  const int fd = ::socket(AF_UNIX, SOCK_STREAM, 0);
-  sockaddr_un a{};
-  a.sun_family = AF_UNIX;
-  std::strcpy(a.sun_path, sock.c_str());
-  REQUIRE(::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
-  (void)!::send(fd, bytes.data(), bytes.size(), MSG_NOSIGNAL);
-  std::string out;
-  char c;
-  while (::recv(fd, &c, 1, 0) == 1 && c != '\n') out += c;
-  ::close(fd);
-  return out;
-}
-
-bool wait_for(const hil::fs::path& p, std::chrono::milliseconds t) {
-  for (auto end = std::chrono::steady_clock::now() + t; std::chrono::steady_clock::now() < end;
-       std::this_thread::sleep_for(20ms))
-    if (hil::fs::exists(p)) return true;
-  return false;
-}
-
-}  // namespace
+using namespace hil::stand;
 
 TEST_SUITE("daemon") {
   TEST_CASE("turncald runs a short experiment through turncalctl; an observer replays its log") {

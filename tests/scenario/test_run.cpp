@@ -403,8 +403,8 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(r->x == live.result->x);
     CHECK(r->p == live.result->p);
     // the report: every estimate with its sigma, prior and unit; the text in display units
-    run::ReportContext ctx{"r1",      0,     0, "test", "", "", "", "", {{"nu0_1", 1e9, 1e9}},
-                           "command", "SN-7"};
+    run::ReportContext ctx{"r1",      0,      0,      "test", "", "", "", "", {{"nu0_1", 1e9, 1e9}},
+                           "command", "SN-7", nullptr};
     const auto j = run::report_json(ctx, *live.engine, &*live.input, &*live.result);
     CHECK(j["status"] == "done");
     CHECK(j["unit"] == "SN-7");

@@ -214,6 +214,7 @@ TEST_SUITE("commands") {
                out);
     CHECK(finished(e.sequencer().phase()));
     CHECK(e.sequencer().phase() != Phase::Done);
+    CHECK(e.sequencer().phase() != Phase::Aborted);  // a fault, not the operator's abort
     CHECK(e.sequencer().course().quick_stop_acked);
   }
 }

@@ -199,10 +199,25 @@ TEST_SUITE("sequencer") {
     q.step(Tick{2.5}, out);
     REQUIRE(out.size() == 1);
     CHECK(std::get<TableCommand>(out[0]).code == TableCode::QuickStop);
-    q.step(Tick{4}, out);
+    // unanswered, the quick stop goes again every 0.25 s, a new sequence
+    // number each time, until 5 s have passed
+    out.clear();
+    q.step(Tick{2.6}, out);
+    CHECK(out.empty());
+    q.step(Tick{2.75}, out);
+    REQUIRE(out.size() == 1);
+    CHECK(std::get<TableCommand>(out[0]).code == TableCode::QuickStop);
+    CHECK(std::get<TableCommand>(out[0]).seq == 44);
+    for (double at = 3; at < 7.5; at += 0.25) q.step(Tick{at}, out);
+    CHECK(q.phase() != Phase::Failed);
+    CHECK(q.host_state() == 2);  // still stopping
+    q.step(Tick{7.6}, out);
     CHECK(q.phase() == Phase::Failed);
     CHECK(q.course().reason.find("the table did not acknowledge enable within 1000 ms") == 0);
-    CHECK(q.course().reason.find("the quick stop was not acknowledged") != std::string::npos);
+    CHECK(q.course().reason.find("THE TABLE DID NOT REPORT STOPPED within 5.0 s") !=
+          std::string::npos);
+    CHECK(q.course().quick_stops_sent == 20);
+    CHECK(q.course().reason.find("sent 20 times") != std::string::npos);
   }
 }
 

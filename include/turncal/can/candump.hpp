@@ -86,12 +86,15 @@ class LogWriter {
   Status sync();
   Status close();
   [[nodiscard]] std::uint64_t records() const { return records_; }
+  /// Whole lines the file has taken (written, not only buffered).
+  [[nodiscard]] std::uint64_t records_written() const { return written_; }
 
  private:
   explicit LogWriter(int fd) : fd_(fd) {}
   int fd_ = -1;
   std::vector<char> buf_;
   std::uint64_t records_ = 0;
+  std::uint64_t written_ = 0;
 };
 
 }  // namespace turncal::can

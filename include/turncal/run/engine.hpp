@@ -71,6 +71,8 @@ class Engine {
   void start(std::int64_t now_ns, std::vector<OutFrame>& out);
   void abort(std::int64_t now_ns, const std::string& reason, std::vector<OutFrame>& out);
   void signal(std::int64_t now_ns, const std::string& name, std::vector<OutFrame>& out);
+  /// A fault of the host (the log, a CAN interface): the run fails with `what`.
+  void fault(std::int64_t now_ns, const std::string& what, std::vector<OutFrame>& out);
   void end_of_input(std::int64_t now_ns, std::vector<OutFrame>& out);
   /// A received frame (or one of ours, as a recording has it).
   void on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out);

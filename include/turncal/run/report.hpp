@@ -29,7 +29,21 @@ struct ReportContext {
   std::vector<Tolerance> tolerances;
   std::string mode;  ///< "command" or "observe"
   std::string unit;  ///< the INS under test; empty: not named
+  /// What the CAN sockets did during the run, per interface (the daemon's
+  /// frames sent, echoed, queued, dropped); null: not known (a replay).
+  nlohmann::json can;
 };
+
+/// The report format this turncal writes. A report without the field is of
+/// the first version, which the checks below read as well; one of a later
+/// version than this is refused as unreadable, not misread.
+inline constexpr int kReportSchemaVersion = 1;
+
+/// Every field a reader of reports (report_text, history, the daemon's
+/// index, the replay) takes, type-checked: empty when the report is
+/// readable, else the first field that is not ("estimates.nu0_1.sigma:
+/// expected a number"). A report file is read only after this passes.
+std::string check_report(const nlohmann::json& report);
 
 /// The report of a finished run. `input` and `result` are null when the
 /// run ended before estimation (aborted, failed): the report then says why

@@ -70,7 +70,11 @@ struct SequencerSettings {
   /// A recording that ends anywhere after t0 (a damaged log) is estimated
   /// over what there is; otherwise only one that ends in the last hold.
   bool estimate_partial = false;
-  double ack_timeout_s = 1.0;           ///< a table command unacknowledged this long is a fault
+  double ack_timeout_s = 1.0;  ///< a table command unacknowledged this long is a fault
+  /// A quick stop is sent again this often until the table reports it
+  /// stopped, and given up on (loudly, in the reason) after quick_stop_give_up_s.
+  double quick_stop_repeat_s = 0.25;
+  double quick_stop_give_up_s = 5.0;
   double enable_timeout_s = 5.0;        ///< from enable to the table holding
   double align_start_s = 3.0;           ///< from the INS command to the INS aligning
   double align_margin_s = 30.0;         ///< beyond the alignment length, to navigating
@@ -132,6 +136,13 @@ struct SignalEvent {
   double t_s;
   std::string name;
 };
+/// A fault of the host itself, not of a device: the log cannot be written,
+/// a CAN interface went down, a frame could not be sent. Fails the run with
+/// `what` (and a quick stop in command mode).
+struct HostFault {
+  double t_s;
+  std::string what;
+};
 /// The recording ended (observe mode on a log).
 struct EndOfInput {
   double t_s;
@@ -146,8 +157,9 @@ struct ReportWritten {
   bool ok;
   std::string error;
 };
-using Event = std::variant<Tick, InsModeEvent, TableStatusEvent, EncoderEvent, StartRequest,
-                           AbortRequest, SignalEvent, EndOfInput, EstimationDone, ReportWritten>;
+using Event =
+    std::variant<Tick, InsModeEvent, TableStatusEvent, EncoderEvent, StartRequest, AbortRequest,
+                 SignalEvent, HostFault, EndOfInput, EstimationDone, ReportWritten>;
 
 // ---- commands ----
 using TableCode = TableCommandCode;
@@ -179,6 +191,7 @@ struct Course {
   std::string reason;  ///< why it aborted or failed
   bool quick_stop_sent = false;
   bool quick_stop_acked = false;
+  int quick_stops_sent = 0;              ///< the first and its repetitions
   std::vector<double> turn_commanded_s;  ///< host time of each turn command (observe: its start)
   double heading_given_rad = NAN;        ///< in the INS command
 };
@@ -242,7 +255,9 @@ class Sequencer {
   bool seen_aligning_ = false;
   bool stopping_ = false;  ///< a quick stop is out; finish when it is acknowledged
   Phase stop_then_ = Phase::Failed;
-  double stop_deadline_ = 0;
+  double stop_deadline_ = 0;   ///< give up on the quick stop
+  double stop_repeat_at_ = 0;  ///< send it again
+  std::uint8_t stop_first_seq_ = 0;
   int ins_mode_ = -1;
   double angle_ = NAN;
   // observe mode

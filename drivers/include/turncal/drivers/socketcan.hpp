@@ -5,12 +5,21 @@
 //   CLOCK_REALTIME), drops counted from SO_RXQ_OVFL, error frames turned into
 //   BusEvents.
 // * send(): never blocks; when the kernel queue is full (EAGAIN, ENOBUFS) the
-//   frame waits in a bounded queue, and what overflows it is counted.
+//   frame waits in a bounded queue, and what overflows it is counted. With
+//   `confirm`, the kernel's echo of each frame we sent (CAN_RAW_RECV_OWN_MSGS,
+//   flagged MSG_CONFIRM) comes back from receive() as a confirmed frame: the
+//   frame reached the bus (or, on an interface without IFF_ECHO, the
+//   kernel's queue, where the CAN core loops it back when it accepts it).
+//   EAGAIN (the socket's send buffer is full) clears when the socket is
+//   writable (EPOLLOUT); ENOBUFS (the device or qdisc queue is full, or
+//   the controller is bus-off) does not show in poll at all, so a caller
+//   retries on a timer (tx_wait()).
 // * An interface that goes down is reported (InterfaceDown) and works again
 //   when it comes up; one that is removed (InterfaceGone) is re-opened by
 //   try_recover() once it exists again, without restarting the process.
 #pragma once
 
+#include <cerrno>
 #include <cstdint>
 #include <deque>
 #include <string>
@@ -30,10 +39,13 @@ struct Filter {
 
 struct Options {
   std::string interface;
-  bool fd = false;                   ///< also receive and send CAN FD frames
-  std::vector<Filter> filters;       ///< empty: every frame
-  bool error_frames = true;          ///< receive error frames (as BusEvents)
-  bool receive_own = false;          ///< see our own sent frames
+  bool fd = false;              ///< also receive and send CAN FD frames
+  std::vector<Filter> filters;  ///< empty: every frame
+  bool error_frames = true;     ///< receive error frames (as BusEvents)
+  bool receive_own = false;     ///< see our own sent frames
+  /// The echoes of our own frames come back as RxBatch::confirmed (implies
+  /// CAN_RAW_RECV_OWN_MSGS; they are not counted as received).
+  bool confirm = false;
   std::size_t tx_queue_limit = 256;  ///< frames waiting for the kernel queue
   int rcvbuf_bytes = 0;              ///< SO_RCVBUF; 0: kernel default
 };
@@ -42,21 +54,38 @@ struct Stats {
   std::uint64_t rx_frames = 0;
   std::uint64_t rx_dropped = 0;  ///< lost in the kernel (socket queue overflow)
   std::uint64_t rx_error_frames = 0;
-  std::uint64_t tx_frames = 0;    ///< handed to the kernel
-  std::uint64_t tx_queued = 0;    ///< had to wait in the send queue
-  std::uint64_t tx_overflow = 0;  ///< dropped because the send queue was full
-  std::uint64_t tx_failed = 0;    ///< dropped because the interface was down or gone
-  std::uint64_t recoveries = 0;   ///< times the socket was re-opened
+  std::uint64_t tx_frames = 0;     ///< handed to the kernel
+  std::uint64_t tx_confirmed = 0;  ///< echoed back by the kernel (with `confirm`)
+  std::uint64_t tx_queued = 0;     ///< had to wait in the send queue
+  std::uint64_t tx_overflow = 0;   ///< dropped because the send queue was full
+  std::uint64_t tx_failed = 0;     ///< dropped because the interface was down or gone
+  std::uint64_t recoveries = 0;    ///< times the socket was re-opened
 };
 
 /// Frames and events of one receive call.
 struct RxBatch {
   std::vector<can::TimedFrame> frames;
   std::vector<can::BusEvent> events;
+  std::vector<can::TimedFrame> confirmed;  ///< our own frames, echoed (Options::confirm)
   void clear() {
     frames.clear();
     events.clear();
+    confirmed.clear();
   }
+};
+
+/// What became of a frame given to send().
+enum class TxOutcome : std::uint8_t {
+  Sent,     ///< the kernel took it
+  Queued,   ///< it waits in the send queue (flush() retries)
+  Dropped,  ///< lost: the send queue was full, or the interface is down or gone
+};
+
+/// What a caller waits for before flush() can make progress.
+enum class TxWait : std::uint8_t {
+  None,      ///< nothing queued
+  Writable,  ///< the socket's buffer was full (EAGAIN): poll for EPOLLOUT
+  Retry,     ///< the device queue was full (ENOBUFS): retry after a while
 };
 
 enum class LinkState : std::uint8_t { Up, Down, Gone };
@@ -77,6 +106,10 @@ class Socket {
   [[nodiscard]] LinkState link() const { return link_; }
   [[nodiscard]] const Stats& stats() const { return stats_; }
   [[nodiscard]] bool tx_pending() const { return !txq_.empty(); }
+  [[nodiscard]] std::size_t tx_queue_depth() const { return txq_.size(); }
+  [[nodiscard]] TxWait tx_wait() const {
+    return txq_.empty() ? TxWait::None : busy_errno_ == ENOBUFS ? TxWait::Retry : TxWait::Writable;
+  }
 
   /// Frames one recvmmsg call takes.
   static constexpr std::size_t kBatchFrames = 64;
@@ -86,9 +119,10 @@ class Socket {
   Result<std::size_t> receive(RxBatch& out, std::size_t max_batches = 4);
   /// Sends without blocking; queues when the kernel is full. An error only
   /// for a frame the socket cannot carry (FD frame on a classic socket).
-  Status send(const can::Frame& frame);
-  /// Retries queued frames; returns how many are still waiting.
-  std::size_t flush();
+  Result<TxOutcome> send(const can::Frame& frame);
+  /// Retries queued frames; those the kernel took are appended to `sent`
+  /// (when given). Returns how many are still waiting.
+  std::size_t flush(std::vector<can::Frame>* sent = nullptr);
   /// While the link is Down or Gone: checks the interface and re-opens the
   /// socket when it is usable again (an InterfaceBack event is appended).
   /// Returns true when the link is Up.
@@ -109,6 +143,7 @@ class Socket {
   std::uint32_t last_ovfl_ = 0;
   std::deque<can::Frame> txq_;
   Stats stats_;
+  int busy_errno_ = 0;  ///< why the last write could not go: EAGAIN or ENOBUFS
 };
 
 /// CLOCK_REALTIME now, ns since the Unix epoch (the clock of the kernel

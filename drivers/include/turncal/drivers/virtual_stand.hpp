@@ -69,6 +69,7 @@ struct StandCounts {
   std::uint64_t host_undecodable = 0;  ///< unknown ID or wrong length: counted, skipped
   std::uint64_t ins_commands = 0;
   std::uint64_t table_commands = 0;
+  std::uint64_t quick_stops = 0;  ///< table commands that were a quick stop
   std::uint64_t refused = 0;
   std::uint64_t heartbeats = 0;
   std::uint64_t dropped = 0;  ///< by the injected drop faults

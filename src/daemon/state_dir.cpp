@@ -1,0 +1,145 @@
+#include "state_dir.hpp"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+#include <fstream>
+#include <sstream>
+
+#include "turncal/run/report.hpp"
+
+namespace turncal::daemon {
+
+namespace fs = std::filesystem;
+using nlohmann::json;
+
+namespace {
+
+ssize_t sys_write(int fd, const void* data, std::size_t size) {
+  return ::write(fd, data, size);
+}
+int sys_fsync(int fd) {
+  return ::fsync(fd);
+}
+int sys_close(int fd) {
+  return ::close(fd);
+}
+
+constexpr const char* kReportSuffix = ".report.json";
+
+}  // namespace
+
+const FileIo& posix_io() {
+  static const FileIo io{sys_write, sys_fsync, sys_close};
+  return io;
+}
+
+Status StateDir::create() const {
+  std::error_code ec;
+  fs::create_directories(dir_, ec);
+  if (ec)
+    return make_error("cannot create the state directory " + dir_.string() + ": " + ec.message());
+  return Status{Ok{}};
+}
+
+Status StateDir::write_atomic(const std::string& name, const std::string& data) const {
+  const fs::path path = dir_ / name;
+  const fs::path tmp = path.string() + ".tmp";
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) return make_error("cannot create " + tmp.string() + ": " + std::strerror(errno));
+  auto fail = [&](const char* what, int err) {
+    (void)io_->close(fd);
+    ::unlink(tmp.c_str());
+    return make_error(std::string("cannot ") + what + " " + tmp.string() + ": " +
+                      std::strerror(err));
+  };
+  std::size_t off = 0;
+  while (off < data.size()) {
+    const ssize_t n = io_->write(fd, data.data() + off, data.size() - off);
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) return fail("write", errno);
+    if (n == 0) return fail("write", EIO);
+    off += static_cast<std::size_t>(n);
+  }
+  if (io_->fsync(fd) != 0) return fail("sync", errno);
+  if (io_->close(fd) != 0) {
+    const int err = errno;
+    ::unlink(tmp.c_str());
+    return make_error("cannot close " + tmp.string() + ": " + std::strerror(err));
+  }
+  if (::rename(tmp.c_str(), path.c_str()) != 0) {
+    const int err = errno;
+    ::unlink(tmp.c_str());
+    return make_error("cannot put " + path.string() + " in place: " + std::strerror(err));
+  }
+  const int dfd = ::open(dir_.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dfd < 0) return make_error("cannot open " + dir_.string() + ": " + std::strerror(errno));
+  const bool synced = io_->fsync(dfd) == 0;
+  const int err = errno;
+  (void)::close(dfd);
+  if (!synced) return make_error("cannot sync " + dir_.string() + ": " + std::strerror(err));
+  return Status{Ok{}};
+}
+
+Result<json> StateDir::read_report(const std::string& run_id) const {
+  if (!valid_name(run_id)) return make_error("report: expected a run_id");
+  const fs::path p = dir_ / (run_id + kReportSuffix);
+  std::ifstream in(p, std::ios::binary);
+  if (!in) return make_error("no report " + run_id);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  if (in.bad()) return make_error("report " + run_id + " unreadable: read error");
+  json r = json::parse(ss.str(), nullptr, false);
+  if (r.is_discarded()) return make_error("report " + run_id + " unreadable: not JSON");
+  if (const std::string why = run::check_report(r); !why.empty())
+    return make_error("report " + run_id + " unreadable: " + why);
+  return r;
+}
+
+void StateDir::index_report(const std::string& run_id, const json& report) {
+  IndexEntry e;
+  if (const std::string why = run::check_report(report); !why.empty())
+    e.unreadable = why;
+  else
+    e.summary = report_summary(report);
+  index_[run_id] = std::move(e);
+}
+
+void StateDir::load_index() {
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir_, ec)) {
+    const std::string n = e.path().filename().string();
+    if (!n.ends_with(kReportSuffix)) continue;
+    const std::string id = n.substr(0, n.size() - std::strlen(kReportSuffix));
+    if (!valid_name(id)) continue;
+    auto r = read_report(id);
+    if (r) {
+      index_report(id, *r);
+    } else {
+      const std::string msg = r.error().describe();
+      const std::string prefix = "report " + id + " unreadable: ";
+      index_[id] = IndexEntry{json(), msg.starts_with(prefix) ? msg.substr(prefix.size()) : msg};
+    }
+  }
+}
+
+bool StateDir::has_log(const std::string& run_id) const {
+  std::error_code ec;
+  return fs::exists(dir_ / (run_id + ".log"), ec);
+}
+
+std::vector<std::string> StateDir::logs_without_report() const {
+  std::vector<std::string> ids;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir_, ec)) {
+    const std::string name = e.path().filename().string();
+    if (!name.ends_with(".log")) continue;
+    const std::string id = name.substr(0, name.size() - 4);
+    if (!fs::exists(dir_ / (id + kReportSuffix), ec)) ids.push_back(id);
+  }
+  return ids;
+}
+
+}  // namespace turncal::daemon

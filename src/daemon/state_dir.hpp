@@ -1,0 +1,56 @@
+// The daemon's state directory as one unit: run logs, reports, the index
+// of reports, atomic writes, and the runs a killed daemon left behind.
+// Every write, flush, sync and close result is checked; a report file is
+// read only through check_report, so a damaged or foreign file is an
+// "unreadable" entry with its reason, never an exception.
+#pragma once
+
+#include <sys/types.h>
+
+#include <filesystem>
+#include <nlohmann/json.hpp>
+#include <string>
+
+#include "control.hpp"
+#include "turncal/result.hpp"
+
+namespace turncal::daemon {
+
+/// The system calls a state directory writes with: the real ones, or a
+/// unit test's that fail on demand (a full disk, an I/O error).
+struct FileIo {
+  ssize_t (*write)(int fd, const void* data, std::size_t size);
+  int (*fsync)(int fd);
+  int (*close)(int fd);
+};
+const FileIo& posix_io();
+
+class StateDir {
+ public:
+  explicit StateDir(std::filesystem::path dir, const FileIo& io = posix_io())
+      : dir_(std::move(dir)), io_(&io) {}
+
+  [[nodiscard]] const std::filesystem::path& path() const { return dir_; }
+  /// Creates the directory if missing.
+  Status create() const;
+  /// Temp file, write, fsync, close, rename, fsync of the directory: the file
+  /// is whole or absent, and every step's failure is the error.
+  Status write_atomic(const std::string& name, const std::string& data) const;
+  /// A kept report, parsed and type-checked.
+  Result<nlohmann::json> read_report(const std::string& run_id) const;
+  /// Reads every report into the index (at start-up).
+  void load_index();
+  /// A report just written goes into the index.
+  void index_report(const std::string& run_id, const nlohmann::json& report);
+  [[nodiscard]] const Index& index() const { return index_; }
+  [[nodiscard]] bool has_log(const std::string& run_id) const;
+  /// The run ids of logs without a report: runs a killed daemon left.
+  [[nodiscard]] std::vector<std::string> logs_without_report() const;
+
+ private:
+  std::filesystem::path dir_;
+  const FileIo* io_;
+  Index index_;
+};
+
+}  // namespace turncal::daemon

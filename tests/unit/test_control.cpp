@@ -1,0 +1,248 @@
+// The daemon's control protocol and state directory, without a loop: every
+// request shape gets a reply (never an exception), reports of any shape are
+// readable or "unreadable" with the field, writes that fail say so and
+// leave nothing half-written.
+#include <doctest/doctest.h>
+
+#include <unistd.h>
+#include <cerrno>
+#include <filesystem>
+#include <fstream>
+
+#include "control.hpp"
+#include "state_dir.hpp"
+#include "turncal/run/report.hpp"
+
+using namespace turncal;
+using namespace turncal::daemon;
+using nlohmann::json;
+namespace fs = std::filesystem;
+
+namespace {
+
+struct FakeDaemon {
+  Index index;
+  bool running = true;
+  int status_calls = 0;
+  View view() {
+    View v;
+    v.status = [this] {
+      ++status_calls;
+      return json{{"ok", true}, {"phase", "turn"}};
+    };
+    v.running = running;
+    v.index = &index;
+    v.read_report = [](const std::string& id) -> Result<json> {
+      return make_error("no report " + id);
+    };
+    return v;
+  }
+};
+
+std::string error_of(const Outcome& o) {
+  REQUIRE(o.reply.is_object());
+  CHECK(o.reply["ok"] == false);
+  CHECK_FALSE(o.action.has_value());
+  return o.reply.value("error", std::string());
+}
+
+/// A minimal report as the daemon writes one, with one estimate.
+json sample_report() {
+  return {
+      {"format", "turncal-report-1"},
+      {"schema_version", run::kReportSchemaVersion},
+      {"run_id", "20261201T000000Z"},
+      {"status", "done"},
+      {"unit", "SN-1"},
+      {"start_time_unix_s", 1.8e9},
+      {"profile", {{"name", "tactical"}, {"duration_s", 3600.0}}},
+      {"estimates",
+       {{"nu0_1", {{"value", 1e-7}, {"sigma", 1e-9}, {"prior_sigma", 1e-6}, {"unit", "rad/s"}}}}},
+      {"verdict", {{"pass", true}, {"checks", json::array()}}}};
+}
+
+}  // namespace
+
+TEST_CASE("control: wrong types are error replies, never exceptions") {
+  FakeDaemon d;
+  // the requests that crashed the daemon, and their kin
+  CHECK(error_of(dispatch(R"({"cmd":"abort","reason":1})", d.view())) ==
+        "abort: reason: expected a string");
+  CHECK(error_of(dispatch(R"({"cmd":"start","observe":"x"})", d.view())) ==
+        "start: observe: expected true or false");
+  CHECK(error_of(dispatch(R"({"cmd":"report","run_id":1})", d.view())) ==
+        "report: run_id: expected a string");
+  CHECK(error_of(dispatch(R"({"cmd":"history","unit":[1]})", d.view())) ==
+        "history: unit: expected a string");
+  CHECK(error_of(dispatch(R"({"cmd":"start","heading_offset_deg":"5"})", d.view()))
+            .starts_with("start: heading_offset_deg: expected a number"));
+  CHECK(error_of(dispatch(R"({"cmd":"start","unit":"a/b"})", d.view()))
+            .starts_with("start: unit: expected the INS identity"));
+  CHECK(error_of(dispatch(R"({"cmd":"start","plan_text":5})", d.view())) ==
+        "start: plan_text: expected a string");
+  CHECK(error_of(dispatch(R"({"cmd":"status","x":1})", d.view())) == "status: unknown field 'x'");
+  CHECK(error_of(dispatch("[1,2]", d.view())).starts_with("malformed request"));
+  CHECK(error_of(dispatch("{\"cmd\":", d.view())).starts_with("malformed request"));
+  CHECK(error_of(dispatch(std::string(5000, '['), d.view())).starts_with("malformed request"));
+  CHECK(error_of(dispatch(R"({"cmd":"fly"})", d.view())) == "unknown command 'fly'");
+  CHECK(d.status_calls == 0);
+}
+
+TEST_CASE("control: the daemon opens no path a client names") {
+  FakeDaemon d;
+  for (const char* bad : {"../../etc/passwd", "/etc/shadow", "a/b", "..", ".", ""}) {
+    CAPTURE(bad);
+    CHECK(error_of(dispatch(json{{"cmd", "start"}, {"profile", bad}}.dump(), d.view()))
+              .starts_with("start: profile: expected the name of a plan"));
+  }
+  for (const char* bad : {"../x", "a/b", ".."}) {
+    CAPTURE(bad);
+    CHECK(error_of(dispatch(json{{"cmd", "report"}, {"run_id", bad}}.dump(), d.view())) ==
+          "report: expected a run_id");
+  }
+  // a plan's text, or a bare name, goes to the loop as the start action
+  const Outcome o =
+      dispatch(R"({"cmd":"start","profile":"tactical.toml","unit":"SN-1"})", d.view());
+  REQUIRE(o.action.has_value());
+  const auto& s = std::get<StartRequest>(*o.action);
+  CHECK(s.plan_name == "tactical.toml");
+  CHECK(s.plan_text.empty());
+  CHECK(s.unit == std::optional<std::string>("SN-1"));
+  const Outcome t =
+      dispatch(R"({"cmd":"start","plan_text":"[profile]\n","plan_name":"mine.toml"})", d.view());
+  REQUIRE(t.action.has_value());
+  CHECK(std::get<StartRequest>(*t.action).plan_text == "[profile]\n");
+  CHECK(error_of(dispatch(R"({"cmd":"start","plan_text":"x","profile":"y"})", d.view()))
+            .find("not both") != std::string::npos);
+}
+
+TEST_CASE("control: abort only while running; status and watch read the daemon") {
+  FakeDaemon d;
+  const Outcome a = dispatch(R"({"cmd":"abort","reason":"operator"})", d.view());
+  REQUIRE(a.action.has_value());
+  CHECK(std::get<AbortRequest>(*a.action).reason == "operator");
+  d.running = false;
+  CHECK(error_of(dispatch(R"({"cmd":"abort"})", d.view())) == "no run in progress");
+  const Outcome w = dispatch(R"({"cmd":"watch"})", d.view());
+  CHECK(w.watch);
+  CHECK(w.reply["phase"] == "turn");
+  CHECK(d.status_calls == 1);
+}
+
+TEST_CASE("check_report: every field a reader takes is type-checked") {
+  CHECK(run::check_report(sample_report()).empty());
+  CHECK(run::report_text(sample_report()).find("nu0_1") != std::string::npos);
+  struct Case {
+    const char* pointer;
+    json value;
+    const char* error;
+  };
+  const Case cases[] = {
+      {"/status", 5, "status: expected a string"},
+      {"/reason", json::array(), "reason: expected a string"},
+      {"/profile", "x", "profile: expected an object"},
+      {"/profile/name", 1, "profile.name: expected a string"},
+      {"/estimates/nu0_1/sigma", "1", "estimates.nu0_1.sigma: expected a number"},
+      {"/estimates/nu0_1", 3, "estimates.nu0_1: expected an object"},
+      {"/verdict/pass", "yes", "verdict.pass: expected true or false"},
+      {"/verdict/checks", json::array({5}), "verdict.checks[0]: expected an object"},
+      {"/turns_achieved", json::array({json::object()}), "turns_achieved[0].angle_rad: missing"},
+      {"/innovations", json{{"nis_mean", 1.0}, {"white", true}, {"nis_95_interval", {1.0}}},
+       "innovations.nis_95_interval: expected two numbers"},
+      {"/start_time_unix_s", "now", "start_time_unix_s: expected a number"},
+      {"/schema_version", 99, "schema_version 99 is newer than this turncal reads (1)"},
+  };
+  for (const Case& c : cases) {
+    CAPTURE(c.pointer);
+    json r = sample_report();
+    r[json::json_pointer(c.pointer)] = c.value;
+    CHECK(run::check_report(r) == c.error);
+  }
+  // an older report, without schema_version, still reads
+  json old = sample_report();
+  old.erase("schema_version");
+  CHECK(run::check_report(old).empty());
+  CHECK(run::check_report(json::array()) == "not a JSON object");
+}
+
+TEST_CASE("state directory: reports indexed or unreadable; reports and history survive bad files") {
+  const fs::path dir = fs::temp_directory_path() / ("turncal-state-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  StateDir st(dir);
+  REQUIRE(st.create().ok());
+  REQUIRE(st.write_atomic("good.report.json", sample_report().dump()).ok());
+  json bad = sample_report();
+  bad["estimates"]["nu0_1"]["value"] = "oops";
+  REQUIRE(st.write_atomic("bad.report.json", bad.dump()).ok());
+  REQUIRE(st.write_atomic("junk.report.json", "{not json").ok());
+  std::ofstream(dir / "orphan.log") << "(1.000000) can0 123#00\n";
+  st.load_index();
+  REQUIRE(st.index().size() == 3);
+  CHECK(st.index().at("good").unreadable.empty());
+  CHECK(st.index().at("bad").unreadable == "estimates.nu0_1.value: expected a number");
+  CHECK(st.index().at("junk").unreadable == "not JSON");
+  CHECK(st.logs_without_report() == std::vector<std::string>{"orphan"});
+  CHECK(!st.read_report("bad").ok());
+  CHECK(st.read_report("bad").error().describe().find("unreadable") != std::string::npos);
+  CHECK(st.read_report("good").ok());
+
+  // through the protocol: the list names the unreadable ones, the history
+  // takes the good one only
+  View v;
+  v.status = [] { return json::object(); };
+  v.index = &st.index();
+  v.read_report = [&](const std::string& id) { return st.read_report(id); };
+  const Outcome list = dispatch(R"({"cmd":"reports"})", v);
+  REQUIRE(list.reply["reports"].size() == 3);
+  int unreadable = 0;
+  for (const auto& e : list.reply["reports"]) unreadable += e["status"] == "unreadable";
+  CHECK(unreadable == 2);
+  const Outcome h = dispatch(R"({"cmd":"history","unit":"SN-1"})", v);
+  CHECK(h.reply["history"]["runs"].size() == 1);
+  const Outcome r = dispatch(R"({"cmd":"report","run_id":"bad"})", v);
+  CHECK(r.reply["ok"] == false);
+  fs::remove_all(dir);
+}
+
+namespace {
+int g_fail_errno = 0;
+int g_writes_before_fail = 0;
+ssize_t failing_write(int fd, const void* p, std::size_t n) {
+  if (g_writes_before_fail-- <= 0) {
+    errno = g_fail_errno;
+    return -1;
+  }
+  return ::write(fd, p, n < 3 ? n : 3);  // short writes too
+}
+int failing_fsync(int fd) {
+  return ::fsync(fd);
+}
+int real_close(int fd) {
+  return ::close(fd);
+}
+}  // namespace
+
+TEST_CASE("state directory: a write that fails says why and leaves no file, whole or half") {
+  const fs::path dir = fs::temp_directory_path() / ("turncal-io-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  const FileIo io{failing_write, failing_fsync, real_close};
+  StateDir st(dir, io);
+  REQUIRE(st.create().ok());
+  for (const int err : {ENOSPC, EIO}) {
+    CAPTURE(err);
+    g_fail_errno = err;
+    g_writes_before_fail = 2;  // some bytes go, then the disk fails
+    auto w = st.write_atomic("r.report.json", std::string(100, 'x'));
+    REQUIRE_FALSE(w.ok());
+    CHECK(w.error().describe().find(std::strerror(err)) != std::string::npos);
+    CHECK_FALSE(fs::exists(dir / "r.report.json"));
+    CHECK_FALSE(fs::exists(dir / "r.report.json.tmp"));
+  }
+  g_writes_before_fail = 1000;
+  REQUIRE(st.write_atomic("r.report.json", "abcdefg").ok());  // short writes are finished
+  std::ifstream in(dir / "r.report.json");
+  std::string s;
+  std::getline(in, s);
+  CHECK(s == "abcdefg");
+  fs::remove_all(dir);
+}
