@@ -44,6 +44,10 @@ Result<StartRequest> parse_start(const json& req) {
   TURNCAL_ASSIGN(text, string_field(req, "start", "plan_text"));
   TURNCAL_ASSIGN(name, string_field(req, "start", "plan_name"));
   TURNCAL_ASSIGN(profile, string_field(req, "start", "profile"));
+  if (name && !text)
+    return make_error(
+        "start: plan_name: names the plan_text sent with it; a plan of the "
+        "profiles directory goes as profile");
   if (text && profile)
     return make_error("start: plan_text and profile: give the plan's text or its name, not both");
   if (text) {

@@ -137,6 +137,7 @@ struct Port {
   std::optional<socketcan::Socket> sock;
   sd_event_source* src = nullptr;
   int registered_fd = -1;
+  std::uint64_t registered_generation = 0;  ///< the socket's recoveries when registered
   socketcan::Stats at_run_start;
 };
 
@@ -361,7 +362,8 @@ void Daemon::recover_ports() {
     rx.clear();
     const bool up = p.sock->try_recover(rx);
     for (const auto& e : rx.events) warn(p.sock->interface() + ": " + can::describe(e));
-    if (p.sock->fd() != p.registered_fd) {
+    if (p.sock->fd() != p.registered_fd || p.sock->stats().recoveries != p.registered_generation) {
+      p.registered_generation = p.sock->stats().recoveries;
       p.src = sd_event_source_unref(p.src);
       p.registered_fd = p.sock->fd();
       if (p.registered_fd >= 0) {
@@ -516,7 +518,8 @@ void Daemon::write_report(bool with_estimates) {
     j["status"] = "failed";
     j["reason"] = "log not written whole: " + log_error;
   }
-  auto a = state->write_atomic(run_id + ".report.json", j.dump(2) + "\n");
+  auto a = state->write_atomic(run_id + ".report.json",
+                               j.dump(2, ' ', false, json::error_handler_t::replace) + "\n");
   auto b = state->write_atomic(run_id + ".report.txt", run::report_text(j));
   auto c = state->write_atomic(run_id + ".report.html", run::report_html(j, est ? &*input : nullptr,
                                                                          est ? &*result : nullptr));
@@ -529,9 +532,12 @@ void Daemon::write_report(bool with_estimates) {
     info("report written: " + (state->path() / (run_id + ".report.json")).string());
   }
   // the run's samples (most of its memory) are in the report now, or the
-  // run failed: a service that idles between runs need not hold them
-  input.reset();
-  result.reset();
+  // run failed: a service that idles between runs need not hold them (but
+  // the estimation worker may still read them: then on_worker_done frees them)
+  if (!worker_busy) {
+    input.reset();
+    result.reset();
+  }
 }
 
 /// A log with no report: a run that was killed. Its log replays up to that
@@ -552,7 +558,8 @@ void Daemon::report_interrupted_runs() {
                     {"reason", "the daemon stopped during the run (killed or crashed)"},
                     {"log", {{"file", id + ".log"}, {"sha256", dg->sha256}, {"lines", lines}}},
                     {"verdict", {{"pass", false}, {"checks", json::array()}}}};
-    auto a = state->write_atomic(id + ".report.json", j.dump(2) + "\n");
+    auto a = state->write_atomic(id + ".report.json",
+                                 j.dump(2, ' ', false, json::error_handler_t::replace) + "\n");
     if (a) state->index_report(id, j);
     auto b = state->write_atomic(id + ".report.txt", run::report_text(j));
     auto c = state->write_atomic(id + ".report.html", run::report_html(j, nullptr, nullptr));
@@ -721,14 +728,19 @@ void Daemon::handle_request(Client& c, const std::string& line) {
   c.reply(o.reply);
 }
 
+/// Runs a callback's body; an exception is logged and, where it came from
+/// the run's own work (`run_work`), fails the run. Nothing leaves it.
 template <class F>
-int guarded(Daemon* d, const char* where, F&& f) {
+int guarded(Daemon* d, const char* where, F&& f, bool run_work = true) {
   try {
     f();
   } catch (const std::exception& e) {
-    d->internal_error(where, e.what());
+    if (run_work)
+      d->internal_error(where, e.what());
+    else
+      d->warn(std::string("error in ") + where + ": " + e.what());
   } catch (...) {
-    d->internal_error(where, "unknown exception");
+    if (run_work) d->internal_error(where, "unknown exception");
   }
   return 0;
 }
@@ -736,40 +748,45 @@ int guarded(Daemon* d, const char* where, F&& f) {
 int on_client(sd_event_source*, int fd, uint32_t revents, void* u) {
   auto* c = static_cast<Client*>(u);
   Daemon& d = *c->d;
-  guarded(&d, "a control request", [&] {
-    if (revents & EPOLLOUT) c->flush();
-    if (revents & (EPOLLHUP | EPOLLERR)) c->broken = true;
-    if ((revents & EPOLLIN) && !c->close_after && !c->broken) {
-      char buf[4096];
-      const ssize_t n = ::recv(fd, buf, sizeof buf, MSG_DONTWAIT);
-      if (n == 0 || (n < 0 && errno != EAGAIN && errno != EINTR)) {
-        // the client closed: what it asked is answered, then it is dropped
-        c->close_after = true;
-      } else if (n > 0) {
-        c->last_request_us = monotonic_us();
-        c->in.append(buf, static_cast<std::size_t>(n));
-        std::size_t nl;
-        while (!c->close_after && !c->broken && (nl = c->in.find('\n')) != std::string::npos) {
-          const std::string line = c->in.substr(0, nl);
-          c->in.erase(0, nl + 1);
-          if (line.size() > kMaxRequest) {
-            c->reply({{"ok", false}, {"error", "request too large"}});
+  guarded(
+      &d, "a control request",
+      [&] {
+        if (revents & EPOLLOUT) c->flush();
+        if (revents & EPOLLERR) c->broken = true;
+        // a client that wrote and closed: what it wrote is still read and
+        // answered (the read then sees the end and closes it)
+        if ((revents & (EPOLLIN | EPOLLHUP)) && !c->close_after && !c->broken) {
+          char buf[4096];
+          const ssize_t n = ::recv(fd, buf, sizeof buf, MSG_DONTWAIT);
+          if (n == 0 || (n < 0 && errno != EAGAIN && errno != EINTR)) {
+            // the client closed: what it asked is answered, then it is dropped
             c->close_after = true;
-          } else {
-            d.handle_request(*c, line);
+          } else if (n > 0) {
+            c->last_request_us = monotonic_us();
+            c->in.append(buf, static_cast<std::size_t>(n));
+            std::size_t nl;
+            while (!c->close_after && !c->broken && (nl = c->in.find('\n')) != std::string::npos) {
+              const std::string line = c->in.substr(0, nl);
+              c->in.erase(0, nl + 1);
+              if (line.size() > kMaxRequest) {
+                c->reply({{"ok", false}, {"error", "request too large"}});
+                c->close_after = true;
+              } else {
+                d.handle_request(*c, line);
+              }
+            }
+            if (!c->close_after && c->in.size() > kMaxRequest) {
+              c->reply({{"ok", false},
+                        {"error",
+                         "request too large (over " + std::to_string(kMaxRequest) + " bytes)"}});
+              c->close_after = true;
+            }
           }
         }
-        if (!c->close_after && c->in.size() > kMaxRequest) {
-          c->reply(
-              {{"ok", false},
-               {"error", "request too large (over " + std::to_string(kMaxRequest) + " bytes)"}});
-          c->close_after = true;
-        }
-      }
-    }
-    if (c->close_after) c->in.clear();
-    c->flush();  // sends what is left, and sets the events still wanted
-  });
+        if (c->close_after) c->in.clear();
+        c->flush();  // sends what is left, and sets the events still wanted
+      },
+      false);
   // the one place a client is freed while its own callback runs: after it
   if (c->done()) std::erase_if(d.clients, [&](const auto& p) { return p.get() == c; });
   return 0;
@@ -857,7 +874,8 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
     // the heartbeat goes out from this loop, between runs too: a table will not
     // start a move for a host it has not heard from
     const bool observing = d->running() && d->engine->sequencer().settings().observe;
-    if (!d->cfg.daemon.observe && !observing)
+    const bool gave_up = d->engine && d->engine->sequencer().course().quick_stop_gave_up;
+    if (!d->cfg.daemon.observe && !observing && !gave_up)
       d->out.push_back(run::heartbeat_frame(d->roles, d->heartbeat_counter++,
                                             d->engine ? d->engine->sequencer().host_state() : 0));
     d->after_engine();
@@ -889,6 +907,10 @@ int on_worker_done(sd_event_source*, int fd, uint32_t, void* u) {
     (void)!::read(fd, &c, 1);
     if (d->worker.joinable()) d->worker.join();
     d->worker_busy = false;
+    if (d->engine && d->report_done) {  // the run ended while it estimated
+      d->input.reset();
+      d->result.reset();
+    }
     if (d->engine)
       d->engine->estimation_done(socketcan::realtime_ns(), d->result.has_value(), d->est_error,
                                  d->out);

@@ -257,6 +257,7 @@ void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
                     "times): check the table",
                     s_.quick_stop_give_up_s, course_.quick_stops_sent);
       course_.reason += buf;
+      course_.quick_stop_gave_up = true;
       enter(stop_then_, t);
     } else if (t >= stop_repeat_at_) {
       // a quick stop may have been lost (a full queue, a bus down): again

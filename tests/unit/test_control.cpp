@@ -112,6 +112,8 @@ TEST_CASE("control: the daemon opens no path a client names") {
       dispatch(R"({"cmd":"start","plan_text":"[profile]\n","plan_name":"mine.toml"})", d.view());
   REQUIRE(t.action.has_value());
   CHECK(std::get<StartRequest>(*t.action).plan_text == "[profile]\n");
+  CHECK(error_of(dispatch(R"({"cmd":"start","plan_name":"mine.toml"})", d.view()))
+            .starts_with("start: plan_name: names the plan_text"));
   CHECK(error_of(dispatch(R"({"cmd":"start","plan_text":"x","profile":"y"})", d.view()))
             .find("not both") != std::string::npos);
 }
@@ -151,6 +153,12 @@ TEST_CASE("check_report: every field a reader takes is type-checked") {
        "innovations.nis_95_interval: expected two numbers"},
       {"/start_time_unix_s", "now", "start_time_unix_s: expected a number"},
       {"/schema_version", 99, "schema_version 99 is newer than this turncal reads (1)"},
+      // null is a wrong type too, but where a reader takes it (unit)
+      {"/reason", nullptr, "reason: expected a string"},
+      {"/status", nullptr, "status: expected a string"},
+      {"/verdict", nullptr, "verdict: expected an object"},
+      {"/profile/name", nullptr, "profile.name: expected a string"},
+      {"/estimates/nu0_1/unit", nullptr, "estimates.nu0_1.unit: expected a string"},
   };
   for (const Case& c : cases) {
     CAPTURE(c.pointer);
@@ -158,6 +166,9 @@ TEST_CASE("check_report: every field a reader takes is type-checked") {
     r[json::json_pointer(c.pointer)] = c.value;
     CHECK(run::check_report(r) == c.error);
   }
+  json unnamed = sample_report();
+  unnamed["unit"] = nullptr;
+  CHECK(run::check_report(unnamed).empty());
   // an older report, without schema_version, still reads
   json old = sample_report();
   old.erase("schema_version");

@@ -191,7 +191,10 @@ struct Course {
   std::string reason;  ///< why it aborted or failed
   bool quick_stop_sent = false;
   bool quick_stop_acked = false;
-  int quick_stops_sent = 0;              ///< the first and its repetitions
+  int quick_stops_sent = 0;  ///< the first and its repetitions
+  /// The table never reported stopped: the host stops its heartbeat, so a
+  /// table still moving stops itself on losing it.
+  bool quick_stop_gave_up = false;
   std::vector<double> turn_commanded_s;  ///< host time of each turn command (observe: its start)
   double heading_given_rad = NAN;        ///< in the INS command
 };
