@@ -293,16 +293,14 @@ Result<TxOutcome> Socket::send(const can::Frame& f) {
   return TxOutcome::Queued;
 }
 
-std::size_t Socket::flush(std::vector<can::Frame>* sent) {
+std::size_t Socket::flush() {
   while (!txq_.empty() && fd_ >= 0) {
     const TxResult r = write_frame(txq_.front());
     if (r == TxResult::Busy) break;
-    if (r == TxResult::Sent) {
+    if (r == TxResult::Sent)
       ++stats_.tx_frames;
-      if (sent != nullptr) sent->push_back(txq_.front());
-    } else {
+    else
       ++stats_.tx_failed;
-    }
     txq_.pop_front();
   }
   if (fd_ < 0 && !txq_.empty()) {  // gone: what waits can never go

@@ -179,7 +179,6 @@ class Daemon {
   std::atomic<bool> worker_busy{false};
   std::vector<run::OutFrame> out;
   socketcan::RxBatch rx;
-  std::vector<can::Frame> flushed;
 
   [[nodiscard]] const char* phase_name() const {
     return engine ? run::to_string(engine->sequencer().phase()) : "idle";
@@ -195,6 +194,7 @@ class Daemon {
   Status setup();
   void send_out();
   void flush_port(Port& p);
+  void link_back(Port& p);
   void update_io(Port& p);
   void recover_ports();
   void log_record(const can::LogRecord& r);
@@ -330,9 +330,15 @@ void Daemon::send_out() {
 
 void Daemon::flush_port(Port& p) {
   if (!p.sock || !p.sock->tx_pending()) return;
-  p.sock->flush(&flushed);
-  flushed.clear();  // logged on their echo
+  p.sock->flush();  // what goes out is logged on its echo
   update_io(p);
+}
+
+/// An interface usable again (re-opened, or up again): what waits goes out.
+void Daemon::link_back(Port& p) {
+  info(p.sock->interface() + " is back; " + std::to_string(p.sock->tx_queue_depth()) +
+       " frame(s) waiting go out");
+  flush_port(p);
 }
 
 /// EPOLLOUT while the socket's buffer holds frames back; the retry timer
@@ -371,11 +377,7 @@ void Daemon::recover_ports() {
         sd_event_source_set_description(p.src, "can");
       }
     }
-    if (up) {
-      info(p.sock->interface() + " is back; " + std::to_string(p.sock->tx_queue_depth()) +
-           " frame(s) waiting go out");
-      flush_port(p);
-    }
+    if (up) link_back(p);
   }
 }
 
@@ -389,11 +391,7 @@ void Daemon::on_can(Port& p) {
   const std::string& iface = p.sock->interface();
   for (const auto& e : rx.events) {
     warn(iface + ": " + can::describe(e));
-    if (e.kind == can::BusEventKind::InterfaceBack) {
-      info(iface + " is back; " + std::to_string(p.sock->tx_queue_depth()) +
-           " frame(s) waiting go out");
-      flush_port(p);
-    }
+    if (e.kind == can::BusEventKind::InterfaceBack) link_back(p);
     if ((e.kind == can::BusEventKind::InterfaceDown ||
          e.kind == can::BusEventKind::InterfaceGone) &&
         running())
@@ -518,14 +516,11 @@ void Daemon::write_report(bool with_estimates) {
     j["status"] = "failed";
     j["reason"] = "log not written whole: " + log_error;
   }
-  auto a = state->write_atomic(run_id + ".report.json",
-                               j.dump(2, ' ', false, json::error_handler_t::replace) + "\n");
-  auto b = state->write_atomic(run_id + ".report.txt", run::report_text(j));
-  auto c = state->write_atomic(run_id + ".report.html", run::report_html(j, est ? &*input : nullptr,
-                                                                         est ? &*result : nullptr));
-  if (a) state->index_report(run_id, j);
-  if (!a || !b || !c) {
-    const std::string why = (!a ? a.error() : !b ? b.error() : c.error()).describe();
+  if (auto w = state->write_report(
+          run_id, j, run::report_text(j),
+          run::report_html(j, est ? &*input : nullptr, est ? &*result : nullptr));
+      !w) {
+    const std::string why = w.error().describe();
     error("report not written: " + why);
     if (log_error.empty()) log_error = "report not written: " + why;
   } else {
@@ -558,17 +553,10 @@ void Daemon::report_interrupted_runs() {
                     {"reason", "the daemon stopped during the run (killed or crashed)"},
                     {"log", {{"file", id + ".log"}, {"sha256", dg->sha256}, {"lines", lines}}},
                     {"verdict", {{"pass", false}, {"checks", json::array()}}}};
-    auto a = state->write_atomic(id + ".report.json",
-                                 j.dump(2, ' ', false, json::error_handler_t::replace) + "\n");
-    if (a) state->index_report(id, j);
-    auto b = state->write_atomic(id + ".report.txt", run::report_text(j));
-    auto c = state->write_atomic(id + ".report.html", run::report_html(j, nullptr, nullptr));
-    if (!a || !b || !c)
-      say(LOG_ERR, id, "interrupted",
-          "report not written: " + (!a   ? a.error()
-                                    : !b ? b.error()
-                                         : c.error())
-                                       .describe());
+    if (auto w =
+            state->write_report(id, j, run::report_text(j), run::report_html(j, nullptr, nullptr));
+        !w)
+      say(LOG_ERR, id, "interrupted", "report not written: " + w.error().describe());
     say(LOG_WARNING, id, "interrupted",
         "run " + id + " was interrupted; its log (" + std::to_string(lines) + " frames) is kept");
   }
@@ -685,6 +673,8 @@ json Daemon::start(const StartRequest& req) {
 // ---- control clients ----
 
 void Daemon::broadcast_watch() {
+  if (std::none_of(clients.begin(), clients.end(), [](const auto& c) { return c->watching; }))
+    return;
   const json s = status();
   for (auto& c : clients)
     if (c->watching) c->reply(s);

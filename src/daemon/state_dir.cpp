@@ -83,18 +83,36 @@ Status StateDir::write_atomic(const std::string& name, const std::string& data) 
   return Status{Ok{}};
 }
 
-Result<json> StateDir::read_report(const std::string& run_id) const {
-  if (!valid_name(run_id)) return make_error("report: expected a run_id");
+Status StateDir::write_report(const std::string& run_id, const json& report,
+                              const std::string& text, const std::string& html) {
+  TURNCAL_TRY(write_atomic(run_id + ".report.txt", text));
+  TURNCAL_TRY(write_atomic(run_id + ".report.html", html));
+  const std::string data = report.dump(2, ' ', false, json::error_handler_t::replace) + "\n";
+  TURNCAL_TRY(write_atomic(run_id + kReportSuffix, data));
+  index_report(run_id, json::parse(data, nullptr, false));  // what a reader will find
+  return Status{Ok{}};
+}
+
+/// A kept report, parsed and checked; the error is why it cannot be read.
+Result<json> StateDir::load(const std::string& run_id) const {
   const fs::path p = dir_ / (run_id + kReportSuffix);
   std::ifstream in(p, std::ios::binary);
-  if (!in) return make_error("no report " + run_id);
+  if (!in) return make_error("no such file");
   std::stringstream ss;
   ss << in.rdbuf();
-  if (in.bad()) return make_error("report " + run_id + " unreadable: read error");
+  if (in.bad()) return make_error("read error");
   json r = json::parse(ss.str(), nullptr, false);
-  if (r.is_discarded()) return make_error("report " + run_id + " unreadable: not JSON");
-  if (const std::string why = run::check_report(r); !why.empty())
-    return make_error("report " + run_id + " unreadable: " + why);
+  if (r.is_discarded()) return make_error("not JSON");
+  if (const std::string why = run::check_report(r); !why.empty()) return make_error(why);
+  return r;
+}
+
+Result<json> StateDir::read_report(const std::string& run_id) const {
+  if (!valid_name(run_id)) return make_error("report: expected a run_id");
+  std::error_code ec;
+  if (!fs::exists(dir_ / (run_id + kReportSuffix), ec)) return make_error("no report " + run_id);
+  auto r = load(run_id);
+  if (!r) return make_error("report " + run_id + " unreadable: " + r.error().message);
   return r;
 }
 
@@ -113,15 +131,10 @@ void StateDir::load_index() {
     const std::string n = e.path().filename().string();
     if (!n.ends_with(kReportSuffix)) continue;
     const std::string id = n.substr(0, n.size() - std::strlen(kReportSuffix));
-    if (!valid_name(id)) continue;
-    auto r = read_report(id);
-    if (r) {
-      index_report(id, *r);
-    } else {
-      const std::string msg = r.error().describe();
-      const std::string prefix = "report " + id + " unreadable: ";
-      index_[id] = IndexEntry{json(), msg.starts_with(prefix) ? msg.substr(prefix.size()) : msg};
-    }
+    if (!valid_name(id) || index_.contains(id)) continue;  // indexed when written
+    // checked once, here: the summary of a readable one, else why not
+    auto r = load(id);
+    index_[id] = r ? IndexEntry{report_summary(*r), ""} : IndexEntry{json(), r.error().message};
   }
 }
 

@@ -36,6 +36,11 @@ class StateDir {
   /// Temp file, write, fsync, close, rename, fsync of the directory: the file
   /// is whole or absent, and every step's failure is the error.
   Status write_atomic(const std::string& name, const std::string& data) const;
+  /// A run's report as its three files: the text and the HTML first, the
+  /// JSON last, so the JSON (which the index and the next start read) is
+  /// there only when all three are; indexed as the file reads back.
+  Status write_report(const std::string& run_id, const nlohmann::json& report,
+                      const std::string& text, const std::string& html);
   /// A kept report, parsed and type-checked.
   Result<nlohmann::json> read_report(const std::string& run_id) const;
   /// Reads every report into the index (at start-up).
@@ -48,6 +53,7 @@ class StateDir {
   [[nodiscard]] std::vector<std::string> logs_without_report() const;
 
  private:
+  Result<nlohmann::json> load(const std::string& run_id) const;
   std::filesystem::path dir_;
   const FileIo* io_;
   Index index_;

@@ -492,6 +492,11 @@ bool is(const json& j, Kind k) {
   return false;
 }
 
+/// "path[i]" for an array's element, "path.name" for an object's value.
+std::string element_path(const json& j, const std::string& path, const std::string& name) {
+  return j.is_array() ? path + "[" + name + "]" : path + "." + name;
+}
+
 /// The first field of a report with the wrong type, as "path: expected
 /// KIND"; the reader functions below record it and go on quietly.
 class Checker {
@@ -515,11 +520,24 @@ class Checker {
   bool each(const json& j, const std::string& path, Kind k) {
     for (const auto& [name, v] : j.items())
       if (!is(v, k)) {
-        fail(path + (j.is_array() ? "[" + name + "]" : "." + name),
-             std::string("expected ") + kind_name(k));
+        fail(element_path(j, path, name), std::string("expected ") + kind_name(k));
         return false;
       }
     return true;
+  }
+  /// Each element of an array (path[i]) or value of an object (path.name)
+  /// must be an object; `check` is called on each, with its path, until
+  /// the first that is not.
+  template <class F>
+  void objects(const json& j, const std::string& path, F&& check) {
+    for (const auto& [name, v] : j.items()) {
+      const std::string at = element_path(j, path, name);
+      if (!is(v, Kind::Object)) {
+        fail(at, "expected an object");
+        return;
+      }
+      check(v, at + ".");
+    }
   }
   void fail(const std::string& path, const std::string& what) {
     if (error.empty()) error = path + ": " + what;
@@ -573,40 +591,22 @@ std::string check_report(const json& r) {
     }
   }
   if (c.field(r, "", "turns_achieved", Kind::Array))
-    for (std::size_t i = 0; i < r["turns_achieved"].size(); ++i) {
-      const json& t = r["turns_achieved"][i];
-      const std::string at = "turns_achieved[" + std::to_string(i) + "]";
-      if (!is(t, Kind::Object)) {
-        c.fail(at, "expected an object");
-        break;
-      }
+    c.objects(r["turns_achieved"], "turns_achieved", [&](const json& t, const std::string& at) {
       for (const char* k : {"angle_rad", "peak_rate_rps", "start_s", "end_s"})
-        c.field(t, at + ".", k, Kind::Number, true);
-    }
+        c.field(t, at, k, Kind::Number, true);
+    });
   if (c.field(r, "", "estimates", Kind::Object))
-    for (const auto& [name, e] : r["estimates"].items()) {
-      const std::string at = "estimates." + name;
-      if (!is(e, Kind::Object)) {
-        c.fail(at, "expected an object");
-        break;
-      }
-      for (const char* k : {"value", "sigma", "prior_sigma"})
-        c.field(e, at + ".", k, Kind::Number, true);
-      c.field(e, at + ".", "unit", Kind::String);
-    }
+    c.objects(r["estimates"], "estimates", [&](const json& e, const std::string& at) {
+      for (const char* k : {"value", "sigma", "prior_sigma"}) c.field(e, at, k, Kind::Number, true);
+      c.field(e, at, "unit", Kind::String);
+    });
   if (c.field(r, "", "combinations", Kind::Array))
-    for (std::size_t i = 0; i < r["combinations"].size(); ++i) {
-      const json& m = r["combinations"][i];
-      const std::string at = "combinations[" + std::to_string(i) + "]";
-      if (!is(m, Kind::Object)) {
-        c.fail(at, "expected an object");
-        break;
-      }
-      c.field(m, at + ".", "lead", Kind::String, true);
-      if (c.field(m, at + ".", "coefficients", Kind::Object, true))
-        c.each(m["coefficients"], at + ".coefficients", Kind::Number);
-      for (const char* k : {"value", "sigma"}) c.field(m, at + ".", k, Kind::Number, true);
-    }
+    c.objects(r["combinations"], "combinations", [&](const json& m, const std::string& at) {
+      c.field(m, at, "lead", Kind::String, true);
+      if (c.field(m, at, "coefficients", Kind::Object, true))
+        c.each(m["coefficients"], at + "coefficients", Kind::Number);
+      for (const char* k : {"value", "sigma"}) c.field(m, at, k, Kind::Number, true);
+    });
   if (c.field(r, "", "innovations", Kind::Object)) {
     const json& i = r["innovations"];
     c.field(i, "innovations.", "nis_mean", Kind::Number, true);
@@ -620,20 +620,14 @@ std::string check_report(const json& r) {
     const json& v = r["verdict"];
     c.field(v, "verdict.", "pass", Kind::Boolean, true);
     if (c.field(v, "verdict.", "checks", Kind::Array))
-      for (std::size_t i = 0; i < v["checks"].size(); ++i) {
-        const json& k = v["checks"][i];
-        const std::string at = "verdict.checks[" + std::to_string(i) + "]";
-        if (!is(k, Kind::Object)) {
-          c.fail(at, "expected an object");
-          break;
+      c.objects(v["checks"], "verdict.checks", [&](const json& k, const std::string& at) {
+        c.field(k, at, "pass", Kind::Boolean, true);
+        c.field(k, at, "parameter", Kind::String, true);
+        if (c.field(k, at, "value", Kind::Number)) {
+          c.field(k, at, "sigma", Kind::Number, true);
+          c.field(k, at, "unit", Kind::String, true);
         }
-        c.field(k, at + ".", "pass", Kind::Boolean, true);
-        c.field(k, at + ".", "parameter", Kind::String, true);
-        if (c.field(k, at + ".", "value", Kind::Number)) {
-          c.field(k, at + ".", "sigma", Kind::Number, true);
-          c.field(k, at + ".", "unit", Kind::String, true);
-        }
-      }
+      });
   }
   return c.error;
 }

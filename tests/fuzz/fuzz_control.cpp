@@ -19,8 +19,8 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   daemon::Index index;
   // the same bytes as a report file the daemon finds in its state directory
   const json r = json::parse(text, nullptr, false);
+  const std::string why = r.is_discarded() ? "not JSON" : run::check_report(r);
   if (!r.is_discarded()) {
-    const std::string why = run::check_report(r);
     if (why.empty()) {
       (void)run::report_text(r);
       index["fuzz"] = daemon::IndexEntry{daemon::report_summary(r), ""};
@@ -33,7 +33,7 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   v.running = size % 2 == 0;
   v.index = &index;
   v.read_report = [&](const std::string&) -> Result<json> {
-    if (!r.is_discarded() && run::check_report(r).empty()) return r;
+    if (why.empty()) return r;
     return make_error("unreadable");
   };
   const daemon::Outcome o = daemon::dispatch(text, v);

@@ -19,6 +19,7 @@
 
 #include "hil.hpp"
 #include "process.hpp"
+#include "turncal/can/candump.hpp"
 
 namespace hil::stand {
 
@@ -129,6 +130,20 @@ inline bool wait_for(const hil::fs::path& p, std::chrono::milliseconds t) {
        std::this_thread::sleep_for(20ms))
     if (hil::fs::exists(p)) return true;
   return false;
+}
+
+/// The records of a candump log, read to its end; a damaged record fails.
+inline std::uint64_t log_records(const hil::fs::path& log) {
+  auto reader = turncal::can::LogReader::open(log.string());
+  REQUIRE(reader.ok());
+  std::uint64_t n = 0;
+  for (;;) {
+    auto rec = reader->next();
+    REQUIRE_MESSAGE(rec.ok(), rec.error().describe());
+    if (!rec->has_value()) break;
+    ++n;
+  }
+  return n;
 }
 
 }  // namespace hil::stand

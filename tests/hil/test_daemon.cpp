@@ -272,15 +272,7 @@ TEST_SUITE("daemon") {
     REQUIRE(entry.is_object());
     CHECK(entry["status"] == "interrupted");
     const auto ir = nlohmann::json::parse(slurp(dir.path / "state" / (killed + ".report.json")));
-    auto reader = can::LogReader::open((dir.path / "state" / (killed + ".log")).string());
-    REQUIRE(reader.ok());
-    std::uint64_t records = 0;
-    for (;;) {
-      auto rec = reader->next();
-      REQUIRE_MESSAGE(rec.ok(), rec.error().describe());
-      if (!rec->has_value()) break;
-      ++records;
-    }
+    const std::uint64_t records = log_records(dir.path / "state" / (killed + ".log"));
     CHECK(records > 1000);  // prepare, alignment and part of a hold
     CHECK(ir["log"]["lines"].get<std::uint64_t>() == records);
     daemon.terminate();

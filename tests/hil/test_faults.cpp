@@ -35,20 +35,6 @@ json stand_state(Child& sim, const hil::fs::path& dir) {
   return json::parse(slurp(dir / "stand.json"));
 }
 
-/// The log of a run reads to its end, record by record.
-std::uint64_t log_records(const hil::fs::path& log) {
-  auto reader = can::LogReader::open(log.string());
-  REQUIRE(reader.ok());
-  std::uint64_t n = 0;
-  for (;;) {
-    auto rec = reader->next();
-    REQUIRE_MESSAGE(rec.ok(), rec.error().describe());
-    if (!rec->has_value()) break;
-    ++n;
-  }
-  return n;
-}
-
 std::string start_run(const hil::fs::path& dir) {
   REQUIRE(ctl(dir, {"--json", "start"}, "start.json") == 0);
   return json::parse(slurp(dir / "start.json"))["run_id"];

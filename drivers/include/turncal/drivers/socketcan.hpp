@@ -120,9 +120,8 @@ class Socket {
   /// Sends without blocking; queues when the kernel is full. An error only
   /// for a frame the socket cannot carry (FD frame on a classic socket).
   Result<TxOutcome> send(const can::Frame& frame);
-  /// Retries queued frames; those the kernel took are appended to `sent`
-  /// (when given). Returns how many are still waiting.
-  std::size_t flush(std::vector<can::Frame>* sent = nullptr);
+  /// Retries queued frames; returns how many are still waiting.
+  std::size_t flush();
   /// While the link is Down or Gone: checks the interface and re-opens the
   /// socket when it is usable again (an InterfaceBack event is appended).
   /// Returns true when the link is Up.
