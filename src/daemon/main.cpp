@@ -43,6 +43,7 @@
 #include <optional>
 #include <sstream>
 #include <string>
+#include <system_error>
 #include <thread>
 #include <utility>
 #include <vector>
@@ -160,6 +161,7 @@ class Daemon {
   std::uint64_t timer_ticks = 0;  ///< watchers get the status every 5th
   std::uint8_t heartbeat_counter = 0;
   std::optional<StateDir> state;
+  std::string config_sha256;  ///< of the configuration as loaded
 
   // the run
   std::unique_ptr<run::Engine> engine;
@@ -372,9 +374,12 @@ void Daemon::recover_ports() {
       p.registered_generation = p.sock->stats().recoveries;
       p.src = sd_event_source_unref(p.src);
       p.registered_fd = p.sock->fd();
-      if (p.registered_fd >= 0) {
-        sd_event_add_io(ev, &p.src, p.registered_fd, EPOLLIN, on_can_io, &p);
-        sd_event_source_set_description(p.src, "can");
+      if (p.registered_fd >= 0 &&
+          sd_event_add_io(ev, &p.src, p.registered_fd, EPOLLIN, on_can_io, &p) < 0) {
+        warn(p.sock->interface() + ": cannot watch the re-opened socket; trying again");
+        p.src = nullptr;
+        p.registered_fd = -1;  // tried again on the next tick
+        continue;
       }
     }
     if (up) link_back(p);
@@ -457,23 +462,30 @@ void Daemon::after_engine() {
       return after_engine();
     }
     input = std::move(*in);
-    worker_busy = true;
     if (worker.joinable()) worker.join();
-    worker = std::thread([this] {
-      try {
-        auto r = est::estimate(input->input);
-        if (r) {
-          result = std::move(*r);
-        } else {
-          est_error = r.error().describe();
+    worker_busy = true;  // before the thread starts: it reads input from its first line
+    try {
+      worker = std::thread([this] {
+        try {
+          auto r = est::estimate(input->input);
+          if (r) {
+            result = std::move(*r);
+          } else {
+            est_error = r.error().describe();
+          }
+        } catch (const std::exception& e) {
+          est_error = std::string("internal error: ") + e.what();
         }
-      } catch (const std::exception& e) {
-        est_error = std::string("internal error: ") + e.what();
-      }
-      const char c = 1;
-      while (::write(done_pipe[1], &c, 1) < 0 && errno == EINTR) {
-      }
-    });
+        const char c = 1;
+        while (::write(done_pipe[1], &c, 1) < 0 && errno == EINTR) {
+        }
+      });
+    } catch (const std::system_error& e) {  // no thread (TasksMax, memory)
+      worker_busy = false;
+      engine->estimation_done(socketcan::realtime_ns(), false,
+                              std::string("cannot start the estimation: ") + e.what(), out);
+      return after_engine();
+    }
   }
   if (engine->report_due()) {
     write_report(true);
@@ -499,12 +511,14 @@ void Daemon::write_report(bool with_estimates) {
   ctx.end_unix_s = static_cast<double>(socketcan::realtime_ns()) * 1e-9;
   ctx.software_version = run::software_version();
   ctx.config_file = cfg.source.string();
-  ctx.config_sha256 = run::sha256_hex(read_file(cfg.source));
+  ctx.config_sha256 = config_sha256;
   ctx.log_file = log_path.filename().string();
-  if (auto dg = run::sha256_file(log_path.string()))
+  if (auto dg = run::sha256_file(log_path.string())) {
     ctx.log_sha256 = dg->sha256;
-  else
-    warn(dg.error().describe());
+  } else {  // a log that cannot be read back is not a log the report can stand on
+    error(dg.error().describe());
+    if (log_error.empty()) log_error = dg.error().describe();
+  }
   ctx.tolerances = cfg.tolerances;
   ctx.mode = engine->sequencer().settings().observe ? "observe" : "command";
   ctx.unit = unit;
@@ -596,6 +610,19 @@ json Daemon::status() const {
 json Daemon::start(const StartRequest& req) {
   if (running()) return {{"ok", false}, {"error", "a run is in progress: " + run_id}};
   if (worker_busy) return {{"ok", false}, {"error", "the last run's estimation is still running"}};
+  if (engine && engine->sequencer().course().quick_stop_gave_up) {
+    // the last run never saw its quick stop confirmed: no new run until the
+    // table itself says it is at rest
+    const run::Live& l = engine->live();
+    if (l.table_state == 2 || l.table_state < 0 || !(std::abs(l.table_rate_rps) < 1e-3)) {
+      char why[200];
+      std::snprintf(why, sizeof why,
+                    "the last run's quick stop was never confirmed and the table does not report "
+                    "rest (state %d, rate %.3f deg/s): stop it at the stand",
+                    l.table_state, l.table_rate_rps * 180 / std::numbers::pi);
+      return {{"ok", false}, {"error", why}};
+    }
+  }
   // the plan: the operator's text, a name in the profiles directory, or the
   // configured default; never a path a client names
   Result<Plan> plan = make_error("no plan");
@@ -797,11 +824,12 @@ int on_accept(sd_event_source*, int fd, uint32_t, void* u) {
         // the pending connection stays readable: without a pause the loop spins
         d->warn(std::string("cannot accept a control connection: ") + std::strerror(errno) +
                 "; accepting again in 1 s");
-        sd_event_source_set_enabled(d->listen_src, SD_EVENT_OFF);
         std::uint64_t now = 0;
         sd_event_now(d->ev, CLOCK_MONOTONIC, &now);
-        sd_event_source_set_time(d->accept_again, now + kAcceptBackoffUs);
-        sd_event_source_set_enabled(d->accept_again, SD_EVENT_ONESHOT);
+        // the listener is paused only when the timer that resumes it is set
+        if (sd_event_source_set_time(d->accept_again, now + kAcceptBackoffUs) >= 0 &&
+            sd_event_source_set_enabled(d->accept_again, SD_EVENT_ONESHOT) >= 0)
+          sd_event_source_set_enabled(d->listen_src, SD_EVENT_OFF);
       }
       return;
     }
@@ -851,8 +879,14 @@ int on_tx_retry(sd_event_source*, uint64_t, void* u) {
 int on_timer(sd_event_source* s, uint64_t usec, void* u) {
   auto* d = static_cast<Daemon*>(u);
   const double period_s = 1.0 / (d->cfg.daemon.heartbeat_hz * d->cfg.stand.time_scale);
-  sd_event_source_set_time(s, usec + static_cast<uint64_t>(period_s * 1e6));
-  sd_event_source_set_enabled(s, SD_EVENT_ON);
+  if (sd_event_source_set_time(s, usec + static_cast<uint64_t>(period_s * 1e6)) < 0 ||
+      sd_event_source_set_enabled(s, SD_EVENT_ON) < 0) {
+    // no more heartbeat nor ticks: exit (systemd restarts us) rather than
+    // run on deaf; a moving table stops itself on the lost heartbeat
+    d->error("cannot re-arm the heartbeat timer: exiting");
+    sd_event_exit(d->ev, 1);
+    return 0;
+  }
   return guarded(d, "the timer", [&] {
     d->recover_ports();
     if (d->engine) {
@@ -911,6 +945,7 @@ int on_worker_done(sd_event_source*, int fd, uint32_t, void* u) {
 Status Daemon::setup() {
   TURNCAL_ASSIGN(c, load_config(opt.config));
   cfg = std::move(c);
+  config_sha256 = run::sha256_hex(read_file(cfg.source));
   if (!opt.state_dir.empty()) cfg.daemon.state_directory = opt.state_dir;
   if (const char* sd = std::getenv("STATE_DIRECTORY"); sd != nullptr && opt.state_dir.empty())
     cfg.daemon.state_directory = std::string(sd).substr(0, std::string(sd).find(':'));
@@ -948,7 +983,9 @@ Status Daemon::setup() {
   if (n > 1) return make_error("expected one socket from systemd, got " + std::to_string(n));
   if (n == 1) {
     listen_fd = SD_LISTEN_FDS_START;
-    ::fcntl(listen_fd, F_SETFL, ::fcntl(listen_fd, F_GETFL) | O_NONBLOCK);
+    const int fl = ::fcntl(listen_fd, F_GETFL);
+    if (fl < 0 || ::fcntl(listen_fd, F_SETFL, fl | O_NONBLOCK) != 0)
+      return make_error(std::string("the socket from systemd: fcntl: ") + std::strerror(errno));
   } else {
     const std::string path = cfg.daemon.socket.string();
     sockaddr_un a{};
@@ -1038,7 +1075,13 @@ int main(int argc, char** argv) {
     else
       return usage(("unknown option " + a).c_str());
   }
-  if (auto st = d.setup(); !st) {
+  Status st = make_error("setup did not run");
+  try {
+    st = d.setup();
+  } catch (const std::exception& e) {  // a file system that fails under a directory walk
+    st = make_error(std::string("setup: ") + e.what());
+  }
+  if (!st) {
     say(LOG_ERR, "", "idle", st.error().describe());
     sd_notifyf(0, "STATUS=failed: %s", st.error().describe().c_str());
     return 1;

@@ -127,8 +127,9 @@ void StateDir::index_report(const std::string& run_id, const json& report) {
 
 void StateDir::load_index() {
   std::error_code ec;
-  for (const auto& e : fs::directory_iterator(dir_, ec)) {
-    const std::string n = e.path().filename().string();
+  // increment(ec), not ++: a failing disk must not throw out of start-up
+  for (fs::directory_iterator it(dir_, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string n = it->path().filename().string();
     if (!n.ends_with(kReportSuffix)) continue;
     const std::string id = n.substr(0, n.size() - std::strlen(kReportSuffix));
     if (!valid_name(id) || index_.contains(id)) continue;  // indexed when written
@@ -146,11 +147,12 @@ bool StateDir::has_log(const std::string& run_id) const {
 std::vector<std::string> StateDir::logs_without_report() const {
   std::vector<std::string> ids;
   std::error_code ec;
-  for (const auto& e : fs::directory_iterator(dir_, ec)) {
-    const std::string name = e.path().filename().string();
+  for (fs::directory_iterator it(dir_, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
     if (!name.ends_with(".log")) continue;
     const std::string id = name.substr(0, name.size() - 4);
-    if (!fs::exists(dir_ / (id + kReportSuffix), ec)) ids.push_back(id);
+    std::error_code gone;
+    if (!fs::exists(dir_ / (id + kReportSuffix), gone)) ids.push_back(id);
   }
   return ids;
 }

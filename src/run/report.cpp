@@ -585,7 +585,7 @@ std::string check_report(const json& r) {
       c.each(p["overrides"], "replay.overrides", Kind::String);
     if (c.field(p, "replay.", "missing_roles", Kind::Array))
       c.each(p["missing_roles"], "replay.missing_roles", Kind::String);
-    if (c.field(p, "replay.", "damage", Kind::Object)) {
+    if (c.field(p, "replay.", "damage", Kind::Object, false, true)) {  // null: whole
       c.field(p["damage"], "replay.damage.", "line", Kind::Integer);
       c.field(p["damage"], "replay.damage.", "what", Kind::String);
     }

@@ -56,6 +56,7 @@ struct Options {
   std::vector<std::string> faults;     // NAME=V[:V...]
   std::string ins_clock, table_clock;  // OFFSET_S:PPM
   std::string angle_limits;            // MIN_DEG:MAX_DEG
+  std::string heartbeat_timeout;       // the table's, stand s
   std::string truth_in;                // errors given in a JSON file
   std::string rates;                   // VELOCITY_HZ:ENCODER_HZ[:INS_STATUS_HZ:TABLE_STATUS_HZ]
 };
@@ -186,6 +187,8 @@ int usage(const char* why) {
                "        [--fault NAME=VALUE]... [--ins-clock OFFSET_S:PPM]\n"
                "        [--table-clock OFFSET_S:PPM] [--truth-in ERRORS.json]\n"
                "        [--angle-limits MIN_DEG:MAX_DEG] (the table's soft limits)\n"
+               "        [--table-heartbeat-timeout S] (the table stops itself after S stand\n"
+               "        seconds without a host heartbeat while it moves; default 0.5)\n"
                "        [--rates VEL_HZ:ENC_HZ[:INS_STATUS_HZ:TABLE_STATUS_HZ]] (frame rates;\n"
                "        default 100:200:10:20; VEL_HZ must divide the 400 Hz IMU rate)\n"
                "        [--start-time UNIX_S] (offline only)\n%s",
@@ -219,17 +222,18 @@ bool parse(int argc, char** argv, Options& o, std::string& err) {
     } else if (a == "--scripted-host") {
       o.scripted_host = true;
     } else if (a == "--fault" || a == "--ins-clock" || a == "--table-clock" || a == "--truth-in" ||
-               a == "--angle-limits" || a == "--rates") {
+               a == "--angle-limits" || a == "--rates" || a == "--table-heartbeat-timeout") {
       const char* v = value();
       if (v == nullptr) return false;
       if (a == "--fault")
         o.faults.emplace_back(v);
       else
-        (a == "--ins-clock"     ? o.ins_clock
-         : a == "--table-clock" ? o.table_clock
-         : a == "--truth-in"    ? o.truth_in
-         : a == "--rates"       ? o.rates
-                                : o.angle_limits) = v;
+        (a == "--ins-clock"      ? o.ins_clock
+         : a == "--table-clock"  ? o.table_clock
+         : a == "--truth-in"     ? o.truth_in
+         : a == "--rates"        ? o.rates
+         : a == "--angle-limits" ? o.angle_limits
+                                 : o.heartbeat_timeout) = v;
     } else if (a == "--out" || a == "--truth" || a == "--profile" || a == "--config" ||
                a == "--ins-interface" || a == "--table-interface" || a == "--state-out") {
       const char* v = value();
@@ -384,6 +388,13 @@ Result<World> load_world(const Options& o) {
                         o.angle_limits + "'");
     setup.table_limits.angle_min_rad = v[0] * kDeg;
     setup.table_limits.angle_max_rad = v[1] * kDeg;
+  }
+  if (!o.heartbeat_timeout.empty()) {
+    std::vector<double> v;
+    if (!numbers(o.heartbeat_timeout, v) || v.size() != 1 || !(v[0] > 0))
+      return make_error("--table-heartbeat-timeout: expected seconds above 0, not '" +
+                        o.heartbeat_timeout + "'");
+    setup.table_limits.heartbeat_timeout_s = v[0];
   }
   TURNCAL_TRY(apply_rates(o.rates, setup));
   if (!o.truth.empty()) {

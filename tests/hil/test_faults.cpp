@@ -64,6 +64,9 @@ TEST_SUITE("faults") {
     CHECK(list["reports"][0]["status"] == "unreadable");
     CHECK(list["reports"][0]["reason"] == "estimates.nu0_1.value: expected a number");
     CHECK(ctl(dir.path, {"show", "20200101T000000Z"}) == 1);
+    CHECK(raw_request(dir.path / "control.sock",
+                      "{\"cmd\":\"report\",\"run_id\":\"20200101T000000Z\"}\n")
+              .find("unreadable: estimates.nu0_1.value: expected a number") != std::string::npos);
     REQUIRE(ctl(dir.path, {"--json", "history", "SN-9"}, "h.json") == 0);
     CHECK(json::parse(slurp(dir.path / "h.json"))["history"]["runs"].empty());
 
@@ -110,8 +113,6 @@ TEST_SUITE("faults") {
     CHECK(st["table"]["rate_dps"] == 0.0);
     CHECK(st["counts"]["quick_stops"].get<int>() >= 1);
     const std::string log = slurp(dir.path / "daemon.err");
-    CHECK(log.find("too many control connections") ==
-          std::string::npos);  // that went to the client
     CHECK(log.find("control connection refused") != std::string::npos);
     CHECK(log.find("report unreadable: estimates.nu0_1.value") != std::string::npos);
   }
@@ -121,7 +122,10 @@ TEST_SUITE("faults") {
       "back") {
     hil::TempDir dir;
     write_stand(dir.path, hil::if0());
-    Child sim = start_sim(dir.path, "6", {"--state-out", "stand.json"});
+    // the table's own heartbeat watchdog out of the way (30 s, not 0.5 s), so
+    // only the daemon's quick stop can stop it
+    Child sim =
+        start_sim(dir.path, "6", {"--state-out", "stand.json", "--table-heartbeat-timeout", "30"});
     Child daemon = start_daemon(dir.path);
     REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
     const std::string id = start_run(dir.path);
@@ -140,15 +144,13 @@ TEST_SUITE("faults") {
     CHECK(r["quick_stop"]["times"].get<int>() > 1);  // the first was lost with the bus
     const json& can = r["can"][hil::if0()];
     CHECK(can["tx_dropped"].get<int>() > 0);
-    // what the log holds of ours is what the kernel echoed, no more
-    CHECK(can["tx_confirmed"].get<std::uint64_t>() <= can["tx_frames"].get<std::uint64_t>());
     // the log replays to the fault
     const hil::fs::path log = dir.path / "state" / (id + ".log");
     (void)ctl(dir.path,
               {"--json", "replay", log.string(), "--config", (dir.path / "turncal.toml").string()},
               "replay.json", 60000ms);
     const json rp = json::parse(slurp(dir.path / "replay.json"));
-    CHECK(rp["replay"]["damage"].is_null());
+    CHECK(rp.at("replay").at("damage").is_null());
     bool turn = false;  // the replay sees the run up to the turn
     for (const auto& ph : rp["phases"]) turn = turn || ph["phase"] == "turn";
     CHECK(turn);
@@ -159,8 +161,9 @@ TEST_SUITE("faults") {
     CHECK(daemon.wait(10000ms) == 0);
     const json st = stand_state(sim, dir.path);
     CHECK(st["table"]["state"] == kQuickStopped);
+    CHECK(st["table"]["fault"] == 0);  // stopped by a command: ours, after the bus came back
     CHECK(st["table"]["rate_dps"] == 0.0);
-    CHECK(st["counts"]["quick_stops"].get<int>() >= 1);  // ours reached it after the bus came back
+    CHECK(st["counts"]["quick_stops"].get<int>() >= 1);
     const std::string dlog = slurp(dir.path / "daemon.err");
     CHECK(dlog.find("went down") != std::string::npos);
     CHECK(dlog.find(hil::if0() + " is back") != std::string::npos);

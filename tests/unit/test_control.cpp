@@ -41,6 +41,7 @@ struct FakeDaemon {
 
 std::string error_of(const Outcome& o) {
   REQUIRE(o.reply.is_object());
+  REQUIRE(o.reply.contains("ok"));
   CHECK(o.reply["ok"] == false);
   CHECK_FALSE(o.action.has_value());
   return o.reply.value("error", std::string());
@@ -166,6 +167,9 @@ TEST_CASE("check_report: every field a reader takes is type-checked") {
     r[json::json_pointer(c.pointer)] = c.value;
     CHECK(run::check_report(r) == c.error);
   }
+  json replayed = sample_report();  // a replay's report: a whole log has damage null
+  replayed["replay"] = {{"of_live_report", true}, {"damage", nullptr}};
+  CHECK(run::check_report(replayed).empty());
   json unnamed = sample_report();
   unnamed["unit"] = nullptr;
   CHECK(run::check_report(unnamed).empty());
@@ -225,18 +229,27 @@ ssize_t failing_write(int fd, const void* p, std::size_t n) {
   }
   return ::write(fd, p, n < 3 ? n : 3);  // short writes too
 }
+int g_fsyncs_before_fail = 1000;
 int failing_fsync(int fd) {
+  if (g_fsyncs_before_fail-- <= 0) {
+    errno = EIO;
+    return -1;
+  }
   return ::fsync(fd);
 }
-int real_close(int fd) {
-  return ::close(fd);
+bool g_fail_close = false;
+int failing_close(int fd) {
+  const int r = ::close(fd);  // closed either way, as the kernel does
+  if (!g_fail_close) return r;
+  errno = EIO;
+  return -1;
 }
 }  // namespace
 
 TEST_CASE("state directory: a write that fails says why and leaves no file, whole or half") {
   const fs::path dir = fs::temp_directory_path() / ("turncal-io-" + std::to_string(::getpid()));
   fs::remove_all(dir);
-  const FileIo io{failing_write, failing_fsync, real_close};
+  const FileIo io{failing_write, failing_fsync, failing_close};
   StateDir st(dir, io);
   REQUIRE(st.create().ok());
   for (const int err : {ENOSPC, EIO}) {
@@ -250,6 +263,28 @@ TEST_CASE("state directory: a write that fails says why and leaves no file, whol
     CHECK_FALSE(fs::exists(dir / "r.report.json.tmp"));
   }
   g_writes_before_fail = 1000;
+  // the file's fsync, its close, and the directory's fsync after the rename
+  struct Step {
+    int fsyncs_before_fail;
+    bool fail_close;
+    const char* says;
+    bool file_in_place;
+  };
+  for (const Step& s :
+       {Step{0, false, "cannot sync", false}, Step{1000, true, "cannot close", false},
+        Step{1, false, "cannot sync", true}}) {
+    CAPTURE(s.says);
+    g_fsyncs_before_fail = s.fsyncs_before_fail;
+    g_fail_close = s.fail_close;
+    fs::remove(dir / "s.report.json");
+    auto w = st.write_atomic("s.report.json", "x");
+    REQUIRE_FALSE(w.ok());
+    CHECK(w.error().describe().find(s.says) != std::string::npos);
+    CHECK(fs::exists(dir / "s.report.json") == s.file_in_place);
+    CHECK_FALSE(fs::exists(dir / "s.report.json.tmp"));
+  }
+  g_fsyncs_before_fail = 1000;
+  g_fail_close = false;
   REQUIRE(st.write_atomic("r.report.json", "abcdefg").ok());  // short writes are finished
   std::ifstream in(dir / "r.report.json");
   std::string s;
