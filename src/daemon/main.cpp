@@ -453,6 +453,8 @@ void Daemon::after_engine() {
               : " (" + engine->sequencer().course().reason + ")"));
     sd_notifyf(0, "STATUS=%s %s", run_id.c_str(), run::to_string(p));
     log_sync();  // each phase end is on disk
+    // a run that ended has its report on disk before a watcher hears it ended
+    if (run::finished(p) && !report_done) write_report(false);
     broadcast_watch();
   }
   if (engine->estimation_due() && !worker_busy) {
