@@ -19,6 +19,7 @@ void VirtualTable::accept(std::uint8_t seq) {
 
 bool VirtualTable::start_move(double t, double delta, double rate) {
   const double a = lim_.max_accel_rps2;
+  if (delta != 0) delta += delta > 0 ? faults_.off_target_rad : -faults_.off_target_rad;
   if (faults_.overshoot_rad > 0 && delta != 0) {
     const double os = std::copysign(faults_.overshoot_rad, delta);
     const auto first = motion_.move_by(t, delta + os, rate, a);
@@ -112,6 +113,7 @@ void VirtualTable::advance(double t) {
       consider(rest_at_, 3);
     } else {
       consider(faults_.drive_fault_at_s, 2);
+      if (when >= rest_at_) consider(faults_.drift_at_s, 4);
     }
     switch (which) {
       case 0:
@@ -126,6 +128,12 @@ void VirtualTable::advance(double t) {
         break;
       case 3:
         state_ = after_rest_;
+        break;
+      case 4:  // the state stays what it was: the drive does not know
+        faults_.drift_at_s = NAN;
+        rest_at_ =
+            motion_.move_by(when, faults_.drift_rad, 0.017453292519943295, lim_.max_accel_rps2)
+                .t_end;
         break;
       default:
         now_ = t;

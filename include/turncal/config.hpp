@@ -76,6 +76,10 @@ struct StandLimits {
   double max_accel_rps2 = 0.5235987755982988;  ///< 30 deg/s^2
   double angle_min_rad = -1e9;                 ///< multi-turn table angle, as the host unwraps it
   double angle_max_rad = 1e9;
+  /// The host's own checks of the encoder: a move may pass its target, the
+  /// table may stop off it, or drift with no move commanded, by this much
+  /// at most (0.1 deg); more is a fault and a quick stop.
+  double position_tolerance_rad = 0.0017453292519943296;
   [[nodiscard]] bool contains(double angle_rad) const {
     return angle_rad >= angle_min_rad && angle_rad <= angle_max_rad;
   }

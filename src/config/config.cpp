@@ -188,18 +188,21 @@ const toml::table* section(const toml::table& root, std::string_view key, Status
 
 Status read_stand(const toml::table& t, const std::string& file, StandConfig& s) {
   Reader r(t, file, "stand.");
-  TURNCAL_TRY(r.no_unknown_keys({"heading_offset_deg", "max_rate_dps", "max_accel_dps2",
-                                 "angle_min_deg", "angle_max_deg", "time_scale", "unit"}));
+  TURNCAL_TRY(
+      r.no_unknown_keys({"heading_offset_deg", "max_rate_dps", "max_accel_dps2", "angle_min_deg",
+                         "angle_max_deg", "time_scale", "unit", "position_tolerance_deg"}));
   TURNCAL_TRY(r.string("unit", s.unit));
   StandLimits& l = s.limits;
   double off = s.heading_offset_rad / kDegRad, rate = l.max_rate_rps / kDegRad,
-         acc = l.max_accel_rps2 / kDegRad, lo = -1e6, hi = 1e6;
+         acc = l.max_accel_rps2 / kDegRad, lo = -1e6, hi = 1e6,
+         tol = l.position_tolerance_rad / kDegRad;
   TURNCAL_TRY(r.number("heading_offset_deg", off, -360, 360));
   TURNCAL_TRY(r.number("max_rate_dps", rate, 0.01, 1000));
   TURNCAL_TRY(r.number("max_accel_dps2", acc, 0.01, 10000));
   TURNCAL_TRY(r.number("angle_min_deg", lo, -1e6, 1e6));
   TURNCAL_TRY(r.number("angle_max_deg", hi, -1e6, 1e6));
   TURNCAL_TRY(r.number("time_scale", s.time_scale, 1e-3, 1e4));
+  TURNCAL_TRY(r.number("position_tolerance_deg", tol, 1e-4, 10));
   if (!(lo < hi)) {
     // name whichever of the two the file sets (one alone can cross the other's default)
     const bool max_set = t.get("angle_max_deg") != nullptr;
@@ -210,6 +213,7 @@ Status read_stand(const toml::table& t, const std::string& file, StandConfig& s)
   s.heading_offset_rad = off * kDegRad;
   l.max_rate_rps = rate * kDegRad;
   l.max_accel_rps2 = acc * kDegRad;
+  l.position_tolerance_rad = tol * kDegRad;
   if (t.get("angle_min_deg") != nullptr) l.angle_min_rad = lo * kDegRad;
   if (t.get("angle_max_deg") != nullptr) l.angle_max_rad = hi * kDegRad;
   return Status{Ok{}};

@@ -343,6 +343,8 @@ void Sequencer::start_turn(double t, std::vector<Command>& out) {
 void Sequencer::move(double t, std::vector<Command>& out, double delta, double rate, double accel,
                      const std::string& late) {
   table(TableCode::MoveRelative, t, out, delta, rate);
+  target_ = angle_ + delta;
+  move_delta_ = delta;
   TableMotion m;
   const double due = m.move_by(0, delta, rate, accel).t_end + s_.turn_margin_s;
   phase_deadline_ = t + due;
@@ -387,14 +389,21 @@ void Sequencer::on_table(const TableStatusEvent& e, std::vector<Command>& out) {
         }
         prepare_move(t, out);
       } else if (prepare_moving_ && e.state == kInPosition) {
+        if (const std::string off = off_target("the move to the start angle"); !off.empty())
+          return fail(t, off, out);
         prepare_moving_ = false;
         may_move_ = false;
+        rest_angle_ = target_;
         begin_align(t, out);
       }
       break;
     case Phase::Turn:
       if (e.state == kInPosition) {
+        if (const std::string off = off_target(("turn " + std::to_string(index_)).c_str());
+            !off.empty())
+          return fail(t, off, out);
         may_move_ = false;
+        rest_angle_ = target_;
         after_turn(t);
       }
       break;
@@ -482,6 +491,10 @@ void Sequencer::navigating(double t) {
 void Sequencer::on_encoder(const EncoderEvent& e, std::vector<Command>& out) {
   angle_ = e.angle_rad;
   if (stopping_ || finished(phase_)) return;
+  if (!s_.observe) {
+    guard_encoder(e.t_s, out);
+    if (stopping_ || finished(phase_)) return;
+  }
   // enabled before the first encoder frame came: go on now
   if (!s_.observe && phase_ == Phase::Prepare && enabled_ && !prepare_moving_)
     return prepare_move(e.t_s, out);
@@ -498,6 +511,42 @@ void Sequencer::on_encoder(const EncoderEvent& e, std::vector<Command>& out) {
   } else if (phase_ == Phase::Turn) {
     observe_motion(e.t_s);
   }
+}
+
+void Sequencer::guard_encoder(double t, std::vector<Command>& out) {
+  if (phase_ == Phase::Idle || phase_ == Phase::Estimate || phase_ == Phase::Report) return;
+  const double tol = s_.limits.position_tolerance_rad;
+  if (!s_.limits.contains(angle_))
+    return fail(t,
+                "the table angle " + deg(angle_) + " is outside the angle limits (" +
+                    deg(s_.limits.angle_min_rad) + " to " + deg(s_.limits.angle_max_rad) + ")",
+                out);
+  if (may_move_) {
+    if (std::isnan(target_)) return;
+    const double past = (move_delta_ >= 0 ? 1 : -1) * (angle_ - target_);
+    if (past > tol)
+      fail(t,
+           (phase_ == Phase::Turn ? "turn " + std::to_string(index_)
+                                  : std::string("the move to the start angle")) +
+               ": overshoot, the table passed its target " + deg(target_) + " by " + deg(past),
+           out);
+    return;
+  }
+  if (!enabled_) return;
+  if (std::isnan(rest_angle_)) rest_angle_ = angle_;  // at rest where it was enabled
+  if (std::abs(angle_ - rest_angle_) > tol)
+    fail(t,
+         "the table moved " + deg(angle_ - rest_angle_) + " from " + deg(rest_angle_) +
+             " with no move commanded",
+         out);
+}
+
+std::string Sequencer::off_target(const char* what) const {
+  if (std::isnan(target_) || std::isnan(angle_)) return {};
+  const double off = angle_ - target_;
+  if (std::abs(off) <= s_.limits.position_tolerance_rad) return {};
+  return std::string(what) + ": the table reported in position " + deg(off) + " off its target " +
+         deg(target_);
 }
 
 void Sequencer::observe_motion(double t) {

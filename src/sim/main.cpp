@@ -71,6 +71,9 @@ constexpr const char* kFaultHelp =
     "  table-stall=SECONDS        the next move stalls this long after it starts\n"
     "  table-overshoot=DEG        moves pass their target by DEG, then come back\n"
     "  table-fault=AT             a drive fault: quick stop, state 4, fault 3\n"
+    "  table-off-target=DEG       moves end DEG past (< 0: short of) their target, reported\n"
+    "                             in position\n"
+    "  table-drift=AT:DEG         the table at rest turns DEG by itself, still holding\n"
     "  garbage=HZ                 frames of wrong length and of unknown IDs\n"
     "  flood=AT:SECONDS[:HZ]      a flood of unknown frames (default 5000 Hz)\n"
     "  clock-jump=ins|table:AT:S  a device clock jumps by S seconds\n";
@@ -125,6 +128,11 @@ Status apply_fault(const std::string& spec, stand::StandSetup& s) {
     s.table_faults.overshoot_rad = v[0] * kDeg;
   } else if (name == "table-fault" && want(1, 1)) {
     s.table_faults.drive_fault_at_s = v[0];
+  } else if (name == "table-off-target" && want(1, 1)) {
+    s.table_faults.off_target_rad = v[0] * kDeg;
+  } else if (name == "table-drift" && want(2, 2)) {
+    s.table_faults.drift_at_s = v[0];
+    s.table_faults.drift_rad = v[1] * kDeg;
   } else if (name == "garbage" && want(1, 1) && v[0] >= 0) {
     f.garbage_rate_hz = v[0];
   } else if (name == "flood" && want(2, 3)) {

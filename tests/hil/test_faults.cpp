@@ -23,9 +23,13 @@ Child start_daemon(const hil::fs::path& dir) {
                dir);
 }
 
-/// The one report of the state directory whose run id is `id`.
+/// The one report of the state directory whose run id is `id`; when there
+/// is none, the daemon's log says why.
 json report_of(const hil::fs::path& dir, const std::string& id) {
-  return json::parse(slurp(dir / "state" / (id + ".report.json")));
+  const hil::fs::path p = dir / "state" / (id + ".report.json");
+  REQUIRE_MESSAGE(hil::fs::exists(p), "no report; the daemon's log:\n"
+                                          << slurp(dir / "daemon.err"));
+  return json::parse(slurp(p));
 }
 
 /// The stand's own account, after it was stopped.
@@ -167,6 +171,43 @@ TEST_SUITE("faults") {
     const std::string dlog = slurp(dir.path / "daemon.err");
     CHECK(dlog.find("went down") != std::string::npos);
     CHECK(dlog.find(hil::if0() + " is back") != std::string::npos);
+  }
+
+  TEST_CASE("the host checks the encoder: an overshoot, a table that turns by itself") {
+    struct Case {
+      const char* fault;
+      const char* reason;  ///< in the report's reason
+    };
+    for (const Case k : {Case{"table-overshoot=1", "overshoot, the table passed its target"},
+                         Case{"table-drift=40:2", "with no move commanded"}}) {
+      CAPTURE(k.fault);
+      hil::TempDir dir;
+      write_stand(dir.path, hil::if0());
+      // the table's own heartbeat watchdog out of the way: only the host stops it
+      Child sim = start_sim(
+          dir.path, "8",
+          {"--state-out", "stand.json", "--table-heartbeat-timeout", "30", "--fault", k.fault});
+      Child daemon = start_daemon(dir.path);
+      REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+      const std::string id = start_run(dir.path);
+      CHECK(ctl(dir.path, {"watch"}, "w.out", 60000ms) == 1);
+      const json r = report_of(dir.path, id);
+      CAPTURE(r.value("reason", std::string()));
+      CHECK(r["status"] == "failed");
+      CHECK(r["reason"].get<std::string>().find(k.reason) != std::string::npos);
+      CHECK(r["quick_stop"]["acknowledged"] == true);
+      const hil::fs::path log = dir.path / "state" / (id + ".log");
+      const json& can = r["can"][hil::if0()];
+      CHECK(log_records(log) ==
+            can["rx_frames"].get<std::uint64_t>() + can["tx_confirmed"].get<std::uint64_t>());
+      daemon.terminate();
+      CHECK(daemon.wait(10000ms) == 0);
+      const json st = stand_state(sim, dir.path);
+      CHECK(st["table"]["state"] == kQuickStopped);
+      CHECK(st["table"]["fault"] == 0);  // stopped by the host's command
+      CHECK(st["table"]["rate_dps"] == 0.0);
+      CHECK(slurp(dir.path / "daemon.err").find(k.reason) != std::string::npos);
+    }
   }
 
   TEST_CASE("a flood of unknown frames: the heartbeat keeps its period, the run completes") {

@@ -521,6 +521,20 @@ TEST_SUITE("run engine on the virtual stand") {
         {"encoder silent in the turn", [](auto& s) { s.faults.encoder_silent_at_s = 82; },
          "table encoder lost"},
         {"table stall", [](auto& s) { s.table_faults.stall_after_s = 2; }, "table fault: stall"},
+        // the host's own checks of the encoder, whatever the table reports
+        // (every move: the first, to the start angle, is where they show)
+        {"moves overshoot by 1 deg", [](auto& s) { s.table_faults.overshoot_rad = 1 * kDeg; },
+         "the move to the start angle: overshoot, the table passed its target 0.000 deg by"},
+        {"moves stop 0.5 deg short, in position",
+         [](auto& s) { s.table_faults.off_target_rad = -0.5 * kDeg; },
+         "the move to the start angle: the table reported in position 0.500 deg off its "
+         "target 0.000 deg"},  // a move down to 0: short is above it
+        {"the table turns by itself in hold 1",
+         [](auto& s) {
+           s.table_faults.drift_at_s = 40;
+           s.table_faults.drift_rad = 2 * kDeg;
+         },
+         "the table moved 0.1"},
         {"INS fault mode", [](auto& s) { s.ins.fault_at_s = 50; }, "INS fault mode"},
         {"move refused by the table's soft limits",
          [](auto& s) { s.table_limits.angle_max_rad = 90 * kDeg; },
@@ -545,6 +559,26 @@ TEST_SUITE("run engine on the virtual stand") {
       CHECK(st.rate_rps == 0);
       CHECK(st.state == stand::TableState::QuickStopped);
     }
+  }
+
+  TEST_CASE("the host's soft limits: an angle past them stops the table, whatever the tolerance") {
+    // the encoder check of the limits alone: a tolerance too wide to call
+    // the 2 deg overshoot one, and a limit half a degree past the target
+    const Plan plan = short_plan();
+    stand::StandSetup s = setup_of(plan, 3);
+    s.table_faults.overshoot_rad = 2 * kDeg;
+    run::SequencerSettings q = ClosedLoop::settings_of(plan, s);
+    q.start_angle_rad = 0;
+    q.limits.position_tolerance_rad = 5 * kDeg;
+    q.limits.angle_min_rad = -10 * kDeg;
+    q.limits.angle_max_rad = 180.5 * kDeg;
+    ClosedLoop c(plan, s, q);
+    c.run_until(300);
+    CHECK(c.phase() == run::Phase::Failed);
+    CHECK_MESSAGE(c.course().reason.find("the table angle 180.5") == 0, c.course().reason);
+    CHECK(c.course().reason.find("is outside the angle limits (-10.000 deg to 180.500 deg)") !=
+          std::string::npos);
+    CHECK(c.course().quick_stop_acked);
   }
 
   TEST_CASE("an encoder gap in the turn: lost after 10 periods, never before the floor") {

@@ -227,6 +227,11 @@ class Sequencer {
   void on_table(const TableStatusEvent& e, std::vector<Command>& out);
   void on_ins(const InsModeEvent& e, std::vector<Command>& out);
   void on_encoder(const EncoderEvent& e, std::vector<Command>& out);
+  /// The host's own checks of the encoder (command mode): the soft limits,
+  /// a move past its target, motion with none commanded.
+  void guard_encoder(double t, std::vector<Command>& out);
+  /// Where the table was sent, or where it is to stay; NaN: not known yet.
+  [[nodiscard]] std::string off_target(const char* what) const;
   void observe_motion(double t);
   void start_turn(double t, std::vector<Command>& out);
   void after_turn(double t);
@@ -263,6 +268,9 @@ class Sequencer {
   std::uint8_t stop_first_seq_ = 0;
   int ins_mode_ = -1;
   double angle_ = NAN;
+  double target_ = NAN;      ///< where the move under way ends (may_move_)
+  double move_delta_ = 0;    ///< its signed length
+  double rest_angle_ = NAN;  ///< where the table is to stay while no move is under way
   // observe mode
   double last_moving_t_ = NAN;
   double hold_angle_ = NAN;

@@ -42,6 +42,12 @@ struct TableFaults {
   double stall_after_s = NAN;     ///< stall this long into the next move (decelerates, Fault 2)
   double overshoot_rad = 0;       ///< every move passes its target by this much, then comes back
   double drive_fault_at_s = NAN;  ///< stand time of a drive fault (quick stop, Fault 3)
+  double off_target_rad =
+      0;  ///< every move ends this much past (< 0: short of) its target, "in position"
+  /// Once, at this stand time, the table at rest turns by drift_rad at 1 deg/s
+  /// by itself (a slipping brake) and still reports holding.
+  double drift_at_s = NAN;
+  double drift_rad = 0;
 };
 
 struct TableCommand {
