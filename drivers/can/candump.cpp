@@ -309,7 +309,10 @@ LogWriter::LogWriter(LogWriter&& o) noexcept
     : fd_(std::exchange(o.fd_, -1)),
       buf_(std::move(o.buf_)),
       records_(o.records_),
-      written_(o.written_) {}
+      written_(o.written_),
+      pos_(o.pos_),
+      whole_(o.whole_),
+      failed_(o.failed_) {}
 LogWriter& LogWriter::operator=(LogWriter&& o) noexcept {
   if (this != &o) {
     (void)close();
@@ -317,6 +320,9 @@ LogWriter& LogWriter::operator=(LogWriter&& o) noexcept {
     buf_ = std::move(o.buf_);
     records_ = o.records_;
     written_ = o.written_;
+    pos_ = o.pos_;
+    whole_ = o.whole_;
+    failed_ = o.failed_;
   }
   return *this;
 }
@@ -329,12 +335,23 @@ Result<LogWriter> LogWriter::open(const std::string& path, bool append) {
   const int fd = ::open(path.c_str(), flags, 0640);
   if (fd < 0) return make_error(path + ": cannot open for writing: " + std::strerror(errno));
   LogWriter w(fd);
+  if (append) {
+    const off_t end = ::lseek(fd, 0, SEEK_END);
+    if (end < 0) {
+      const int err = errno;
+      ::close(fd);
+      w.fd_ = -1;
+      return make_error(path + ": cannot seek: " + std::strerror(err));
+    }
+    w.pos_ = w.whole_ = static_cast<std::uint64_t>(end);
+  }
   w.buf_.reserve(kReadChunk);
   return w;
 }
 
 Status LogWriter::write(const LogRecord& record) {
   if (fd_ < 0) return make_error("log writer is closed");
+  if (failed_) return make_error("log write failed earlier");
   char line[kMaxLogLine];
   const std::size_t n = format_log_line(record, line, sizeof line);
   buf_.insert(buf_.end(), line, line + n);
@@ -344,18 +361,29 @@ Status LogWriter::write(const LogRecord& record) {
 }
 
 Status LogWriter::flush() {
+  if (failed_) return make_error("log write failed earlier");
   std::size_t done = 0;
   while (done < buf_.size()) {
     const ssize_t n = ::write(fd_, buf_.data() + done, buf_.size() - done);
     if (n < 0 && errno == EINTR) continue;
     if (n <= 0) {
       const int err = n == 0 ? EIO : errno;
-      buf_.erase(buf_.begin(), buf_.begin() + static_cast<std::ptrdiff_t>(done));
-      return make_error(std::string("log write failed: ") + std::strerror(err));
+      failed_ = true;
+      buf_.clear();
+      // a line cut by the failure would read as damage: the file ends at
+      // its last whole line
+      const bool cut = pos_ == whole_ || ::ftruncate(fd_, static_cast<off_t>(whole_)) == 0;
+      return make_error(std::string("log write failed: ") + std::strerror(err) +
+                        (cut ? "" : " (and the last line could not be cut off)"));
     }
-    written_ += static_cast<std::uint64_t>(
-        std::count(buf_.begin() + static_cast<std::ptrdiff_t>(done),
-                   buf_.begin() + static_cast<std::ptrdiff_t>(done) + n, '\n'));
+    const auto first = buf_.begin() + static_cast<std::ptrdiff_t>(done);
+    const auto last = first + n;
+    written_ += static_cast<std::uint64_t>(std::count(first, last, '\n'));
+    const auto nl =
+        std::find(std::make_reverse_iterator(last), std::make_reverse_iterator(first), '\n');
+    if (nl != std::make_reverse_iterator(first))
+      whole_ = pos_ + static_cast<std::uint64_t>(nl.base() - first);
+    pos_ += static_cast<std::uint64_t>(n);
     done += static_cast<std::size_t>(n);
   }
   buf_.clear();

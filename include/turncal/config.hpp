@@ -112,6 +112,9 @@ struct DaemonConfig {
   /// A control client that leaves replies unread this long, or sends nothing
   /// and watches nothing this long, is dropped (real seconds).
   double client_idle_s = 60;
+  /// Disk space reserved for a run's report when it starts, MiB: a disk that
+  /// fills during the run can still say why.
+  double report_reserve_mib = 8;
   /// A stream is lost after 10 periods unseen and never sooner than this,
   /// real milliseconds: the host's scheduling latency.
   double stale_floor_ms = 50;

@@ -223,7 +223,7 @@ Status read_daemon(const toml::table& t, const std::string& file, DaemonConfig& 
   Reader r(t, file, "daemon.");
   TURNCAL_TRY(r.no_unknown_keys({"state_directory", "socket", "socket_group", "profile",
                                  "profiles_directory", "observe", "heartbeat_hz", "stale_floor_ms",
-                                 "max_clients", "client_idle_s"}));
+                                 "max_clients", "client_idle_s", "report_reserve_mib"}));
   std::string state = d.state_directory.string(), sock = d.socket.string(), prof, profiles;
   TURNCAL_TRY(r.string("state_directory", state));
   TURNCAL_TRY(r.string("socket", sock));
@@ -233,6 +233,7 @@ Status read_daemon(const toml::table& t, const std::string& file, DaemonConfig& 
   TURNCAL_TRY(r.boolean("observe", d.observe));
   TURNCAL_TRY(r.integer("max_clients", d.max_clients, 1, 256));
   TURNCAL_TRY(r.number("client_idle_s", d.client_idle_s, 1, 3600));
+  TURNCAL_TRY(r.number("report_reserve_mib", d.report_reserve_mib, 0, 1024));
   TURNCAL_TRY(r.number("heartbeat_hz", d.heartbeat_hz, 2, 100));
   TURNCAL_TRY(r.number("stale_floor_ms", d.stale_floor_ms, 0, 1000));
   const std::filesystem::path base = std::filesystem::path(file).parent_path();

@@ -501,6 +501,7 @@ void Daemon::after_engine() {
 /// be written leaves log_error set, and the run ends failed with it.
 void Daemon::write_report(bool with_estimates) {
   report_done = true;
+  state->release(run_id);  // the space the report was kept
   if (log) {
     auto st = log->sync();
     auto cl = log->close();
@@ -674,8 +675,15 @@ json Daemon::start(const StartRequest& req) {
   // two runs within a second: the second gets a suffix, no log is overwritten
   for (int k = 2; state->has_log(id); ++k) id = utc_id(now) + "-" + std::to_string(k);
   const fs::path path = state->path() / (id + ".log");
+  if (auto rs = state->reserve(
+          id, static_cast<std::uint64_t>(cfg.daemon.report_reserve_mib * 1024 * 1024));
+      !rs)
+    return {{"ok", false}, {"error", rs.error().describe()}};
   auto w = can::LogWriter::open(path.string());
-  if (!w) return {{"ok", false}, {"error", w.error().describe()}};
+  if (!w) {
+    state->release(id);
+    return {{"ok", false}, {"error", w.error().describe()}};
+  }
   run_start_ns = now;
   run_id = id;
   log_path = path;
@@ -958,6 +966,7 @@ Status Daemon::setup() {
   roles = r;
   state.emplace(cfg.daemon.state_directory);
   TURNCAL_TRY(state->create());
+  state->release_stale();
   report_interrupted_runs();
   state->load_index();
   for (const auto& [id, e] : state->index())

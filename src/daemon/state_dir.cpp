@@ -93,6 +93,38 @@ Status StateDir::write_report(const std::string& run_id, const json& report,
   return Status{Ok{}};
 }
 
+namespace {
+constexpr const char* kReserveSuffix = ".reserve";
+}  // namespace
+
+Status StateDir::reserve(const std::string& run_id, std::uint64_t bytes) const {
+  if (bytes == 0) return Status{Ok{}};
+  const fs::path p = dir_ / ("." + run_id + kReserveSuffix);
+  const int fd = ::open(p.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+  if (fd < 0) return make_error("cannot create " + p.string() + ": " + std::strerror(errno));
+  const int err = ::posix_fallocate(fd, 0, static_cast<off_t>(bytes));
+  const bool closed = io_->close(fd) == 0;
+  if (err != 0 || !closed) {
+    ::unlink(p.c_str());
+    return make_error(
+        "the state directory cannot hold a run's report: " + std::to_string(bytes >> 10) +
+        " KiB could not be reserved: " + std::strerror(err != 0 ? err : EIO));
+  }
+  return Status{Ok{}};
+}
+
+void StateDir::release(const std::string& run_id) const {
+  ::unlink((dir_ / ("." + run_id + kReserveSuffix)).c_str());
+}
+
+void StateDir::release_stale() const {
+  std::error_code ec;
+  for (fs::directory_iterator it(dir_, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string n = it->path().filename().string();
+    if (n.starts_with(".") && n.ends_with(kReserveSuffix)) ::unlink(it->path().c_str());
+  }
+}
+
 /// A kept report, parsed and checked; the error is why it cannot be read.
 Result<json> StateDir::load(const std::string& run_id) const {
   const fs::path p = dir_ / (run_id + kReportSuffix);

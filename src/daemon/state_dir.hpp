@@ -41,6 +41,14 @@ class StateDir {
   /// there only when all three are; indexed as the file reads back.
   Status write_report(const std::string& run_id, const nlohmann::json& report,
                       const std::string& text, const std::string& html);
+  /// Space for a run's report, taken when the run starts (a file of `bytes`,
+  /// allocated), so a disk that fills during the run can still say why;
+  /// released just before the report is written. An error when the disk
+  /// cannot give it.
+  Status reserve(const std::string& run_id, std::uint64_t bytes) const;
+  void release(const std::string& run_id) const;
+  /// Reservations a killed daemon left behind.
+  void release_stale() const;
   /// A kept report, parsed and type-checked.
   Result<nlohmann::json> read_report(const std::string& run_id) const;
   /// Reads every report into the index (at start-up).

@@ -3,6 +3,8 @@
 // (the stand's --state-out), the daemon's log (its stderr) and the report.
 #include <doctest/doctest.h>
 
+#include <cstdlib>
+#include <fstream>
 #include <nlohmann/json.hpp>
 
 #include "daemon_stand.hpp"
@@ -208,6 +210,52 @@ TEST_SUITE("faults") {
       CHECK(st["table"]["rate_dps"] == 0.0);
       CHECK(slurp(dir.path / "daemon.err").find(k.reason) != std::string::npos);
     }
+  }
+
+  TEST_CASE(
+      "the disk fills during the run: the table stops, the log replays, the report says why") {
+    hil::TempDir dir;
+    write_stand(dir.path, hil::if0());
+    // 256 KiB kept for the report; the state directory a file system of
+    // 560 KiB, which the log fills before the run ends (about 600 KiB)
+    std::ofstream(dir.path / "turncal.toml", std::ios::app) << "report_reserve_mib = 0.25\n";
+    hil::fs::create_directories(dir.path / "state");
+    const std::string state = (dir.path / "state").string();
+    REQUIRE(std::system(("mount -t tmpfs -o size=560k tmpfs " + state).c_str()) == 0);
+    struct Unmount {
+      std::string at;
+      ~Unmount() { (void)!std::system(("umount " + at).c_str()); }
+    } unmount{state};
+    Child sim = start_sim(dir.path, "9", {"--state-out", "stand.json"});
+    Child daemon = start_daemon(dir.path);
+    REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+    const std::string id = start_run(dir.path);
+    CHECK(ctl(dir.path, {"watch"}, "w.out", 90000ms) == 1);
+    const json r = report_of(dir.path, id);  // there: its space was kept
+    const std::string reason = r.value("reason", std::string());
+    CAPTURE(reason);
+    MESSAGE("disk full: " << reason << " (phase " << r["phases"].back()["phase"] << " after "
+                          << r["phases"][r["phases"].size() - 2]["phase"] << ")");
+    CHECK(r["status"] == "failed");
+    CHECK(reason.find("log write failed: No space left on device: log kept up to line ") == 0);
+    CHECK(r["quick_stop"]["sent"] == true);
+    CHECK(r["quick_stop"]["acknowledged"] == true);
+    // the log ends at a whole line, the one the reason names, and replays
+    const hil::fs::path log = dir.path / "state" / (id + ".log");
+    const std::uint64_t lines = log_records(log);
+    CHECK(reason.find("up to line " + std::to_string(lines)) != std::string::npos);
+    CHECK(lines > 1000);
+    (void)ctl(dir.path,
+              {"--json", "replay", log.string(), "--config", (dir.path / "turncal.toml").string()},
+              "replay.json", 60000ms);
+    const json rp = json::parse(slurp(dir.path / "replay.json"));
+    CHECK(rp.at("replay").at("damage").is_null());
+    daemon.terminate();
+    CHECK(daemon.wait(10000ms) == 0);
+    const json st = stand_state(sim, dir.path);
+    CHECK(st["table"]["state"] == kQuickStopped);
+    CHECK(st["table"]["rate_dps"] == 0.0);
+    CHECK(slurp(dir.path / "daemon.err").find("No space left on device") != std::string::npos);
   }
 
   TEST_CASE("a flood of unknown frames: the heartbeat keeps its period, the run completes") {

@@ -1,5 +1,8 @@
 #include <doctest/doctest.h>
+#include <sys/resource.h>
 #include <unistd.h>
+
+#include <csignal>
 
 #include <cstdio>
 #include <filesystem>
@@ -167,6 +170,56 @@ TEST_SUITE("candump") {
       ++n;
     }
     CHECK(n == 50000);
+    std::filesystem::remove(path);
+  }
+
+  TEST_CASE("a log whose file system refuses more ends at its last whole line, and says so") {
+    // a real refusal from the kernel: the file size limit (EFBIG), as a full
+    // disk refuses with ENOSPC, partway through a buffer
+    const auto path =
+        std::filesystem::temp_directory_path() / ("turncal-full-" + std::to_string(::getpid()));
+    rlimit old{};
+    REQUIRE(::getrlimit(RLIMIT_FSIZE, &old) == 0);
+    const auto old_handler = std::signal(SIGXFSZ, SIG_IGN);
+    rlimit small = old;
+    small.rlim_cur = 100'003;  // not on a line boundary
+    REQUIRE(::setrlimit(RLIMIT_FSIZE, &small) == 0);
+    std::string error;
+    std::uint64_t written = 0;
+    {
+      auto w = LogWriter::open(path.string());
+      REQUIRE(w.ok());
+      for (int i = 0; i < 50000 && error.empty(); ++i) {
+        LogRecord r;
+        r.time_ns = 1'700'000'000'000'000'000 + i * 2'500'000LL;
+        r.interface = "vcan0";
+        r.frame.id = 0x123;
+        r.frame.len = 8;
+        if (auto st = w->write(r); !st) error = st.error().describe();
+      }
+      if (error.empty())
+        if (auto st = w->sync(); !st) error = st.error().describe();
+      written = w->records_written();
+      CHECK_FALSE(w->write(LogRecord{}).ok());  // nothing more goes
+      CHECK_FALSE(w->flush().ok());
+    }
+    REQUIRE(::setrlimit(RLIMIT_FSIZE, &old) == 0);
+    std::signal(SIGXFSZ, old_handler);
+    CHECK(error.find("log write failed: File too large") == 0);
+    CHECK(written > 1000);
+    const auto size = std::filesystem::file_size(path);
+    CHECK(size < 100'003);
+    auto rd = LogReader::open(path.string());
+    REQUIRE(rd.ok());
+    LogRecord rec;
+    std::uint64_t n = 0;
+    for (;;) {
+      auto got = rd->next(rec);
+      REQUIRE_MESSAGE(got.ok(), got.error().describe());  // no half line at the end
+      if (!*got) break;
+      ++n;
+    }
+    CHECK(n == written);
     std::filesystem::remove(path);
   }
 

@@ -246,6 +246,28 @@ int failing_close(int fd) {
 }
 }  // namespace
 
+TEST_CASE("state directory: the report's space is reserved at the start, or the run refused") {
+  const fs::path dir = fs::temp_directory_path() / ("turncal-rsv-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  StateDir st(dir);
+  REQUIRE(st.create().ok());
+  REQUIRE(st.reserve("r1", 1 << 20).ok());
+  REQUIRE(fs::exists(dir / ".r1.reserve"));
+  CHECK(fs::file_size(dir / ".r1.reserve") == 1 << 20);
+  st.release("r1");
+  CHECK_FALSE(fs::exists(dir / ".r1.reserve"));
+  // more than any disk here holds: refused with the reason, nothing left
+  auto big = st.reserve("r2", std::uint64_t{1} << 52);
+  REQUIRE_FALSE(big.ok());
+  CHECK(big.error().describe().find("could not be reserved") != std::string::npos);
+  CHECK_FALSE(fs::exists(dir / ".r2.reserve"));
+  // a killed daemon's reservation goes at the next start
+  REQUIRE(st.reserve("r3", 4096).ok());
+  st.release_stale();
+  CHECK_FALSE(fs::exists(dir / ".r3.reserve"));
+  fs::remove_all(dir);
+}
+
 TEST_CASE("state directory: a write that fails says why and leaves no file, whole or half") {
   const fs::path dir = fs::temp_directory_path() / ("turncal-io-" + std::to_string(::getpid()));
   fs::remove_all(dir);

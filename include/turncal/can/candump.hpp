@@ -86,7 +86,9 @@ class LogWriter {
   Status sync();
   Status close();
   [[nodiscard]] std::uint64_t records() const { return records_; }
-  /// Whole lines the file has taken (written, not only buffered).
+  /// Whole lines the file has taken (written, not only buffered). After a
+  /// failed write the file is cut back to its last whole line, so it reads
+  /// to its end, and every later write or flush fails the same way.
   [[nodiscard]] std::uint64_t records_written() const { return written_; }
 
  private:
@@ -95,6 +97,9 @@ class LogWriter {
   std::vector<char> buf_;
   std::uint64_t records_ = 0;
   std::uint64_t written_ = 0;
+  std::uint64_t pos_ = 0;    ///< bytes in the file
+  std::uint64_t whole_ = 0;  ///< bytes up to its last whole line
+  bool failed_ = false;      ///< a write failed: the file ends at a whole line, nothing more goes
 };
 
 }  // namespace turncal::can
