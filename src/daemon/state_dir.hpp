@@ -62,6 +62,7 @@ class StateDir {
 
  private:
   Result<nlohmann::json> load(const std::string& run_id) const;
+  int allocate(int fd, std::uint64_t bytes) const;
   std::filesystem::path dir_;
   const FileIo* io_;
   Index index_;

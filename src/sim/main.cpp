@@ -482,6 +482,7 @@ int live(const Options& o) {
   const can::Message* hb = (*roles)[Role::HeartbeatCounter].message;
   double hb_last = NAN;
   std::vector<double> hb_gaps;
+  double hb_max_gap = 0, hb_max_gap_end = NAN;  // the longest gap, and when it ended (stand s)
   while (g_stop == 0 && !loop.done()) {
     for (socketcan::Socket& s : sockets) {
       rx.clear();
@@ -495,7 +496,13 @@ int live(const Options& o) {
         const double at = static_cast<double>(f.time_ns - kernel0_ns) * 1e-9 * o.speed;
         from_bus.emplace_back(at, f.frame);
         if (hb != nullptr && f.frame.id == hb->id && f.frame.extended == hb->extended) {
-          if (!std::isnan(hb_last)) hb_gaps.push_back(at - hb_last);
+          if (!std::isnan(hb_last)) {
+            if (at - hb_last > hb_max_gap) {
+              hb_max_gap = at - hb_last;
+              hb_max_gap_end = at;
+            }
+            hb_gaps.push_back(at - hb_last);
+          }
           hb_last = at;
         }
       }
@@ -530,11 +537,8 @@ int live(const Options& o) {
     // faults checks (did the table stop, did our quick stop reach it)
     const double now = loop.next_time();
     // the heartbeat's gaps more than 20% off their mean (the host's period)
-    double mean_gap = 0, max_gap = 0;
-    for (const double g : hb_gaps) {
-      mean_gap += g / static_cast<double>(hb_gaps.size());
-      max_gap = std::max(max_gap, g);
-    }
+    double mean_gap = 0;
+    for (const double g : hb_gaps) mean_gap += g / static_cast<double>(hb_gaps.size());
     std::uint64_t off = 0;
     for (const double g : hb_gaps) off += std::abs(g - mean_gap) > 0.2 * mean_gap;
     const auto st = loop.stand().table().status(now);
@@ -554,7 +558,8 @@ int live(const Options& o) {
                               {"heartbeat",
                                {{"gaps", hb_gaps.size()},
                                 {"mean_gap_s", mean_gap},
-                                {"max_gap_s", max_gap},
+                                {"max_gap_s", hb_max_gap},
+                                {"max_gap_end_s", hb_max_gap_end},
                                 {"gaps_off_20_percent", off}}}};
     std::ofstream f(o.state_out);
     f << j.dump(2) << "\n";
