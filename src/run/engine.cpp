@@ -136,7 +136,17 @@ void Engine::on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out) {
       m != nullptr && running && m->mode == static_cast<int>(InsMode::Aligning))
     ins_aligning_seen_ = true;
   const bool old_navigation = std::holds_alternative<VelocitySample>(s) && !ins_aligning_seen_;
-  if (running && !record_complete_ && !old_navigation) record_.add(s);
+  if (running && !record_complete_ && !old_navigation) {
+    record_.add(s);
+    // samples of a clock that jumped are dropped; one that stays jumped
+    // would leave the estimate without them, or with them at the wrong time
+    if (!clock_fault_fed_) {
+      if (std::string why = record_.clock_fault(); !why.empty()) {
+        clock_fault_fed_ = true;
+        feed(HostFault{t, why}, out);
+      }
+    }
+  }
   if (const auto* v = std::get_if<VelocitySample>(&s)) {
     live_.ve = v->ve;
     live_.vn = v->vn;

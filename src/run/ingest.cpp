@@ -1,6 +1,7 @@
 #include "turncal/run/ingest.hpp"
 
 #include <algorithm>
+#include <cstdio>
 #include <numbers>
 
 namespace turncal::run {
@@ -74,6 +75,67 @@ bool ClockFit::add_checked(double device_s, double host_s, double gate_s) {
   }
   add(device_s, host_s);
   return true;
+}
+
+double ClockFit::gate_residual(double device_s, double host_s) const {
+  if (!(seconds_ >= 2 && last_x_ - first_x_ >= kGateSpanS)) return NAN;
+  return host_s - y0_ - gate_line_.a - gate_line_.b * (device_s - x0_);
+}
+
+bool TagCheck::keep(const ClockFit& fit, double device_s, double host_s) {
+  const double r = fit.gate_residual(device_s, host_s);
+  const bool back = have_ && !(device_s > last_device_s_);
+  if (back || r < -kGateS) {
+    ++dropped_;
+    if (run_n_++ == 0) {
+      run_start_host_s_ = host_s;
+      // how far: back from where the next tag was due, or ahead of the clock
+      run_jump_s_ = back ? last_device_s_ + last_step_s_ - device_s : -r;
+    }
+    if (fault_ == Fault::None && host_s - run_start_host_s_ >= kDropRunS) {
+      fault_ = back ? Fault::Back : Fault::Ahead;
+      fault_s_ = run_jump_s_;
+      fault_n_ = run_n_;
+    }
+    return false;
+  }
+  run_n_ = 0;
+  if (have_) last_step_s_ = device_s - last_device_s_;
+  have_ = true;
+  last_device_s_ = device_s;
+  if (!(r > kGateS) || std::isnan(on_time_host_s_)) on_time_host_s_ = host_s;
+  if (fault_ == Fault::None && r > kGateS && host_s - on_time_host_s_ >= kLateRunS) {
+    fault_ = Fault::Late;
+    fault_s_ = r;
+  }
+  return true;
+}
+
+std::string TagCheck::fault(const std::string& what) const {
+  char b[160];
+  switch (fault_) {
+    case Fault::None:
+      return {};
+    case Fault::Ahead:
+      std::snprintf(b, sizeof b,
+                    " jumped ahead by %.3f s: %llu frames on end over %.1f s tagged after they "
+                    "arrived",
+                    fault_s_, static_cast<unsigned long long>(fault_n_), kDropRunS);
+      break;
+    case Fault::Back:
+      std::snprintf(b, sizeof b,
+                    " stepped back by %.3f s: %llu frames on end over %.1f s tagged before the "
+                    "last one kept",
+                    fault_s_, static_cast<unsigned long long>(fault_n_), kDropRunS);
+      break;
+    case Fault::Late:
+      std::snprintf(b, sizeof b,
+                    " fell behind by %.3f s: every frame for %.1f s came over %.0f ms later "
+                    "than its tag says",
+                    fault_s_, kLateRunS, kGateS * 1e3);
+      break;
+  }
+  return what + b;
 }
 
 void ClockFit::hull_push(std::vector<Point>& hull, const Point& p) {

@@ -7,6 +7,7 @@ namespace turncal::run {
 
 void Record::add(const Sample& s) {
   if (const auto* v = std::get_if<VelocitySample>(&s)) {
+    if (!velocity_tags_.keep(ins_clock_, v->t_ins_s, v->host_s)) return;
     constexpr std::size_t kRateSamples = 256;
     if (velocity_.size() == kRateSamples && expected_span_s_ > 0) {
       const double seen = velocity_.back().t_s - velocity_.front().t_s;
@@ -23,8 +24,8 @@ void Record::add(const Sample& s) {
   }
   const auto* e = std::get_if<EncoderSample>(&s);
   if (e == nullptr) return;
+  if (!encoder_tags_.keep(table_clock_, e->t_table_s, e->host_s)) return;
   if (!table_clock_.add_checked(e->t_table_s, e->host_s)) ++clock_outliers_;
-  if (pending_ && e->t_table_s <= last_.t_table_s) return;  // out of order
   if (pending_ && e->angle_rad == last_.angle_rad) {
     last_ = *e;  // the constant run goes on: only its ends are kept
     return;
@@ -33,6 +34,11 @@ void Record::add(const Sample& s) {
   encoder_.push_back(*e);
   last_ = *e;
   pending_ = true;
+}
+
+std::string Record::clock_fault() const {
+  std::string f = velocity_tags_.fault("the INS clock");
+  return f.empty() ? encoder_tags_.fault("the table clock") : f;
 }
 
 void Record::close() {
@@ -80,6 +86,12 @@ Result<BuiltInput> build_input(Record& record, const Plan& plan, const BuildSett
   }
   in.velocity.resize(used);
   out.velocity_used = in.velocity.size();
+  for (const auto& [tags, what] : {std::pair{&record.velocity_tags(), "INS velocity samples"},
+                                   std::pair{&record.encoder_tags(), "encoder samples"}})
+    if (tags->dropped() > 0)
+      out.notes.push_back(std::to_string(tags->dropped()) + " " + what +
+                          " left out: their time tags did not move forward or put them after "
+                          "their receipt, off the device's clock");
   const double recorded = in.velocity.back().t_s;
   if (recorded < duration - 1.0)
     out.notes.push_back("the record ends " + std::to_string(duration - recorded) +

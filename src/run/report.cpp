@@ -262,6 +262,8 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
       {"malformed", in.counters().malformed},
       {"ignored", in.counters().ignored},
       {"clock_outliers", in.counters().clock_outliers},
+      {"velocity_tags_dropped", engine.record().velocity_tags().dropped()},
+      {"encoder_tags_dropped", engine.record().encoder_tags().dropped()},
       {"clock_late_frames", in.ins_clock().late() + in.table_clock().late()},
       {"half_velocity_pairs", in.counters().half_pairs},
       {"ins_clock_rate_ppm", in.ins_clock().rate_ppm()},

@@ -536,6 +536,26 @@ TEST_SUITE("run engine on the virtual stand") {
          },
          "the table moved 0.1"},
         {"INS fault mode", [](auto& s) { s.ins.fault_at_s = 50; }, "INS fault mode"},
+        // the INS clock's tags jump and stay jumped: its samples would land
+        // at the wrong time (the host's receive times say by how much)
+        {"the INS clock jumps 0.3 s ahead in hold 1",
+         [](auto& s) {
+           s.ins_clock.jump_at_s = 40;
+           s.ins_clock.jump_s = 0.3;
+         },
+         "the INS clock jumped ahead by 0.3"},
+        {"the INS clock steps 0.2 s back in hold 1",
+         [](auto& s) {
+           s.ins_clock.jump_at_s = 40;
+           s.ins_clock.jump_s = -0.2;
+         },
+         "the INS clock fell behind by 0.2"},
+        {"the table clock jumps 1 s ahead in the turn",
+         [](auto& s) {
+           s.table_clock.jump_at_s = 82;
+           s.table_clock.jump_s = 1;
+         },
+         "the table clock jumped ahead by "},
         {"move refused by the table's soft limits",
          [](auto& s) { s.table_limits.angle_max_rad = 90 * kDeg; },
          "the table did not acknowledge the move of turn 1 within 1000 ms (table fault: command "

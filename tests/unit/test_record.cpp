@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
+#include <functional>
 #include <limits>
 #include <random>
 
@@ -42,6 +44,65 @@ TEST_SUITE("record") {
     CHECK(v.size() == n);
     CHECK(r.velocity().empty());
     CHECK(r.ins_clock().count() > 0);  // the clocks stay
+  }
+
+  // 100 Hz velocity on an INS clock 1000 s ahead of the host's, latency 1 ms
+  // (and up to 0.4 ms of jitter); sample k is tagged tag(k)
+  double on_time(int k) {
+    return 1000 + 0.01 * k;
+  }
+  Record record_with(int n, const std::function<double(int)>& tag) {
+    Record r;
+    for (int k = 0; k < n; ++k)
+      r.add(VelocitySample{tag(k), 1.7e9 + 0.01 * k + 1e-3 + 2e-4 * (k % 3), 0, 0});
+    return r;
+  }
+  /// The number after "by " in a fault's reason.
+  double jump_of(const std::string& reason) {
+    const auto at = reason.find(" by ");
+    return at == std::string::npos ? std::nan("") : std::strtod(reason.c_str() + at + 4, nullptr);
+  }
+
+  TEST_CASE("time tags: a clock that jumps for a moment loses those samples, not the run") {
+    // at 20 s, 10 tags jump 0.3 s ahead; at 25 s, 10 repeat the one before
+    const Record r = record_with(3000, [](int k) {
+      if (k >= 2000 && k < 2010) return on_time(k) + 0.3;
+      if (k >= 2500 && k < 2510) return on_time(2499);
+      return on_time(k);
+    });
+    CHECK(r.velocity_tags().dropped() == 20);
+    CHECK(r.velocity().size() == 2980);
+    CHECK(r.clock_fault().empty());
+    for (std::size_t i = 1; i < r.velocity().size(); ++i)
+      REQUIRE(r.velocity()[i].t_s > r.velocity()[i - 1].t_s);
+  }
+
+  TEST_CASE("time tags: a clock that stays jumped fails, whichever way it jumped, saying how far") {
+    struct Case {
+      double jump_s;
+      const char* reason;
+    };
+    // ahead: every later tag is after its receipt; back by 0.8 s: 0.8 s of
+    // tags before the last one kept; back by 0.2 s: 0.2 s of those, then
+    // every frame 0.2 s late
+    for (const Case& c :
+         {Case{0.3, "the INS clock jumped ahead by "}, Case{-0.8, "the INS clock stepped back by "},
+          Case{-0.2, "the INS clock fell behind by "}}) {
+      CAPTURE(c.jump_s);
+      const Record r =
+          record_with(3000, [&](int k) { return on_time(k) + (k >= 2000 ? c.jump_s : 0.0); });
+      const std::string why = r.clock_fault();
+      CAPTURE(why);
+      CHECK(why.find(c.reason) == 0);
+      // within the latency's jitter (0.4 ms) and the message's 1 ms
+      CHECK(std::abs(jump_of(why) - std::abs(c.jump_s)) < 2e-3);
+      CHECK(r.velocity_tags().dropped() > 0);
+    }
+    // 45 ms back: within the gate, kept (the late fault needs over 50 ms)
+    const Record small =
+        record_with(3000, [](int k) { return on_time(k) + (k >= 2000 ? -0.045 : 0.0); });
+    CHECK(small.clock_fault().empty());
+    CHECK(small.velocity_tags().dropped() == 4);
   }
 
   TEST_CASE("without an expected span the record grows as it must") {

@@ -119,6 +119,7 @@ class Engine {
   bool ins_aligning_seen_ = false;  ///< the INS aligned in this run: its velocity is ours
   bool estimation_due_ = false;
   bool record_complete_ = false;
+  bool clock_fault_fed_ = false;  ///< a device clock that jumped has failed the run
   double last_frame_s_ = NAN;
   [[nodiscard]] double record_end_s() const;
   bool report_due_ = false;

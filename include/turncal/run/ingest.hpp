@@ -69,6 +69,9 @@ class ClockFit {
   /// envelope) and counted late when more than `gate_s` above it.
   bool add_checked(double device_s, double host_s, double gate_s = 0.05);
   [[nodiscard]] std::size_t count() const { return n_; }
+  /// host - the envelope's host time of `device_s`, s, once the envelope
+  /// spans 10 s (the line add_checked gates on); NaN before.
+  [[nodiscard]] double gate_residual(double device_s, double host_s) const;
   /// Pairs that came more than the gate late.
   [[nodiscard]] std::size_t late() const { return late_; }
   /// Host time of a device time; with one sample, rate 1.
@@ -107,6 +110,42 @@ class ClockFit {
   Line gate_line_;  ///< the envelope of the finished seconds
   mutable Line line_;
   mutable bool line_valid_ = false;
+};
+
+/// A device's time tags checked against its clock, sample by sample, before
+/// a sample is kept: a tag that does not move forward (a clock that stepped
+/// back, a stuck or repeated tag), or one that puts the sample's sending
+/// after its receipt by more than the gate (a clock that jumped ahead, a
+/// garbled tag) is dropped and counted. A jump that lasts is a fault: tags
+/// dropped for 0.5 s on end (the clock jumped ahead, or back by more than
+/// that), or every sample for 2 s more than the gate late (it jumped back
+/// by less). Samples of a clock that jumped would land at the wrong time in
+/// the estimate; a run cannot go on from there. Pure, like the record.
+class TagCheck {
+ public:
+  static constexpr double kGateS = 0.05;
+  static constexpr double kDropRunS = 0.5;
+  static constexpr double kLateRunS = 2.0;
+  /// `fit` is the clock as fitted before this sample. The first fault is
+  /// kept; checking goes on after it.
+  bool keep(const ClockFit& fit, double device_s, double host_s);
+  [[nodiscard]] std::uint64_t dropped() const { return dropped_; }
+  /// Why the clock cannot be trusted any more ("" while it can); `what`
+  /// names the device's clock ("INS clock").
+  [[nodiscard]] std::string fault(const std::string& what) const;
+
+ private:
+  bool have_ = false;
+  double last_device_s_ = 0;
+  double last_step_s_ = 0;         ///< between the last two kept tags
+  double run_start_host_s_ = NAN;  ///< first of the drops on end
+  double run_jump_s_ = 0;          ///< how far its first tag was off
+  std::uint64_t run_n_ = 0;
+  double on_time_host_s_ = NAN;  ///< the last sample within the gate of the clock
+  std::uint64_t dropped_ = 0;
+  enum class Fault : std::uint8_t { None, Ahead, Back, Late } fault_ = Fault::None;
+  double fault_s_ = 0;  ///< how far the clock was off, s
+  std::uint64_t fault_n_ = 0;
 };
 
 /// A velocity sample: the pair INS_VelE and INS_VelN of one time tag.

@@ -44,9 +44,16 @@ class Record {
   [[nodiscard]] const ClockFit& ins_clock() const { return ins_clock_; }
   [[nodiscard]] const ClockFit& table_clock() const { return table_clock_; }
   [[nodiscard]] std::size_t clock_outliers() const { return clock_outliers_; }
+  /// The time tags checked before a sample is kept: velocity on the INS
+  /// clock, encoder on the table's. Dropped samples are not in the record.
+  [[nodiscard]] const TagCheck& velocity_tags() const { return velocity_tags_; }
+  [[nodiscard]] const TagCheck& encoder_tags() const { return encoder_tags_; }
+  /// Why a device clock cannot be trusted any more ("" while both can).
+  [[nodiscard]] std::string clock_fault() const;
 
  private:
   ClockFit ins_clock_, table_clock_;
+  TagCheck velocity_tags_, encoder_tags_;
   std::size_t clock_outliers_ = 0;
   double expected_span_s_ = 0;
   std::vector<est::VelocityObs> velocity_;
