@@ -263,11 +263,43 @@ Socket::TxResult Socket::write_frame(const can::Frame& f) {
   }
 }
 
-Result<TxOutcome> Socket::send(const can::Frame& f) {
+Status Socket::sendable(const can::Frame& f) const {
   if (f.fd && !opt_.fd)
     return make_error(opt_.interface + ": CAN FD frame on a socket opened for classic CAN");
   if (f.len > (f.fd ? can::kMaxFdLen : can::kMaxClassicLen))
     return make_error(opt_.interface + ": frame payload too long");
+  return Status{Ok{}};
+}
+
+Result<TxOutcome> Socket::send_urgent(const can::Frame& f) {
+  if (auto ok = sendable(f); !ok) return ok.error();
+  stats_.tx_superseded += std::erase_if(
+      txq_, [&](const can::Frame& q) { return q.id == f.id && q.extended == f.extended; });
+  if (fd_ < 0) {
+    ++stats_.tx_failed;
+    return TxOutcome::Dropped;
+  }
+  switch (write_frame(f)) {
+    case TxResult::Sent:
+      ++stats_.tx_frames;
+      return TxOutcome::Sent;
+    case TxResult::Failed:
+      ++stats_.tx_failed;
+      return TxOutcome::Dropped;
+    case TxResult::Busy:
+      break;
+  }
+  if (txq_.size() >= opt_.tx_queue_limit && !txq_.empty()) {
+    txq_.pop_back();
+    ++stats_.tx_overflow;
+  }
+  txq_.push_front(f);
+  ++stats_.tx_queued;
+  return TxOutcome::Queued;
+}
+
+Result<TxOutcome> Socket::send(const can::Frame& f) {
+  if (auto ok = sendable(f); !ok) return ok.error();
   if (fd_ < 0) {
     ++stats_.tx_failed;
     return TxOutcome::Dropped;

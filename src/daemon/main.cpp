@@ -317,7 +317,7 @@ void Daemon::internal_error(const char* where, const char* what) {
 void Daemon::send_out() {
   for (const run::OutFrame& o : out) {
     Port& p = port(o.ins_side);
-    auto r = p.sock->send(o.frame);
+    auto r = o.urgent ? p.sock->send_urgent(o.frame) : p.sock->send(o.frame);
     if (!r) {
       warn(r.error().describe());
     } else if (*r == socketcan::TxOutcome::Dropped) {
@@ -433,6 +433,7 @@ json Daemon::can_json(bool since_run_start) const {
         {"tx_queue_depth", p.sock->tx_queue_depth()},
         {"tx_queued", s.tx_queued - z.tx_queued},
         {"tx_dropped", (s.tx_overflow - z.tx_overflow) + (s.tx_failed - z.tx_failed)},
+        {"tx_superseded", s.tx_superseded - z.tx_superseded},
         {"recoveries", s.recoveries - z.recoveries}};
   }
   return can;

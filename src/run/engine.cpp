@@ -70,7 +70,7 @@ void Engine::feed(const Event& e, std::vector<OutFrame>& out) {
         unsent = "table command not sent: " + f.error().message;
         break;
       }
-      out.push_back({false, *f});
+      out.push_back({false, *f, t->code == TableCode::QuickStop});
       ++commands_sent_;
     } else if (const auto* i = std::get_if<InsCommand>(&c)) {
       auto f =

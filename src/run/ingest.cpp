@@ -83,7 +83,11 @@ double ClockFit::gate_residual(double device_s, double host_s) const {
 }
 
 bool TagCheck::keep(const ClockFit& fit, double device_s, double host_s) {
-  const double r = fit.gate_residual(device_s, host_s);
+  double r = fit.gate_residual(device_s, host_s);
+  // Before the fit's gate applies (10 s): against the lowest offset seen,
+  // once the tags span a second (a rate within 0.1% moves it 10 ms in 10 s)
+  if (std::isnan(r) && have_ && last_device_s_ - first_device_s_ >= kWarmUpS)
+    r = (host_s - device_s) - min_offset_s_;
   const bool back = have_ && !(device_s > last_device_s_);
   if (back || r < -kGateS) {
     ++dropped_;
@@ -100,7 +104,13 @@ bool TagCheck::keep(const ClockFit& fit, double device_s, double host_s) {
     return false;
   }
   run_n_ = 0;
-  if (have_) last_step_s_ = device_s - last_device_s_;
+  if (have_) {
+    last_step_s_ = device_s - last_device_s_;
+    min_offset_s_ = std::min(min_offset_s_, host_s - device_s);
+  } else {
+    first_device_s_ = device_s;
+    min_offset_s_ = host_s - device_s;
+  }
   have_ = true;
   last_device_s_ = device_s;
   if (!(r > kGateS) || std::isnan(on_time_host_s_)) on_time_host_s_ = host_s;

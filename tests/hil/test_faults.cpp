@@ -3,6 +3,7 @@
 // (the stand's --state-out), the daemon's log (its stderr) and the report.
 #include <doctest/doctest.h>
 
+#include <cmath>
 #include <cstdlib>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -47,6 +48,22 @@ std::string start_run(const hil::fs::path& dir) {
 }
 
 constexpr int kQuickStopped = 5;  // can-icd.md: TBL_Status State
+constexpr int kTableFault = 4;    // the drive's own fault state
+
+/// The run's log replayed with the daemon's config: it reads to its end
+/// (no damage), and holds every frame the daemon received and every frame
+/// of ours the bus confirmed. The replay's report.
+json replay_of_log(const hil::fs::path& dir, const std::string& id, const json& report) {
+  const hil::fs::path log = dir / "state" / (id + ".log");
+  (void)ctl(dir, {"--json", "replay", log.string(), "--config", (dir / "turncal.toml").string()},
+            "replay.json", 60000ms);
+  const json rp = json::parse(slurp(dir / "replay.json"));
+  CHECK(rp.at("replay").at("damage").is_null());
+  const json& can = report["can"][hil::if0()];
+  CHECK(log_records(log) ==
+        can["rx_frames"].get<std::uint64_t>() + can["tx_confirmed"].get<std::uint64_t>());
+  return rp;
+}
 
 }  // namespace
 
@@ -288,5 +305,122 @@ TEST_SUITE("faults") {
     // now and then (measured: 0 of 1415 off, and 1 of about 1400 in another run)
     CHECK(hb["gaps_off_20_percent"].get<int>() * 100 <= hb["gaps"].get<int>());
     CHECK(hb["max_gap_s"].get<double>() < 0.5);  // under the table's heartbeat timeout
+  }
+
+  TEST_CASE("the fault list through the daemon: each stops the table, the log replays to it") {
+    // the stand's clock: the INS navigates from about 20 s, the turn (180
+    // deg) starts about 60 s; each run ends at its fault
+    struct Case {
+      const char* name;
+      std::vector<std::string> sim;  ///< turncal-sim's arguments for the fault
+      const char* reason;            ///< the start of the report's reason, or a part of it
+      int table_state;               ///< the table's own, at the end
+      /// the phase the replay reaches: the live run's last, unless the
+      /// fault left no trace an observer sees (a move refused: no motion)
+      const char* replay_reaches = nullptr;
+    };
+    const std::vector<Case> cases = {
+        {"INS silent in hold 1",
+         {"--fault", "ins-silent=30"},
+         "INS velocity lost during hold 1",
+         kQuickStopped},
+        {"INS silent in the turn",
+         {"--fault", "ins-silent=62"},
+         "INS velocity lost during turn 1",
+         kQuickStopped},
+        {"encoder silent in the turn",
+         {"--fault", "encoder-silent=62"},
+         "table encoder lost",
+         kQuickStopped},
+        {"the first move stalls",
+         {"--fault", "table-stall=1"},
+         "table fault: stall",
+         kQuickStopped},
+        {"a drive fault in hold 1",
+         {"--fault", "table-fault=30"},
+         "table fault: drive fault",
+         kQuickStopped},  // the drive takes our quick stop after its fault
+        {"the turn refused by the table's soft limits",
+         {"--angle-limits", "-10:90"},
+         "table fault: command refused",
+         kQuickStopped,
+         "hold"},
+        {"INS fault mode in hold 1", {"--fault", "ins-fault=30"}, "INS fault mode", kQuickStopped},
+        {"the INS clock jumps 0.3 s ahead in hold 1",
+         {"--fault", "clock-jump=ins:30:0.3"},
+         "the INS clock jumped ahead by ",
+         kQuickStopped},
+    };
+    for (const Case& k : cases) SUBCASE(k.name) {
+        hil::TempDir dir;
+        write_stand(dir.path, hil::if0(), false, 40);
+        std::vector<std::string> args = {"--state-out", "stand.json"};
+        args.insert(args.end(), k.sim.begin(), k.sim.end());
+        Child sim = start_sim(dir.path, "5", args);
+        Child daemon = start_daemon(dir.path);
+        REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+        const std::string id = start_run(dir.path);
+        CHECK(ctl(dir.path, {"watch"}, "w.out", 60000ms) == 1);
+        const json r = report_of(dir.path, id);
+        const std::string reason = r.value("reason", std::string());
+        CAPTURE(reason);
+        CHECK(r["status"] == "failed");
+        CHECK(reason.find(k.reason) != std::string::npos);
+        if (std::string(k.reason).ends_with(" by ")) {
+          // how far the clock jumped: within the guest's latency jitter (10 ms)
+          const double by = std::strtod(reason.c_str() + reason.find(" by ") + 4, nullptr);
+          CHECK(std::abs(by - 0.3) < 0.01);
+        }
+        CHECK(r["quick_stop"]["sent"] == true);
+        CHECK(r["quick_stop"]["acknowledged"] == true);
+        const json rp = replay_of_log(dir.path, id, r);
+        // the replay sees the run up to the phase the fault ended
+        const std::string at =
+            k.replay_reaches != nullptr
+                ? std::string(k.replay_reaches)
+                : r["phases"][r["phases"].size() - 2]["phase"].get<std::string>();
+        bool seen = false;
+        for (const auto& ph : rp["phases"]) seen = seen || ph["phase"] == at;
+        CHECK_MESSAGE(seen, "the replay never reached " << at);
+        daemon.terminate();
+        CHECK(daemon.wait(10000ms) == 0);
+        const json st = stand_state(sim, dir.path);
+        CHECK(st["table"]["state"] == k.table_state);
+        CHECK(st["table"]["rate_dps"] == 0.0);
+        CHECK(st["counts"]["quick_stops"].get<int>() >= 1);  // ours reached the table
+        CHECK_MESSAGE(slurp(dir.path / "daemon.err").find(k.reason) != std::string::npos,
+                      slurp(dir.path / "daemon.err"));
+      }
+  }
+
+  TEST_CASE("garbage on the bus and an INS clock that wraps 2^32 us: counted, the run done") {
+    hil::TempDir dir;
+    write_stand(dir.path, hil::if0(), false, 40);
+    // the INS's u32 microsecond tags wrap at 4294.967296 s: 40 s into the run
+    Child sim =
+        start_sim(dir.path, "4",
+                  {"--state-out", "stand.json", "--fault", "garbage=50", "--ins-clock", "4255:0"});
+    Child daemon = start_daemon(dir.path);
+    REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+    const std::string id = start_run(dir.path);
+    CHECK(ctl(dir.path, {"watch"}, "w.out", 120000ms) == 0);
+    const json r = report_of(dir.path, id);
+    CAPTURE(r.value("reason", std::string()));
+    CHECK(r["status"] == "done");
+    const json& h = r["health"];
+    MESSAGE("garbage: malformed " << h["malformed"] << ", unknown " << h["unknown_id"]
+                                  << "; INS tags dropped " << h["velocity_tags_dropped"]);
+    CHECK(h["malformed"].get<int>() > 100);  // 50 Hz of stand time for about 2 min
+    CHECK(h["unknown_id"].get<int>() > 100);
+    CHECK(h["velocity_tags_dropped"] == 0);  // the wrap is no jump
+    CHECK(h["ins_velocity"]["dropped"] == 0);
+    // the velocity spans the wrap: the whole run, 120 s at 25 Hz
+    CHECK(r["velocity_samples"].get<int>() > 2900);
+    const json rp = replay_of_log(dir.path, id, r);
+    CHECK(rp["status"] == "done");
+    daemon.terminate();
+    CHECK(daemon.wait(10000ms) == 0);
+    const json st = stand_state(sim, dir.path);
+    CHECK(st["table"]["state"] != kTableFault);
   }
 }

@@ -170,6 +170,68 @@ TEST_SUITE("socketcan") {
     hil::sh("ip link del " + name);
   }
 
+  TEST_CASE(
+      "an urgent frame goes first, replaces the waiting frames of its ID, and a full queue makes "
+      "room for it") {
+    // the kernel refuses frames (ENOBUFS) behind a token bucket, until it
+    // is removed; another socket on the interface sees what goes out
+    const std::string name = "tchil9";
+    hil::sh("ip link del " + name + " 2>/dev/null");
+    REQUIRE(hil::sh("ip link add dev " + name + " type vcan && ip link set " + name + " up") == 0);
+    REQUIRE(hil::sh("tc qdisc add dev " + name + " root tbf rate 1kbit burst 2000 limit 64") == 0);
+    socketcan::Options o;
+    o.interface = name;
+    o.tx_queue_limit = 8;
+    auto a = hil::open(o);
+    auto b = hil::open(name);
+    // moves (ID 0x55) until eight wait
+    int moves = 0;
+    while (a.stats().tx_queued < 8 && moves < 1000)
+      REQUIRE(a.send(hil::frame(0x55, {static_cast<std::uint8_t>(moves++)})).ok());
+    REQUIRE(a.tx_queue_depth() == 8);
+    // the stop (also 0x55) replaces the eight moves
+    auto r = a.send_urgent(hil::frame(0x55, {0xEE}));
+    REQUIRE(r.ok());
+    CHECK(*r == socketcan::TxOutcome::Queued);
+    CHECK(a.stats().tx_superseded == 8);
+    CHECK(a.tx_queue_depth() == 1);
+    // seven heartbeats (0x66) fill the queue behind it; an eighth overflows
+    for (std::uint8_t i = 0; i < 8; ++i) REQUIRE(a.send(hil::frame(0x66, {i})).ok());
+    CHECK(a.tx_queue_depth() == 8);
+    CHECK(a.stats().tx_overflow == 1);
+    // an urgent frame of another ID: the newest heartbeat makes room
+    r = a.send_urgent(hil::frame(0x77, {0x01}));
+    REQUIRE(r.ok());
+    CHECK(*r == socketcan::TxOutcome::Queued);
+    CHECK(a.tx_queue_depth() == 8);
+    CHECK(a.stats().tx_overflow == 2);
+    // the bucket gone, what waits goes out in its order
+    REQUIRE(hil::sh("tc qdisc del dev " + name + " root") == 0);
+    for (int i = 0; i < 100 && a.flush() > 0; ++i) std::this_thread::sleep_for(10ms);
+    CHECK_FALSE(a.tx_pending());
+    const auto got = hil::receive(b, 1000, 1000ms);
+    REQUIRE(got.frames.size() >= 8);
+    const auto last8 = std::vector<can::TimedFrame>(got.frames.end() - 8, got.frames.end());
+    CHECK(last8[0].frame.id == 0x77);
+    CHECK(last8[1].frame.id == 0x55);
+    CHECK(last8[1].frame.data[0] == 0xEE);
+    for (std::size_t i = 2; i < 8; ++i) {
+      CHECK(last8[i].frame.id == 0x66);
+      CHECK(last8[i].frame.data[0] == i - 2);  // the heartbeats in order, the 7th made room
+    }
+    // no move that waited went out after the stop
+    bool move_after_stop = false, stop_seen = false;
+    for (const auto& f : got.frames) {
+      if (f.frame.id == 0x55 && f.frame.data[0] == 0xEE)
+        stop_seen = true;
+      else if (f.frame.id == 0x55 && stop_seen)
+        move_after_stop = true;
+    }
+    CHECK(stop_seen);
+    CHECK_FALSE(move_after_stop);
+    hil::sh("ip link del " + name);
+  }
+
   TEST_CASE("an interface that goes down and comes back up is recovered") {
     auto b = hil::open(hil::if1());
     REQUIRE(hil::sh("ip link set " + hil::if1() + " down") == 0);

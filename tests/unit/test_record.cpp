@@ -80,17 +80,22 @@ TEST_SUITE("record") {
   TEST_CASE("time tags: a clock that stays jumped fails, whichever way it jumped, saying how far") {
     struct Case {
       double jump_s;
+      int at;  ///< the first jumped sample
       const char* reason;
     };
     // ahead: every later tag is after its receipt; back by 0.8 s: 0.8 s of
     // tags before the last one kept; back by 0.2 s: 0.2 s of those, then
-    // every frame 0.2 s late
-    for (const Case& c :
-         {Case{0.3, "the INS clock jumped ahead by "}, Case{-0.8, "the INS clock stepped back by "},
-          Case{-0.2, "the INS clock fell behind by "}}) {
+    // every frame 0.2 s late. At 20 s the clock's fit is the reference; at
+    // 3 s (before it spans 10 s) the lowest offset seen.
+    for (const Case& c : {Case{0.3, 2000, "the INS clock jumped ahead by "},
+                          Case{-0.8, 2000, "the INS clock stepped back by "},
+                          Case{-0.2, 2000, "the INS clock fell behind by "},
+                          Case{0.3, 300, "the INS clock jumped ahead by "},
+                          Case{-0.2, 300, "the INS clock fell behind by "}}) {
       CAPTURE(c.jump_s);
+      CAPTURE(c.at);
       const Record r =
-          record_with(3000, [&](int k) { return on_time(k) + (k >= 2000 ? c.jump_s : 0.0); });
+          record_with(3000, [&](int k) { return on_time(k) + (k >= c.at ? c.jump_s : 0.0); });
       const std::string why = r.clock_fault();
       CAPTURE(why);
       CHECK(why.find(c.reason) == 0);

@@ -30,6 +30,9 @@ namespace turncal::run {
 struct OutFrame {
   bool ins_side;  ///< for the INS interface (else the table's)
   can::Frame frame;
+  /// Goes before anything waiting to be sent, and replaces what waits of
+  /// its ID (a quick stop: no move queued before it may follow it).
+  bool urgent = false;
 };
 
 /// Kernel time into stand time.

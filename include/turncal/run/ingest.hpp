@@ -119,13 +119,17 @@ class ClockFit {
 /// garbled tag) is dropped and counted. A jump that lasts is a fault: tags
 /// dropped for 0.5 s on end (the clock jumped ahead, or back by more than
 /// that), or every sample for 2 s more than the gate late (it jumped back
-/// by less). Samples of a clock that jumped would land at the wrong time in
-/// the estimate; a run cannot go on from there. Pure, like the record.
+/// by less). Until the clock's fit spans 10 s, the clock is the lowest
+/// offset host - device seen (after the first second of tags, in which a
+/// jump ahead is not seen). Samples of a clock that jumped would land at
+/// the wrong time in the estimate; a run cannot go on from there. Pure,
+/// like the record.
 class TagCheck {
  public:
   static constexpr double kGateS = 0.05;
   static constexpr double kDropRunS = 0.5;
   static constexpr double kLateRunS = 2.0;
+  static constexpr double kWarmUpS = 1.0;  ///< tags a jump ahead is not seen in
   /// `fit` is the clock as fitted before this sample. The first fault is
   /// kept; checking goes on after it.
   bool keep(const ClockFit& fit, double device_s, double host_s);
@@ -137,6 +141,8 @@ class TagCheck {
  private:
   bool have_ = false;
   double last_device_s_ = 0;
+  double first_device_s_ = 0;
+  double min_offset_s_ = 0;        ///< least host - device of the kept samples
   double last_step_s_ = 0;         ///< between the last two kept tags
   double run_start_host_s_ = NAN;  ///< first of the drops on end
   double run_jump_s_ = 0;          ///< how far its first tag was off

@@ -54,12 +54,13 @@ struct Stats {
   std::uint64_t rx_frames = 0;
   std::uint64_t rx_dropped = 0;  ///< lost in the kernel (socket queue overflow)
   std::uint64_t rx_error_frames = 0;
-  std::uint64_t tx_frames = 0;     ///< handed to the kernel
-  std::uint64_t tx_confirmed = 0;  ///< echoed back by the kernel (with `confirm`)
-  std::uint64_t tx_queued = 0;     ///< had to wait in the send queue
-  std::uint64_t tx_overflow = 0;   ///< dropped because the send queue was full
-  std::uint64_t tx_failed = 0;     ///< dropped because the interface was down or gone
-  std::uint64_t recoveries = 0;    ///< times the socket was re-opened
+  std::uint64_t tx_frames = 0;      ///< handed to the kernel
+  std::uint64_t tx_confirmed = 0;   ///< echoed back by the kernel (with `confirm`)
+  std::uint64_t tx_queued = 0;      ///< had to wait in the send queue
+  std::uint64_t tx_overflow = 0;    ///< dropped because the send queue was full
+  std::uint64_t tx_failed = 0;      ///< dropped because the interface was down or gone
+  std::uint64_t tx_superseded = 0;  ///< waiting frames an urgent one of their ID replaced
+  std::uint64_t recoveries = 0;     ///< times the socket was re-opened
 };
 
 /// Frames and events of one receive call.
@@ -120,6 +121,12 @@ class Socket {
   /// Sends without blocking; queues when the kernel is full. An error only
   /// for a frame the socket cannot carry (FD frame on a classic socket).
   Result<TxOutcome> send(const can::Frame& frame);
+  /// A frame that must go before anything waiting (a quick stop): the
+  /// frames of its ID still waiting are dropped (counted superseded: a
+  /// move queued before a stop must never follow it), it is written at
+  /// once if the kernel takes it, else it waits first in the queue; a full
+  /// queue loses its newest frame for it, never it.
+  Result<TxOutcome> send_urgent(const can::Frame& frame);
   /// Retries queued frames; returns how many are still waiting.
   std::size_t flush();
   /// While the link is Down or Gone: checks the interface and re-opens the
@@ -133,6 +140,7 @@ class Socket {
   void close_socket();
   enum class TxResult { Sent, Busy, Failed };
   TxResult write_frame(const can::Frame& frame);
+  Status sendable(const can::Frame& frame) const;
   void link_event(RxBatch& out, can::BusEventKind kind);
 
   Options opt_;
