@@ -167,7 +167,8 @@ Status Socket::open_socket() {
 }
 
 void Socket::link_event(RxBatch& out, can::BusEventKind kind) {
-  out.events.push_back(can::BusEvent{realtime_ns(), kind, 0});
+  out.events.push_back(
+      can::BusEvent{opt_.clock != nullptr ? opt_.clock->now_ns() : realtime_ns(), kind, 0});
 }
 
 Result<std::size_t> Socket::receive(RxBatch& out, std::size_t max_batches) {
@@ -207,6 +208,7 @@ Result<std::size_t> Socket::receive(RxBatch& out, std::size_t max_batches) {
       link_ = LinkState::Up;
       link_event(out, can::BusEventKind::InterfaceBack);
     }
+    if (opt_.clock != nullptr && n > 0) opt_.clock->observe();  // a step since the last batch
     for (int i = 0; i < n; ++i) {
       const mmsghdr& m = msgs[static_cast<std::size_t>(i)];
       const auto len = m.msg_len;
@@ -227,7 +229,11 @@ Result<std::size_t> Socket::receive(RxBatch& out, std::size_t max_batches) {
           last_ovfl_ = drops;
         }
       }
-      if (tf.time_ns == 0) tf.time_ns = realtime_ns();
+      if (opt_.clock == nullptr) {
+        if (tf.time_ns == 0) tf.time_ns = realtime_ns();
+      } else {
+        tf.time_ns = tf.time_ns == 0 ? opt_.clock->now_ns() : opt_.clock->from_realtime(tf.time_ns);
+      }
       if (opt_.confirm && (m.msg_hdr.msg_flags & MSG_CONFIRM) != 0) {
         ++stats_.tx_confirmed;  // our own frame, echoed: it went out
         out.confirmed.push_back(tf);

@@ -150,6 +150,11 @@ class Daemon {
   Config cfg;
   can::Database db;
   RoleMap roles;
+  /// Every time of the daemon's: realtime at the run's start plus monotonic
+  /// time since (the sockets' receive stamps too), so a step of the wall
+  /// clock moves no deadline and no log time.
+  socketcan::HostClock clock;
+  std::uint64_t clock_steps_told = 0;
   sd_event* ev = nullptr;
   std::array<Port, 2> ports;  ///< INS side, table side (empty: one interface)
   sd_event_source* tx_retry = nullptr;
@@ -194,6 +199,7 @@ class Daemon {
 
   Port& port(bool ins_side) { return (ins_side || !ports[1].sock) ? ports[0] : ports[1]; }
   Status setup();
+  void tell_clock_steps();
   void send_out();
   void flush_port(Port& p);
   void link_back(Port& p);
@@ -264,6 +270,20 @@ struct Client {
   [[nodiscard]] bool done() const { return broken || (close_after && out.empty()); }
 };
 
+/// A step of the realtime clock is said once, with how far it stands from
+/// the daemon's clock; nothing of the run moves with it.
+void Daemon::tell_clock_steps() {
+  clock.observe();
+  if (clock.steps() == clock_steps_told) return;
+  clock_steps_told = clock.steps();
+  char b[160];
+  std::snprintf(b, sizeof b,
+                "the realtime clock stepped: it is now %+.3f s from the run's clock, which "
+                "goes on the monotonic clock",
+                static_cast<double>(clock.realtime_offset_ns()) * 1e-9);
+  warn(b);
+}
+
 // ---- the log ----
 
 void Daemon::log_record(const can::LogRecord& r) {
@@ -281,7 +301,7 @@ void Daemon::log_sync() {
 void Daemon::host_fault(const std::string& what) {
   if (!running()) return;
   error("run failed: " + what);
-  engine->fault(socketcan::realtime_ns(), what, out);
+  engine->fault(clock.now_ns(), what, out);
 }
 
 /// The log cannot be written: it is closed where it stands, so what it
@@ -302,8 +322,7 @@ void Daemon::internal_error(const char* where, const char* what) {
   error(std::string("internal error in ") + where + ": " + what);
   if (running()) {
     try {
-      engine->fault(socketcan::realtime_ns(),
-                    std::string("internal error in ") + where + ": " + what, out);
+      engine->fault(clock.now_ns(), std::string("internal error in ") + where + ": " + what, out);
       send_out();
     } catch (...) {  // nothing more to do than to keep the loop
     }
@@ -461,7 +480,7 @@ void Daemon::after_engine() {
   if (engine->estimation_due() && !worker_busy) {
     auto in = engine->take_estimation_input();
     if (!in) {
-      engine->estimation_done(socketcan::realtime_ns(), false, in.error().describe(), out);
+      engine->estimation_done(clock.now_ns(), false, in.error().describe(), out);
       return after_engine();
     }
     input = std::move(*in);
@@ -485,14 +504,14 @@ void Daemon::after_engine() {
       });
     } catch (const std::system_error& e) {  // no thread (TasksMax, memory)
       worker_busy = false;
-      engine->estimation_done(socketcan::realtime_ns(), false,
+      engine->estimation_done(clock.now_ns(), false,
                               std::string("cannot start the estimation: ") + e.what(), out);
       return after_engine();
     }
   }
   if (engine->report_due()) {
     write_report(true);
-    engine->report_written(socketcan::realtime_ns(), log_error.empty(), log_error, out);
+    engine->report_written(clock.now_ns(), log_error.empty(), log_error, out);
     return after_engine();
   }
   if (run::finished(p) && !report_done) write_report(false);
@@ -512,7 +531,7 @@ void Daemon::write_report(bool with_estimates) {
   run::ReportContext ctx;
   ctx.run_id = run_id;
   ctx.start_unix_s = static_cast<double>(run_start_ns) * 1e-9;
-  ctx.end_unix_s = static_cast<double>(socketcan::realtime_ns()) * 1e-9;
+  ctx.end_unix_s = static_cast<double>(clock.now_ns()) * 1e-9;
   ctx.software_version = run::software_version();
   ctx.config_file = cfg.source.string();
   ctx.config_sha256 = config_sha256;
@@ -529,6 +548,10 @@ void Daemon::write_report(bool with_estimates) {
   ctx.can = can_json(true);
   const bool est = with_estimates && result && input && log_error.empty();
   json j = run::report_json(ctx, *engine, est ? &*input : nullptr, est ? &*result : nullptr);
+  // the run's times are the realtime clock at its start plus monotonic time
+  j["host_clock"] = {{"realtime_steps", clock.steps()},
+                     {"realtime_offset_s", static_cast<double>(clock.realtime_offset_ns()) * 1e-9},
+                     {"unknown_stamps", clock.unknown_stamps()}};
   if (!log_error.empty() && with_estimates) {
     // the run was to be done, but its log is not whole: it is not done
     j["status"] = "failed";
@@ -586,7 +609,7 @@ json Daemon::status() const {
   j["can"] = can_json(false);
   if (!engine) return j;
   const auto& s = engine->sequencer();
-  const double now = engine->stand_s(socketcan::realtime_ns());
+  const double now = engine->stand_s(clock.now_ns());
   j["index"] = s.index();
   j["elapsed_s"] = s.course().marks.empty() ? 0.0 : now - s.course().marks.front().t_s;
   const double rem = s.remaining_s(now);
@@ -671,7 +694,10 @@ json Daemon::start(const StartRequest& req) {
     q.table_seq_base = static_cast<std::uint8_t>(engine->commands_sent() + 100);
     q.ins_seq_base = q.table_seq_base;
   }
-  const std::int64_t now = socketcan::realtime_ns();
+  // each run on the realtime clock as it reads now, and monotonic from here
+  clock.anchor();
+  clock_steps_told = 0;
+  const std::int64_t now = clock.now_ns();
   std::string id = utc_id(now);
   // two runs within a second: the second gets a suffix, no log is overwritten
   for (int k = 2; state->has_log(id); ++k) id = utc_id(now) + "-" + std::to_string(k);
@@ -748,7 +774,7 @@ void Daemon::handle_request(Client& c, const std::string& line) {
     if (const auto* s = std::get_if<StartRequest>(&*o.action)) {
       o.reply = start(*s);
     } else if (const auto* a = std::get_if<AbortRequest>(&*o.action)) {
-      engine->abort(socketcan::realtime_ns(), a->reason, out);
+      engine->abort(clock.now_ns(), a->reason, out);
       after_engine();
       o.reply = {{"ok", true}, {"run_id", run_id}};
     }
@@ -900,11 +926,12 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
   }
   return guarded(d, "the timer", [&] {
     d->recover_ports();
+    d->tell_clock_steps();
     if (d->engine) {
       // what has arrived counts before anything is judged lost (one budget's worth)
       for (Port& p : d->ports)
         if (p.sock && p.sock->fd() >= 0) d->on_can(p);
-      d->engine->tick(socketcan::realtime_ns(), d->out);
+      d->engine->tick(d->clock.now_ns(), d->out);
     }
     // the heartbeat goes out from this loop, between runs too: a table will not
     // start a move for a host it has not heard from
@@ -928,7 +955,7 @@ int on_signal(sd_event_source*, const struct signalfd_siginfo* si, void* u) {
     d->stopping = true;
     sd_notify(0, "STOPPING=1");
     if (d->running()) {
-      d->engine->signal(socketcan::realtime_ns(), name, d->out);
+      d->engine->signal(d->clock.now_ns(), name, d->out);
       d->after_engine();
     }
     if (!d->running() && !d->worker_busy) sd_event_exit(d->ev, 0);
@@ -947,8 +974,7 @@ int on_worker_done(sd_event_source*, int fd, uint32_t, void* u) {
       d->result.reset();
     }
     if (d->engine)
-      d->engine->estimation_done(socketcan::realtime_ns(), d->result.has_value(), d->est_error,
-                                 d->out);
+      d->engine->estimation_done(d->clock.now_ns(), d->result.has_value(), d->est_error, d->out);
     d->after_engine();
   });
 }
@@ -980,6 +1006,7 @@ Status Daemon::setup() {
     so.tx_queue_limit = cfg.can.tx_queue_frames;
     so.rcvbuf_bytes = static_cast<int>(cfg.can.rx_buffer_bytes);
     so.confirm = true;  // a frame is logged as sent when the kernel echoes it
+    so.clock = &clock;
     return socketcan::Socket::open(so);
   };
   TURNCAL_ASSIGN(is, open_sock(cfg.can.ins_interface));

@@ -46,6 +46,7 @@ Engine::Engine(const can::Database& db, const RoleMap& roles, Plan plan, Sequenc
       seq_(with_commands(std::move(seq), roles)) {
   // the record runs from t0 (the first velocity sample) to t0 + duration + 1 s
   record_.expect_span(plan_.profile.duration_s + 1.0);
+  record_.set_time_scale(time_.scale);
 }
 
 void Engine::feed(const Event& e, std::vector<OutFrame>& out) {

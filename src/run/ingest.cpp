@@ -83,21 +83,26 @@ double ClockFit::gate_residual(double device_s, double host_s) const {
 }
 
 bool TagCheck::keep(const ClockFit& fit, double device_s, double host_s) {
+  const double gate = kGateS * scale_;
   double r = fit.gate_residual(device_s, host_s);
   // Before the fit's gate applies (10 s): against the lowest offset seen,
   // once the tags span a second (a rate within 0.1% moves it 10 ms in 10 s)
   if (std::isnan(r) && have_ && last_device_s_ - first_device_s_ >= kWarmUpS)
     r = (host_s - device_s) - min_offset_s_;
   const bool back = have_ && !(device_s > last_device_s_);
-  if (back || r < -kGateS) {
+  if (back || r < -gate) {
     ++dropped_;
     if (run_n_++ == 0) {
       run_start_host_s_ = host_s;
-      // how far: back from where the next tag was due, or ahead of the clock
-      run_jump_s_ = back ? last_device_s_ + last_step_s_ - device_s : -r;
+      run_back_ = back;
+      run_jump_s_ = 0;
     }
+    // how far: back from where the next tag was due, or ahead of the clock
+    // (the least delayed frame of the run says it best)
+    run_jump_s_ = std::max(run_jump_s_, back ? last_device_s_ + last_step_s_ - device_s : -r);
+    if (back) back_since_on_time_ = true;
     if (fault_ == Fault::None && host_s - run_start_host_s_ >= kDropRunS) {
-      fault_ = back ? Fault::Back : Fault::Ahead;
+      fault_ = run_back_ ? Fault::Back : Fault::Ahead;
       fault_s_ = run_jump_s_;
       fault_n_ = run_n_;
     }
@@ -113,8 +118,15 @@ bool TagCheck::keep(const ClockFit& fit, double device_s, double host_s) {
   }
   have_ = true;
   last_device_s_ = device_s;
-  if (!(r > kGateS) || std::isnan(on_time_host_s_)) on_time_host_s_ = host_s;
-  if (fault_ == Fault::None && r > kGateS && host_s - on_time_host_s_ >= kLateRunS) {
+  if (!(r > gate) || std::isnan(on_time_host_s_)) {
+    on_time_host_s_ = host_s;
+    back_since_on_time_ = false;
+  }
+  // Frames can come late for long (a bus busy above the device's priority,
+  // a transmit backlog) with their tags right: late is a clock that fell
+  // behind only when its tags first went back
+  if (fault_ == Fault::None && back_since_on_time_ && r > gate &&
+      host_s - on_time_host_s_ >= kLateRunS) {
     fault_ = Fault::Late;
     fault_s_ = r;
   }
@@ -140,9 +152,9 @@ std::string TagCheck::fault(const std::string& what) const {
       break;
     case Fault::Late:
       std::snprintf(b, sizeof b,
-                    " fell behind by %.3f s: every frame for %.1f s came over %.0f ms later "
-                    "than its tag says",
-                    fault_s_, kLateRunS, kGateS * 1e3);
+                    " fell behind by %.3f s: it stepped back, and every frame for %.1f s "
+                    "since came over %.0f ms later than its tag says",
+                    fault_s_, kLateRunS, kGateS * scale_ * 1e3);
       break;
   }
   return what + b;

@@ -449,6 +449,9 @@ int live(const Options& o) {
   ::sigaction(SIGTERM, &sa, nullptr);
 
   // one socket per interface; the INS and the table may share one
+  // receive stamps on the realtime clock at the start plus monotonic time:
+  // a step of the wall clock (a host's test of one) moves no host frame
+  socketcan::HostClock host_clock;
   std::vector<socketcan::Socket> sockets;
   for (const std::string& name : {w->cfg.can.ins_interface, w->cfg.can.table_interface}) {
     if (!sockets.empty() && sockets.front().interface() == name) break;
@@ -456,6 +459,7 @@ int live(const Options& o) {
     so.interface = name;
     so.error_frames = false;
     so.tx_queue_limit = 4096;
+    so.clock = &host_clock;
     auto s = socketcan::Socket::open(so);
     if (!s) return fail(s.error());
     sockets.push_back(std::move(*s));
@@ -469,7 +473,7 @@ int live(const Options& o) {
 
   using Clock = std::chrono::steady_clock;
   const auto wall0 = Clock::now();
-  const std::int64_t kernel0_ns = socketcan::realtime_ns();  // the receive timestamps' clock
+  const std::int64_t kernel0_ns = host_clock.now_ns();  // the receive timestamps' clock
   std::vector<stand::StandFrame> frames;
   // Host frames wait for the tick of the stand time they arrived at (from
   // their kernel receive timestamps), so a stand that fell behind and

@@ -174,11 +174,13 @@ TEST_SUITE("socketcan") {
       "an urgent frame goes first, replaces the waiting frames of its ID, and a full queue makes "
       "room for it") {
     // the kernel refuses frames (ENOBUFS) behind a token bucket, until it
-    // is removed; another socket on the interface sees what goes out
+    // is removed; another socket on the interface sees what goes out. At 8
+    // bit/s the bucket frees room for a frame every 16 s: no pause of the
+    // guest lets one more through while the test fills the queue.
     const std::string name = "tchil9";
     hil::sh("ip link del " + name + " 2>/dev/null");
     REQUIRE(hil::sh("ip link add dev " + name + " type vcan && ip link set " + name + " up") == 0);
-    REQUIRE(hil::sh("tc qdisc add dev " + name + " root tbf rate 1kbit burst 2000 limit 64") == 0);
+    REQUIRE(hil::sh("tc qdisc add dev " + name + " root tbf rate 8bit burst 2000 limit 64") == 0);
     socketcan::Options o;
     o.interface = name;
     o.tx_queue_limit = 8;

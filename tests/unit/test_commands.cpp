@@ -192,6 +192,7 @@ TEST_SUITE("commands") {
       return v[st.roles[r].signal_index];
     };
     CHECK(table_value(out[0].frame, Role::TableCommand) == 4);
+    CHECK_FALSE(out[0].urgent);  // only a quick stop goes before what waits
     const double seq = table_value(out[0].frame, Role::TableCommandSeq);
     out.clear();
     e.on_frame(at(0.1, st.roles.encode(Role::EncoderAngle,
@@ -205,6 +206,7 @@ TEST_SUITE("commands") {
     CHECK_FALSE(out[0].ins_side);
     CHECK(table_value(out[0].frame, Role::TableCommand) ==
           static_cast<double>(TableCommandCode::QuickStop));
+    CHECK(out[0].urgent);
     CHECK(e.sequencer().course().quick_stop_sent);
     CHECK(e.sequencer().course().reason ==
           "INS command not sent: 270 deg does not fit INS_Command.HeadingInit (-180.000000 to "

@@ -51,10 +51,13 @@ TEST_SUITE("record") {
   double on_time(int k) {
     return 1000 + 0.01 * k;
   }
-  Record record_with(int n, const std::function<double(int)>& tag) {
+  Record record_with(int n, const std::function<double(int)>& tag,
+                     const std::function<double(int)>& delay = {}, double time_scale = 1) {
     Record r;
+    r.set_time_scale(time_scale);
     for (int k = 0; k < n; ++k)
-      r.add(VelocitySample{tag(k), 1.7e9 + 0.01 * k + 1e-3 + 2e-4 * (k % 3), 0, 0});
+      r.add(VelocitySample{
+          tag(k), 1.7e9 + 0.01 * k + 1e-3 + 2e-4 * (k % 3) + (delay ? delay(k) : 0.0), 0, 0});
     return r;
   }
   /// The number after "by " in a fault's reason.
@@ -108,6 +111,28 @@ TEST_SUITE("record") {
         record_with(3000, [](int k) { return on_time(k) + (k >= 2000 ? -0.045 : 0.0); });
     CHECK(small.clock_fault().empty());
     CHECK(small.velocity_tags().dropped() == 4);
+  }
+
+  TEST_CASE("time tags: frames that come late for long with their tags right are kept") {
+    // 3 s of every frame 0.2 s late (a bus busy above the INS, a transmit
+    // backlog), arriving in order: no tag went back, so no clock fault
+    const Record r =
+        record_with(5000, on_time, [](int k) { return k >= 2000 && k < 2300 ? 0.2 : 0.0; });
+    CHECK(r.clock_fault().empty());
+    CHECK(r.velocity_tags().dropped() == 0);
+    CHECK(r.velocity().size() == 5000);
+  }
+
+  TEST_CASE("time tags: the gate is real time, a frame's delay; stand seconds are scaled") {
+    // at 4x a stand second is 0.25 s of real time: the 50 ms gate is 0.2
+    // stand s, so a 0.1 s jump ahead lies within it, and a 0.3 s one does not
+    auto ahead = [](double by) {
+      return [by](int k) { return on_time(k) + (k >= 2000 ? by : 0.0); };
+    };
+    CHECK(record_with(3000, ahead(0.1), {}, 4).velocity_tags().dropped() == 0);
+    CHECK(record_with(3000, ahead(0.1), {}, 1).velocity_tags().dropped() == 1000);
+    const Record r = record_with(3000, ahead(0.3), {}, 4);
+    CHECK(r.clock_fault().find("the INS clock jumped ahead by 0.3") == 0);
   }
 
   TEST_CASE("without an expected span the record grows as it must") {

@@ -118,8 +118,8 @@ class ClockFit {
 /// after its receipt by more than the gate (a clock that jumped ahead, a
 /// garbled tag) is dropped and counted. A jump that lasts is a fault: tags
 /// dropped for 0.5 s on end (the clock jumped ahead, or back by more than
-/// that), or every sample for 2 s more than the gate late (it jumped back
-/// by less). Until the clock's fit spans 10 s, the clock is the lowest
+/// that), or, after tags that went back, every sample for 2 s more than the
+/// gate late (it jumped back by less). Until the clock's fit spans 10 s, the clock is the lowest
 /// offset host - device seen (after the first second of tags, in which a
 /// jump ahead is not seen). Samples of a clock that jumped would land at
 /// the wrong time in the estimate; a run cannot go on from there. Pure,
@@ -130,6 +130,9 @@ class TagCheck {
   static constexpr double kDropRunS = 0.5;
   static constexpr double kLateRunS = 2.0;
   static constexpr double kWarmUpS = 1.0;  ///< tags a jump ahead is not seen in
+  /// Host times are stand seconds, `scale` real seconds each (the stand's
+  /// time_scale): the gate is real time, a frame's delay, so it scales.
+  void set_time_scale(double scale) { scale_ = scale > 0 ? scale : 1.0; }
   /// `fit` is the clock as fitted before this sample. The first fault is
   /// kept; checking goes on after it.
   bool keep(const ClockFit& fit, double device_s, double host_s);
@@ -142,10 +145,13 @@ class TagCheck {
   bool have_ = false;
   double last_device_s_ = 0;
   double first_device_s_ = 0;
-  double min_offset_s_ = 0;        ///< least host - device of the kept samples
-  double last_step_s_ = 0;         ///< between the last two kept tags
-  double run_start_host_s_ = NAN;  ///< first of the drops on end
-  double run_jump_s_ = 0;          ///< how far its first tag was off
+  double min_offset_s_ = 0;          ///< least host - device of the kept samples
+  double last_step_s_ = 0;           ///< between the last two kept tags
+  double run_start_host_s_ = NAN;    ///< first of the drops on end
+  double run_jump_s_ = 0;            ///< how far its tags were off, at most
+  bool run_back_ = false;            ///< the run began with a tag that went back
+  bool back_since_on_time_ = false;  ///< a tag went back since the last on-time frame
+  double scale_ = 1;
   std::uint64_t run_n_ = 0;
   double on_time_host_s_ = NAN;  ///< the last sample within the gate of the clock
   std::uint64_t dropped_ = 0;

@@ -30,6 +30,11 @@ class Record {
   /// reserved, so the vector never grows by doubling (which would hold old
   /// and new storage, three times the data, at once).
   void expect_span(double span_s) { expected_span_s_ = span_s; }
+  /// Stand seconds are `scale` real seconds (the time tag checks' gate).
+  void set_time_scale(double scale) {
+    velocity_tags_.set_time_scale(scale);
+    encoder_tags_.set_time_scale(scale);
+  }
   void add(const Sample& s);
   /// Keeps the end of the encoder's last constant run; call before reading
   /// `encoder()` (safe to repeat, and to add more samples after).

@@ -2,8 +2,8 @@
 // Result at this layer, non-blocking so it fits an event loop.
 //
 // * receive(): batched (recvmmsg), kernel receive timestamps (SO_TIMESTAMPNS,
-//   CLOCK_REALTIME), drops counted from SO_RXQ_OVFL, error frames turned into
-//   BusEvents.
+//   CLOCK_REALTIME, or taken onto a HostClock given in the options), drops
+//   counted from SO_RXQ_OVFL, error frames turned into BusEvents.
 // * send(): never blocks; when the kernel queue is full (EAGAIN, ENOBUFS) the
 //   frame waits in a bounded queue, and what overflows it is counted. With
 //   `confirm`, the kernel's echo of each frame we sent (CAN_RAW_RECV_OWN_MSGS,
@@ -27,6 +27,7 @@
 
 #include "turncal/can/bus_event.hpp"
 #include "turncal/can/frame.hpp"
+#include "turncal/drivers/host_clock.hpp"
 #include "turncal/result.hpp"
 
 namespace turncal::socketcan {
@@ -48,6 +49,9 @@ struct Options {
   bool confirm = false;
   std::size_t tx_queue_limit = 256;  ///< frames waiting for the kernel queue
   int rcvbuf_bytes = 0;              ///< SO_RCVBUF; 0: kernel default
+  /// Receive stamps and event times on this clock (it must outlive the
+  /// socket); none: the kernel's CLOCK_REALTIME stamps as they are.
+  HostClock* clock = nullptr;
 };
 
 struct Stats {
