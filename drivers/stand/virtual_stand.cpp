@@ -71,7 +71,10 @@ void VirtualStand::emit_ins_status(double t, std::vector<StandFrame>& out) {
 
 void VirtualStand::emit_velocity(const InsVelocity& s, std::vector<StandFrame>& out) {
   const double tag = static_cast<double>(setup_.ins_clock.tag(s.t_s));
-  const std::pair<Role, double> east[] = {{Role::InsVelEast, s.ve}, {Role::InsVelEastTimeTag, tag}};
+  // a garbled velocity: no INS on a still table moves at 2000 m/s
+  std::bernoulli_distribution spike(std::clamp(setup_.faults.ins_spike_rate, 0.0, 1.0));
+  const double ve = setup_.faults.ins_spike_rate > 0 && spike(rng_) ? 2000.0 : s.ve;
+  const std::pair<Role, double> east[] = {{Role::InsVelEast, ve}, {Role::InsVelEastTimeTag, tag}};
   const std::pair<Role, double> north[] = {{Role::InsVelNorth, s.vn},
                                            {Role::InsVelNorthTimeTag, tag}};
   std::bernoulli_distribution drop(std::clamp(setup_.faults.ins_drop_rate, 0.0, 1.0));

@@ -66,6 +66,12 @@ struct CanConfig {
   bool fd = false;                               ///< open the sockets for CAN FD
   std::uint32_t tx_queue_frames = 256;           ///< send queue bound per socket, frames
   std::uint32_t rx_buffer_bytes = 0;             ///< SO_RCVBUF, bytes; 0: kernel default
+  /// INS velocity beyond this (either component) is no still INS's error but
+  /// a garbled frame: counted and skipped, m/s.
+  double max_ins_velocity_mps = 1000;
+  /// A stream with more than this fraction of its frames implausible fails
+  /// the run.
+  double implausible_fraction = 0.01;
   std::array<SignalRef, kRoleCount> roles;
 };
 

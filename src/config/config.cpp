@@ -105,7 +105,8 @@ Result<CanConfig> read_can(const toml::table& t, const std::string& file) {
   for (auto& r : can.roles) r.where = SourcePos{file, 0, 0};
   Reader r(t, file, "can.");
   TURNCAL_TRY(r.no_unknown_keys({"ins_interface", "table_interface", "dbc", "fd", "tx_queue_frames",
-                                 "rx_buffer_bytes", "roles"}));
+                                 "rx_buffer_bytes", "roles", "max_ins_velocity_mps",
+                                 "implausible_fraction"}));
   TURNCAL_TRY(r.string("ins_interface", can.ins_interface));
   TURNCAL_TRY(r.string("table_interface", can.table_interface));
   TURNCAL_TRY(check_interface(r, "ins_interface", can.ins_interface));
@@ -113,6 +114,8 @@ Result<CanConfig> read_can(const toml::table& t, const std::string& file) {
   TURNCAL_TRY(r.boolean("fd", can.fd));
   TURNCAL_TRY(r.integer("tx_queue_frames", can.tx_queue_frames, 1, 1 << 20));
   TURNCAL_TRY(r.integer("rx_buffer_bytes", can.rx_buffer_bytes, 0, 1 << 30));
+  TURNCAL_TRY(r.number("max_ins_velocity_mps", can.max_ins_velocity_mps, 1e-3, 1e6));
+  TURNCAL_TRY(r.number("implausible_fraction", can.implausible_fraction, 0, 1));
   const std::filesystem::path base = std::filesystem::path(file).parent_path();
   if (const toml::node* n = t.get("dbc")) {
     const toml::array* arr = n->as_array();

@@ -50,6 +50,7 @@
 
 #include "control.hpp"
 #include "state_dir.hpp"
+#include "syncer.hpp"
 #include "turncal/can/candump.hpp"
 #include "turncal/config.hpp"
 #include "turncal/drivers/socketcan.hpp"
@@ -174,7 +175,13 @@ class Daemon {
   std::string unit;  ///< the INS under test of this run
   fs::path log_path;
   std::optional<can::LogWriter> log;
+  /// A log a fault closed the run's writing to: closed for good once no
+  /// fsync is on it (when the report is written).
+  std::optional<can::LogWriter> retired_log;
   std::string log_error;  ///< the first write error of this run's log
+  /// The log's fsyncs at phase ends, off the loop (declared after the logs:
+  /// it stops, its last fsync done, before they close).
+  Syncer syncer{posix_io().fsync};
   std::int64_t run_start_ns = 0;
   run::Phase last_phase = run::Phase::Idle;
   bool report_done = true;
@@ -207,6 +214,7 @@ class Daemon {
   void recover_ports();
   void log_record(const can::LogRecord& r);
   void log_sync();
+  void take_syncer_error();
   void host_fault(const std::string& what);
   void log_fault(const std::string& what);
   void internal_error(const char* where, const char* what);
@@ -278,8 +286,8 @@ void Daemon::tell_clock_steps() {
   clock_steps_told = clock.steps();
   char b[160];
   std::snprintf(b, sizeof b,
-                "the realtime clock stepped: it is now %+.3f s from the run's clock, which "
-                "goes on the monotonic clock",
+                "the realtime clock stepped: it is now %+.3f s from the daemon's clock, which "
+                "goes on with the monotonic clock (anchored again when a run starts)",
                 static_cast<double>(clock.realtime_offset_ns()) * 1e-9);
   warn(b);
 }
@@ -291,9 +299,17 @@ void Daemon::log_record(const can::LogRecord& r) {
   if (auto st = log->write(r); !st) log_fault(st.error().describe());
 }
 
+/// The log handed to the kernel, and its fsync asked of the syncer: the
+/// loop goes on (a failure comes back on the timer, take_syncer_error).
 void Daemon::log_sync() {
   if (!log) return;
-  if (auto st = log->sync(); !st) log_fault(st.error().describe());
+  if (auto st = log->flush(); !st) return log_fault(st.error().describe());
+  syncer.request(log->fd());
+}
+
+void Daemon::take_syncer_error() {
+  if (const int e = syncer.take_error(); e != 0)
+    log_fault(std::string("log fsync failed: ") + std::strerror(e));
 }
 
 /// A fault of the host fails the run with the reason (and a quick stop);
@@ -311,7 +327,7 @@ void Daemon::log_fault(const std::string& what) {
   std::string why = what;
   if (log) {
     why += ": log kept up to line " + std::to_string(log->records_written());
-    (void)log->close();  // the error is the one above
+    retired_log = std::move(log);  // no more of the run goes into it
     log.reset();
   }
   log_error = why;
@@ -522,6 +538,13 @@ void Daemon::after_engine() {
 void Daemon::write_report(bool with_estimates) {
   report_done = true;
   state->release(run_id);  // the space the report was kept
+  // the last phase-end fsync done (and heard of) before the file closes
+  syncer.wait_idle();
+  take_syncer_error();
+  if (retired_log) {
+    (void)retired_log->close();  // its fault is the run's reason already
+    retired_log.reset();
+  }
   if (log) {
     auto st = log->sync();
     auto cl = log->close();
@@ -722,7 +745,8 @@ json Daemon::start(const StartRequest& req) {
   run::BuildSettings b;
   b.heading_offset_rad = q.heading_offset_rad;
   engine = std::make_unique<run::Engine>(db, roles, *plan, q, b,
-                                         run::TimeBase{now / 1000, cfg.stand.time_scale});
+                                         run::TimeBase{now / 1000, cfg.stand.time_scale},
+                                         run::plausibility_of(cfg));
   input.reset();
   result.reset();
   est_error.clear();
@@ -927,6 +951,7 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
   return guarded(d, "the timer", [&] {
     d->recover_ports();
     d->tell_clock_steps();
+    d->take_syncer_error();
     if (d->engine) {
       // what has arrived counts before anything is judged lost (one budget's worth)
       for (Port& p : d->ports)

@@ -1,6 +1,7 @@
 #include "turncal/run/engine.hpp"
 
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <numbers>
 
@@ -36,14 +37,23 @@ CommandSignals command_signals(const RoleMap& roles) {
           span_of(roles, Role::InsCommandAlignDuration, 1)};
 }
 
+Plausibility plausibility_of(const Config& cfg) {
+  Plausibility p;
+  p.max_velocity_mps = cfg.can.max_ins_velocity_mps;
+  p.max_table_rate_rps = 2 * cfg.stand.limits.max_rate_rps;
+  p.max_fraction = cfg.can.implausible_fraction;
+  return p;
+}
+
 Engine::Engine(const can::Database& db, const RoleMap& roles, Plan plan, SequencerSettings seq,
-               BuildSettings build, TimeBase time)
+               BuildSettings build, TimeBase time, Plausibility plausibility)
     : roles_(roles),
       plan_(std::move(plan)),
       build_(build),
       time_(time),
-      ingest_(db, roles),
-      seq_(with_commands(std::move(seq), roles)) {
+      ingest_(db, roles, plausibility),
+      seq_(with_commands(std::move(seq), roles)),
+      plausible_(plausibility) {
   // the record runs from t0 (the first velocity sample) to t0 + duration + 1 s
   record_.expect_span(plan_.profile.duration_s + 1.0);
   record_.set_time_scale(time_.scale);
@@ -125,6 +135,7 @@ void Engine::on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out) {
   scaled.time_ns = static_cast<std::int64_t>(std::llround(t * 1e6)) * 1000;
   const Sample s = ingest_.on_frame(scaled);
   last_frame_s_ = t;
+  if (!implausible_fed_) check_plausible(t, out);
   if (t > record_end_s()) record_complete_ = true;
   if (std::holds_alternative<std::monostate>(s)) return;
   const Phase p = seq_.phase();
@@ -161,6 +172,34 @@ void Engine::on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out) {
     live_.table_state = ts->state;
     live_.table_rate_rps = ts->rate_rps;
     feed(TableStatusEvent{ts->host_s, ts->state, ts->ack, ts->fault, ts->fault_name}, out);
+  }
+}
+
+/// A stream with more implausible frames than the configured fraction (of
+/// 100 or more) is a device or a bus that garbles: the run fails.
+void Engine::check_plausible(double t, std::vector<OutFrame>& out) {
+  for (const Stream st : {kVelocity, kInsStatus, kEncoder, kTableStatus}) {
+    const StreamHealth& h = ingest_.health(st);
+    const bool on_end = h.implausible_run >= Plausibility::kMaxRun;
+    if (!on_end && (h.frames < 100 || !(static_cast<double>(h.implausible) >
+                                        plausible_.max_fraction * static_cast<double>(h.frames))))
+      continue;
+    implausible_fed_ = true;
+    const char* what = st == kVelocity  ? " or the velocity bound"
+                       : st == kEncoder ? " or stepping faster than the table can"
+                                        : "";
+    char b[200];
+    if (on_end)
+      std::snprintf(b, sizeof b,
+                    "%s frames implausible: the last %llu on end outside their DBC range%s",
+                    h.name.c_str(), static_cast<unsigned long long>(h.implausible_run), what);
+    else
+      std::snprintf(b, sizeof b,
+                    "%s frames implausible: %llu of %llu (over %g%%) outside their DBC range%s",
+                    h.name.c_str(), static_cast<unsigned long long>(h.implausible),
+                    static_cast<unsigned long long>(h.frames), plausible_.max_fraction * 100, what);
+    feed(HostFault{t, b}, out);
+    return;
   }
 }
 

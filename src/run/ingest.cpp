@@ -121,14 +121,21 @@ bool TagCheck::keep(const ClockFit& fit, double device_s, double host_s) {
   if (!(r > gate) || std::isnan(on_time_host_s_)) {
     on_time_host_s_ = host_s;
     back_since_on_time_ = false;
+    late_min_s_ = INFINITY;
+  } else {
+    late_min_s_ = std::min(late_min_s_, r);  // the least delayed frame of the late run
   }
-  // Frames can come late for long (a bus busy above the device's priority,
-  // a transmit backlog) with their tags right: late is a clock that fell
-  // behind only when its tags first went back
-  if (fault_ == Fault::None && back_since_on_time_ && r > gate &&
-      host_s - on_time_host_s_ >= kLateRunS) {
+  // Frames can come late for a while (a bus busy above the device's
+  // priority, a transmit backlog) with their tags right: late is a clock
+  // that fell behind after 2 s when its tags first went back, after 10 s
+  // when they did not (it stepped back in a pause of its frames, or runs
+  // slow beyond the fit's rate bound; or the bus never lets its frames out
+  // in time)
+  const double late_for = back_since_on_time_ ? kLateRunS : kLateLongS;
+  if (fault_ == Fault::None && r > gate && host_s - on_time_host_s_ >= late_for) {
     fault_ = Fault::Late;
-    fault_s_ = r;
+    fault_s_ = late_min_s_;
+    fault_late_for_s_ = late_for;
   }
   return true;
 }
@@ -152,9 +159,9 @@ std::string TagCheck::fault(const std::string& what) const {
       break;
     case Fault::Late:
       std::snprintf(b, sizeof b,
-                    " fell behind by %.3f s: it stepped back, and every frame for %.1f s "
-                    "since came over %.0f ms later than its tag says",
-                    fault_s_, kLateRunS, kGateS * scale_ * 1e3);
+                    " fell behind by %.3f s: every frame for %.0f s came over %.0f ms (of real "
+                    "time) later than its tag says",
+                    fault_s_, fault_late_for_s_, kGateS * 1e3);
       break;
   }
   return what + b;
@@ -234,8 +241,8 @@ double StreamHealth::rate_hz() const {
   return frames < 2 || !(span > 0) ? 0.0 : static_cast<double>(frames - 1) / span;
 }
 
-Ingest::Ingest(const can::Database& db, const RoleMap& roles)
-    : roles_(roles), codec_(db), values_(64) {
+Ingest::Ingest(const can::Database& db, const RoleMap& roles, Plausibility plausibility)
+    : plausible_(plausibility), roles_(roles), codec_(db), values_(64) {
   health_[kVelocity].name = "ins-velocity";
   health_[kInsStatus].name = "ins-status";
   health_[kEncoder].name = "table-encoder";
@@ -245,6 +252,7 @@ Ingest::Ingest(const can::Database& db, const RoleMap& roles)
 void Ingest::saw(Stream s, double host_s, double device_s) {
   StreamHealth& h = health_[s];
   ++h.frames;
+  h.implausible_run = 0;
   if (std::isnan(h.first_host_s)) h.first_host_s = host_s;
   h.last_host_s = host_s;
   double& last = last_device_s_[s];
@@ -265,6 +273,22 @@ void Ingest::saw(Stream s, double host_s, double device_s) {
     }
   }
   last = device_s;
+}
+
+Sample Ingest::implausible(Stream s) {
+  ++health_[s].frames;
+  ++health_[s].implausible;
+  ++health_[s].implausible_run;
+  return {};
+}
+
+bool Ingest::in_range(Role r, double value) const {
+  const can::Signal& sig = *roles_[r].signal;
+  if (sig.minimum == 0 && sig.maximum == 0) return true;  // as vendor files write "none"
+  // the DBC's range is in its decimal text: a value at its end may differ
+  // from it in the last bits
+  const double slack = 1e-9 * std::max(std::abs(sig.minimum), std::abs(sig.maximum));
+  return value >= sig.minimum - slack && value <= sig.maximum + slack;
 }
 
 void Ingest::clock_sample(ClockFit& fit, double device_s, double host_s) {
@@ -296,6 +320,9 @@ Sample Ingest::on_frame(const can::TimedFrame& f) {
       ++counters_.malformed;
       return {};
     }
+    if (!in_range(east ? Role::InsVelEast : Role::InsVelNorth, value) ||
+        !(std::abs(value) <= plausible_.max_velocity_mps))
+      return implausible(kVelocity);
     if (half_pending_ && half_tag_ == tag && half_is_east_ != east) {
       half_pending_ = false;
       const double t = vel_tag_(tag);
@@ -317,6 +344,7 @@ Sample Ingest::on_frame(const can::TimedFrame& f) {
       ++counters_.malformed;
       return {};
     }
+    if (!in_range(Role::InsMode, v(Role::InsMode))) return implausible(kInsStatus);
     const double t = status_tag_(tag);
     saw(kInsStatus, host, t);
     clock_sample(ins_clock_, t, host);
@@ -329,12 +357,30 @@ Sample Ingest::on_frame(const can::TimedFrame& f) {
       ++counters_.malformed;
       return {};
     }
-    const double t = enc_tag_(tag);
+    if (!in_range(Role::EncoderAngle, angle)) return implausible(kEncoder);
+    // the step from the last encoder sample, at most the table's rate
+    // (twice the stand's limit): a garbled angle must not become a turn
+    TagUnwrap tags = enc_tag_;
+    AngleUnwrap unwrap = angle_;
+    const double t = tags(tag);
+    const double a = unwrap(angle * std::numbers::pi / 180);
+    const double dt = t - last_encoder_t_;
+    if (dt > 0 && std::abs(a - last_encoder_angle_) > plausible_.max_table_rate_rps * dt)
+      return implausible(kEncoder);
+    enc_tag_ = tags;
+    angle_ = unwrap;
+    if (!(dt <= 0)) {  // the first, or in order: the next step is from here
+      last_encoder_t_ = t;
+      last_encoder_angle_ = a;
+    }
     saw(kEncoder, host, t);
     clock_sample(table_clock_, t, host);
-    return EncoderSample{t, host, angle_(angle * std::numbers::pi / 180)};
+    return EncoderSample{t, host, a};
   }
   if (is(Role::TableState)) {
+    if (!in_range(Role::TableState, v(Role::TableState)) ||
+        !in_range(Role::TableRate, v(Role::TableRate)))
+      return implausible(kTableStatus);
     saw(kTableStatus, host, NAN);
     const int fault = static_cast<int>(v(Role::TableFault));
     std::string name = "fault " + std::to_string(fault);

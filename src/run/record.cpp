@@ -19,13 +19,13 @@ void Record::add(const Sample& s) {
       }
     }
     velocity_.push_back({v->t_ins_s, v->ve, v->vn});
-    if (!ins_clock_.add_checked(v->t_ins_s, v->host_s)) ++clock_outliers_;
+    if (!ins_clock_.add_checked(v->t_ins_s, v->host_s, velocity_tags_.gate_s())) ++clock_outliers_;
     return;
   }
   const auto* e = std::get_if<EncoderSample>(&s);
   if (e == nullptr) return;
   if (!encoder_tags_.keep(table_clock_, e->t_table_s, e->host_s)) return;
-  if (!table_clock_.add_checked(e->t_table_s, e->host_s)) ++clock_outliers_;
+  if (!table_clock_.add_checked(e->t_table_s, e->host_s, encoder_tags_.gate_s())) ++clock_outliers_;
   if (pending_ && e->angle_rad == last_.angle_rad) {
     last_ = *e;  // the constant run goes on: only its ends are kept
     return;

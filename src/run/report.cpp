@@ -163,6 +163,7 @@ json health_json(const StreamHealth& h, double now) {
           {"dropped", h.dropped},
           {"nominal_hz", h.nominal_hz},
           {"rate_hz", h.rate_hz()},
+          {"implausible", h.implausible},
           {"age_s", std::isnan(h.last_host_s) ? json(nullptr) : json(h.age_s(now))}};
 }
 
@@ -246,6 +247,9 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
                   {"toml", plan.text},
                   {"overrides", plan.overrides}};
   // what a replay needs besides the log and the profile to see what this run saw
+  j["plausibility"] = {{"max_velocity_mps", engine.plausibility().max_velocity_mps},
+                       {"max_table_rate_rps", engine.plausibility().max_table_rate_rps},
+                       {"max_fraction", engine.plausibility().max_fraction}};
   j["settings"] = {{"heading_offset_rad", seq.settings().heading_offset_rad},
                    {"observe", seq.settings().observe},
                    {"stale_floor_s", seq.settings().stale_floor_s},

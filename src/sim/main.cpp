@@ -64,6 +64,7 @@ struct Options {
 constexpr const char* kFaultHelp =
     "faults (--fault NAME=VALUE, repeatable; times are stand seconds from the start):\n"
     "  ins-drop=FRACTION          INS velocity frames dropped at random\n"
+    "  ins-spikes=FRACTION        INS velocity East frames sent as 2000 m/s at random\n"
     "  ins-burst=AT:SECONDS       every INS frame dropped for a while\n"
     "  ins-silent=AT              the INS sends nothing from then on\n"
     "  ins-fault=AT               the INS goes to fault mode (3)\n"
@@ -113,6 +114,8 @@ Status apply_fault(const std::string& spec, stand::StandSetup& s) {
   auto& f = s.faults;
   if (name == "ins-drop" && want(1, 1) && v[0] >= 0 && v[0] <= 1) {
     f.ins_drop_rate = v[0];
+  } else if (name == "ins-spikes" && want(1, 1) && v[0] >= 0 && v[0] <= 1) {
+    f.ins_spike_rate = v[0];
   } else if (name == "ins-burst" && want(2, 2)) {
     f.ins_burst_at_s = v[0];
     f.ins_burst_s = v[1];

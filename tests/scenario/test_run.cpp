@@ -121,7 +121,8 @@ struct ClosedLoop {
 
   [[nodiscard]] std::unique_ptr<run::Engine> new_engine() const {
     return std::make_unique<run::Engine>(reference_stand().db, stand_roles(), plan, settings,
-                                         run::BuildSettings{}, run::TimeBase{kEpochNs / 1000, 1});
+                                         run::BuildSettings{}, run::TimeBase{kEpochNs / 1000, 1},
+                                         run::plausibility_of(reference_stand().cfg));
   }
   /// A second run on the same stand (the INS still navigating from the
   /// first): a new engine, started by the operator at the next tick.
@@ -550,6 +551,13 @@ TEST_SUITE("run engine on the virtual stand") {
            s.ins_clock.jump_s = -0.2;
          },
          "the INS clock fell behind by 0.2"},
+        // a garbled velocity now and then is skipped; 5% of them is a device
+        // or a bus that cannot be trusted (the configured fraction is 1%)
+        {"5% of the INS velocity frames at 2000 m/s",
+         [](auto& s) { s.faults.ins_spike_rate = 0.05; }, "ins-velocity frames implausible: "},
+        // every one of them: said so, before the stream is called lost
+        {"every INS velocity East frame at 2000 m/s", [](auto& s) { s.faults.ins_spike_rate = 1; },
+         "ins-velocity frames implausible: the last 5 on end"},
         {"the table clock jumps 1 s ahead in the turn",
          [](auto& s) {
            s.table_clock.jump_at_s = 82;

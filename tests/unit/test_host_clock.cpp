@@ -42,15 +42,20 @@ TEST_SUITE("host clock") {
     // a frame received 3 ms ago, stamped on the realtime clock
     CHECK_FALSE(c.observe());
     CHECK(c.from_realtime(g_real - 3'000'000) == c.now_ns() - 3'000'000);
-    for (const std::int64_t step : {kHour, -kHour}) {
+    // an hour either way, and 2 s (NTP's usual step: the frame's reading on
+    // the new offset alone would be 2 s in the past, yet within 10 s of now)
+    for (const std::int64_t step : {kHour, -kHour, 2 * kS, -2 * kS}) {
       CAPTURE(step);
       HostClock h(fake_read);
       pass(kS);
-      const std::int64_t stamped = g_real - 4'000'000;  // received before the step
-      const std::int64_t expect = h.now_ns() - 4'000'000;
-      g_real += step;
+      CHECK_FALSE(h.observe());  // a batch read: every frame until now is in
       pass(1'000'000);
-      CHECK(h.now_ns() == expect + 5'000'000);  // monotonic: the step is not in it
+      const std::int64_t stamped = g_real;     // received 1 ms after that read,
+      const std::int64_t expect = h.now_ns();  // at this time of the clock
+      pass(3'000'000);
+      g_real += step;  // the step, before the frame is read
+      pass(1'000'000);
+      CHECK(h.now_ns() == expect + 4'000'000);  // monotonic: the step is not in it
       CHECK(h.observe());
       CHECK(h.steps() == 1);
       CHECK(h.realtime_offset_ns() == step);

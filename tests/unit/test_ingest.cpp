@@ -155,6 +155,77 @@ TEST_SUITE("ingest") {
     CHECK(in.health(kVelocity).stale(11.35, 0.3));
   }
 
+  TEST_CASE("implausible values are counted and skipped: the velocity bound, the DBC range") {
+    Ref r;
+    Plausibility p;
+    p.max_velocity_mps = 100;
+    Ingest in(r.db, r.roles, p);
+    auto pair = [&](int k, double ve) {
+      const double t = 10 + 0.01 * k, tag = 1e6 + 1e4 * k;
+      in.on_frame(r.vel(t, true, tag, ve));
+      return in.on_frame(r.vel(t + 1e-4, false, tag, 0.0));
+    };
+    CHECK(std::holds_alternative<VelocitySample>(pair(0, 99.0)));  // under the bound
+    CHECK(std::holds_alternative<std::monostate>(pair(1, 150.0)));
+    CHECK(std::holds_alternative<std::monostate>(pair(2, -150.0)));
+    CHECK(std::holds_alternative<VelocitySample>(pair(3, 0.001)));
+    CHECK(in.health(kVelocity).implausible == 2);
+    CHECK(in.health(kVelocity).frames == 4);  // the two pairs and the two East halves skipped
+    // the DBC's range, where it gives one
+    Ref ranged;
+    for (can::Message& m : ranged.db.messages)
+      for (can::Signal& sig : m.signals)
+        if (m.name == "INS_VelE" && sig.name == "VelE") {
+          sig.minimum = -10;
+          sig.maximum = 10;
+        }
+    Ingest in2(ranged.db, ranged.roles, p);
+    const double tag = 2e6;
+    in2.on_frame(ranged.vel(20, true, tag, 11.0));
+    CHECK(std::holds_alternative<std::monostate>(in2.on_frame(ranged.vel(20, false, tag, 0.0))));
+    CHECK(in2.health(kVelocity).implausible == 1);
+    in2.on_frame(ranged.vel(20.01, true, tag + 1e4, 9.5));
+    CHECK(std::holds_alternative<VelocitySample>(
+        in2.on_frame(ranged.vel(20.01, false, tag + 1e4, 0.0))));
+    // [0|0] is no range, as vendor files write it: 50 m/s passes
+    Ref none;
+    for (can::Message& m : none.db.messages)
+      for (can::Signal& sig : m.signals)
+        if (m.name == "INS_VelE" && sig.name == "VelE") sig.minimum = sig.maximum = 0;
+    Ingest in3(none.db, none.roles, p);
+    in3.on_frame(none.vel(20, true, tag, 50.0));
+    CHECK(std::holds_alternative<VelocitySample>(in3.on_frame(none.vel(20, false, tag, 0.0))));
+    CHECK(in3.health(kVelocity).implausible == 0);
+  }
+
+  TEST_CASE("an encoder step faster than the table can turn is skipped, and turns nothing") {
+    Ref r;
+    Plausibility p;
+    p.max_table_rate_rps = 60 * std::numbers::pi / 180;
+    Ingest in(r.db, r.roles, p);
+    auto enc = [&](int k, double deg) {
+      return in.on_frame(
+          r.at(10 + 0.005 * k,
+               r.roles.encode(Role::EncoderAngle,
+                              {{Role::EncoderAngle, deg}, {Role::EncoderTimeTag, 1e6 + 5e3 * k}})));
+    };
+    double last = NAN;
+    int kept = 0;
+    for (int k = 0; k < 100; ++k) {
+      // 30 deg/s, across 0/360; at k = 40 and 41 a garbled angle 90 deg off
+      const double deg = std::fmod(350 + 0.15 * k + (k == 40 || k == 41 ? 90 : 0), 360);
+      const Sample s = enc(k, deg);
+      if (const auto* e = std::get_if<EncoderSample>(&s)) {
+        ++kept;
+        last = e->angle_rad;
+      }
+    }
+    CHECK(kept == 98);
+    CHECK(in.health(kEncoder).implausible == 2);
+    // the multi-turn angle goes on from before the garble: 350 + 14.85 deg
+    CHECK(last * 180 / std::numbers::pi == doctest::Approx(364.85).epsilon(1e-9));
+  }
+
   TEST_CASE("table status carries the fault's name from the DBC's value table") {
     Ref r;
     Ingest in(r.db, r.roles);

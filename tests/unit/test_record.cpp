@@ -123,6 +123,22 @@ TEST_SUITE("record") {
     CHECK(r.velocity().size() == 5000);
   }
 
+  TEST_CASE("time tags: a clock that steps back in a pause of its frames fails after 10 s late") {
+    // no frame for 0.5 s at 20 s; the clock 0.2 s back after it: no tag goes
+    // back, but every frame comes 0.2 s later than its tag says
+    Record r;
+    int late_from = -1;
+    for (int k = 0; k < 4000; ++k) {
+      if (k >= 2000 && k < 2050) continue;
+      r.add(VelocitySample{on_time(k) - (k >= 2050 ? 0.2 : 0.0), 1.7e9 + 0.01 * k + 1e-3, 0, 0});
+      if (late_from < 0 && !r.clock_fault().empty()) late_from = k;
+    }
+    CAPTURE(r.clock_fault());
+    CHECK(r.clock_fault().find("the INS clock fell behind by 0.200 s: every frame for 10 s") == 0);
+    CHECK(late_from == 1999 + 1000);  // 10 s after the last frame on time
+    CHECK(r.velocity_tags().dropped() == 0);
+  }
+
   TEST_CASE("time tags: the gate is real time, a frame's delay; stand seconds are scaled") {
     // at 4x a stand second is 0.25 s of real time: the 50 ms gate is 0.2
     // stand s, so a 0.1 s jump ahead lies within it, and a 0.3 s one does not

@@ -86,6 +86,8 @@ class LogWriter {
   Status sync();
   Status close();
   [[nodiscard]] std::uint64_t records() const { return records_; }
+  /// The file's descriptor (an fsync off the caller's thread); -1 closed.
+  [[nodiscard]] int fd() const { return fd_; }
   /// Whole lines the file has taken (written, not only buffered). After a
   /// failed write the file is cut back to its last whole line, so it reads
   /// to its end, and every later write or flush fails the same way.

@@ -63,13 +63,18 @@ OutFrame heartbeat_frame(const RoleMap& roles, std::uint8_t counter, int host_st
 /// resolve them (DBC units: deg, deg/s, s), in SI units for the plan check.
 CommandSignals command_signals(const RoleMap& roles);
 
+/// What the configuration says a frame's values can be: the INS velocity
+/// bound, twice the stand's rate limit for the encoder's steps, and the
+/// fraction of a stream's frames past which the run fails.
+Plausibility plausibility_of(const Config& cfg);
+
 class Engine {
  public:
   /// `db` and `roles` must outlive it. The plan is checked against the
   /// command signals of `roles` at the start (`seq.commands` is set from
   /// them); a command that does not fit at run time fails the run.
   Engine(const can::Database& db, const RoleMap& roles, Plan plan, SequencerSettings seq,
-         BuildSettings build, TimeBase time);
+         BuildSettings build, TimeBase time, Plausibility plausibility = {});
 
   void start(std::int64_t now_ns, std::vector<OutFrame>& out);
   void abort(std::int64_t now_ns, const std::string& reason, std::vector<OutFrame>& out);
@@ -100,6 +105,7 @@ class Engine {
   [[nodiscard]] const Sequencer& sequencer() const { return seq_; }
   [[nodiscard]] const Ingest& ingest() const { return ingest_; }
   [[nodiscard]] const Record& record() const { return record_; }
+  [[nodiscard]] const Plausibility& plausibility() const { return plausible_; }
   [[nodiscard]] const Plan& plan() const { return plan_; }
   [[nodiscard]] const Live& live() const { return live_; }
   [[nodiscard]] const TimeBase& time_base() const { return time_; }
@@ -123,8 +129,11 @@ class Engine {
   bool estimation_due_ = false;
   bool record_complete_ = false;
   bool clock_fault_fed_ = false;  ///< a device clock that jumped has failed the run
+  bool implausible_fed_ = false;  ///< a stream of implausible frames has failed the run
+  Plausibility plausible_;
   double last_frame_s_ = NAN;
   [[nodiscard]] double record_end_s() const;
+  void check_plausible(double t, std::vector<OutFrame>& out);
   bool report_due_ = false;
   std::uint8_t heartbeat_counter_ = 0;
   std::uint64_t commands_sent_ = 0;

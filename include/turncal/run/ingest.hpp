@@ -10,6 +10,7 @@
 #include <array>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <variant>
 #include <vector>
@@ -118,20 +119,22 @@ class ClockFit {
 /// after its receipt by more than the gate (a clock that jumped ahead, a
 /// garbled tag) is dropped and counted. A jump that lasts is a fault: tags
 /// dropped for 0.5 s on end (the clock jumped ahead, or back by more than
-/// that), or, after tags that went back, every sample for 2 s more than the
-/// gate late (it jumped back by less). Until the clock's fit spans 10 s, the clock is the lowest
-/// offset host - device seen (after the first second of tags, in which a
-/// jump ahead is not seen). Samples of a clock that jumped would land at
-/// the wrong time in the estimate; a run cannot go on from there. Pure,
-/// like the record.
+/// that), or every sample more than the gate late for 2 s after tags that
+/// went back (it jumped back by less), or for 10 s with none that did. Until the clock's fit spans
+/// 10 s, the clock is the lowest offset host - device seen (after the first second of tags, in
+/// which a jump ahead is not seen). Samples of a clock that jumped would land at the wrong time in
+/// the estimate; a run cannot go on from there. Pure, like the record.
 class TagCheck {
  public:
   static constexpr double kGateS = 0.05;
   static constexpr double kDropRunS = 0.5;
-  static constexpr double kLateRunS = 2.0;
-  static constexpr double kWarmUpS = 1.0;  ///< tags a jump ahead is not seen in
-  /// Host times are stand seconds, `scale` real seconds each (the stand's
-  /// time_scale): the gate is real time, a frame's delay, so it scales.
+  static constexpr double kLateRunS = 2.0;    ///< late, after tags that went back
+  static constexpr double kLateLongS = 10.0;  ///< late, with none that did
+  static constexpr double kWarmUpS = 1.0;     ///< tags a jump ahead is not seen in
+  /// Host times are stand seconds, and a real second is `scale` of them
+  /// (the stand's time_scale): the gate is real time, a frame's delay, so
+  /// it scales; the runs' lengths (0.5 s, 2 s, 10 s) are stand time.
+  [[nodiscard]] double gate_s() const { return kGateS * scale_; }
   void set_time_scale(double scale) { scale_ = scale > 0 ? scale : 1.0; }
   /// `fit` is the clock as fitted before this sample. The first fault is
   /// kept; checking goes on after it.
@@ -151,6 +154,8 @@ class TagCheck {
   double run_jump_s_ = 0;            ///< how far its tags were off, at most
   bool run_back_ = false;            ///< the run began with a tag that went back
   bool back_since_on_time_ = false;  ///< a tag went back since the last on-time frame
+  double late_min_s_ = INFINITY;     ///< the least delay of the late run so far
+  double fault_late_for_s_ = 0;
   double scale_ = 1;
   std::uint64_t run_n_ = 0;
   double on_time_host_s_ = NAN;  ///< the last sample within the gate of the clock
@@ -200,6 +205,11 @@ struct StreamHealth {
   double nominal_hz = 0;      ///< learned from the time tags or the first receive intervals
   std::uint64_t frames = 0;   ///< received
   std::uint64_t dropped = 0;  ///< gaps in the device's time tags
+  /// Frames whose values cannot be (outside their DBC range, a velocity
+  /// beyond the bound, an encoder step beyond the table's rate): counted in
+  /// `frames`, skipped, and not seen (a stream of nothing else goes stale).
+  std::uint64_t implausible = 0;
+  std::uint64_t implausible_run = 0;  ///< implausible frames since the last good one
   double first_host_s = NAN;
   double last_host_s = NAN;
   /// Not seen for 10 nominal periods, and for at least `floor_s` (or never
@@ -221,10 +231,21 @@ struct IngestCounters {
   std::uint64_t half_pairs = 0;      ///< a velocity frame whose other half never came
 };
 
+/// What a frame's values can be; beyond it a frame is garbled, not data.
+struct Plausibility {
+  double max_velocity_mps = 1000;  ///< either INS velocity component, |v|
+  double max_table_rate_rps = std::numeric_limits<double>::infinity();  ///< encoder steps
+  /// A stream with more than this fraction of its frames implausible (once
+  /// it has 100), or 5 on end (before it is called lost for them), fails
+  /// the run: the engine's check.
+  double max_fraction = 0.01;
+  static constexpr std::uint64_t kMaxRun = 5;
+};
+
 class Ingest {
  public:
   /// `db` and `roles` must outlive it.
-  Ingest(const can::Database& db, const RoleMap& roles);
+  Ingest(const can::Database& db, const RoleMap& roles, Plausibility plausibility = {});
   /// One received frame; host time from its receive timestamp, truncated
   /// to microseconds as a candump log keeps it, so that a replay of the
   /// log sees exactly what the live run saw.
@@ -244,6 +265,12 @@ class Ingest {
 
  private:
   void saw(Stream s, double host_s, double device_s);
+  /// A frame of `s` that cannot be: counted, and nothing more.
+  Sample implausible(Stream s);
+  /// Within the DBC's [min|max] of the role's signal ([0|0]: no range).
+  [[nodiscard]] bool in_range(Role r, double value) const;
+  Plausibility plausible_;
+  double last_encoder_t_ = NAN, last_encoder_angle_ = NAN;
   void clock_sample(ClockFit& fit, double device_s, double host_s);
   const RoleMap& roles_;
   can::FrameCodec codec_;

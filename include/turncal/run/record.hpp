@@ -30,7 +30,8 @@ class Record {
   /// reserved, so the vector never grows by doubling (which would hold old
   /// and new storage, three times the data, at once).
   void expect_span(double span_s) { expected_span_s_ = span_s; }
-  /// Stand seconds are `scale` real seconds (the time tag checks' gate).
+  /// A real second is `scale` stand seconds (the stand's time_scale): the
+  /// time tag checks' and the clock fits' gates are real time.
   void set_time_scale(double scale) {
     velocity_tags_.set_time_scale(scale);
     encoder_tags_.set_time_scale(scale);

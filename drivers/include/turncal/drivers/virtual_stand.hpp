@@ -34,6 +34,7 @@ struct DeviceClock {
 /// Faults of the stand as a whole (the devices' own are in their setups).
 struct StandFaults {
   double ins_drop_rate = 0;     ///< fraction of INS velocity frames dropped at random
+  double ins_spike_rate = 0;    ///< fraction of INS velocity frames sent as 2000 m/s
   double ins_burst_at_s = NAN;  ///< every INS frame dropped in [at, at + length)
   double ins_burst_s = 0;
   double ins_silent_at_s = NAN;      ///< the INS sends nothing from then on
