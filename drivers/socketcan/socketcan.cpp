@@ -14,6 +14,7 @@
 #include <array>
 #include <cerrno>
 #include <cstring>
+#include <optional>
 
 namespace turncal::socketcan {
 namespace {
@@ -277,14 +278,7 @@ Status Socket::sendable(const can::Frame& f) const {
   return Status{Ok{}};
 }
 
-Result<TxOutcome> Socket::send_urgent(const can::Frame& f) {
-  if (auto ok = sendable(f); !ok) return ok.error();
-  stats_.tx_superseded += std::erase_if(
-      txq_, [&](const can::Frame& q) { return q.id == f.id && q.extended == f.extended; });
-  if (fd_ < 0) {
-    ++stats_.tx_failed;
-    return TxOutcome::Dropped;
-  }
+std::optional<TxOutcome> Socket::write_now(const can::Frame& f) {
   switch (write_frame(f)) {
     case TxResult::Sent:
       ++stats_.tx_frames;
@@ -295,6 +289,18 @@ Result<TxOutcome> Socket::send_urgent(const can::Frame& f) {
     case TxResult::Busy:
       break;
   }
+  return std::nullopt;
+}
+
+Result<TxOutcome> Socket::send_urgent(const can::Frame& f) {
+  if (auto ok = sendable(f); !ok) return ok.error();
+  stats_.tx_superseded += std::erase_if(
+      txq_, [&](const can::Frame& q) { return q.id == f.id && q.extended == f.extended; });
+  if (fd_ < 0) {
+    ++stats_.tx_failed;
+    return TxOutcome::Dropped;
+  }
+  if (const auto done = write_now(f)) return *done;
   if (txq_.size() >= opt_.tx_queue_limit && !txq_.empty()) {
     txq_.pop_back();
     ++stats_.tx_overflow;
@@ -311,16 +317,7 @@ Result<TxOutcome> Socket::send(const can::Frame& f) {
     return TxOutcome::Dropped;
   }
   if (txq_.empty()) {
-    switch (write_frame(f)) {
-      case TxResult::Sent:
-        ++stats_.tx_frames;
-        return TxOutcome::Sent;
-      case TxResult::Failed:
-        ++stats_.tx_failed;
-        return TxOutcome::Dropped;
-      case TxResult::Busy:
-        break;
-    }
+    if (const auto done = write_now(f)) return *done;
   }
   if (txq_.size() >= opt_.tx_queue_limit) {
     ++stats_.tx_overflow;

@@ -146,17 +146,14 @@ std::string TagCheck::fault(const std::string& what) const {
     case Fault::None:
       return {};
     case Fault::Ahead:
-      std::snprintf(b, sizeof b,
-                    " jumped ahead by %.3f s: %llu frames on end over %.1f s tagged after they "
-                    "arrived",
-                    fault_s_, static_cast<unsigned long long>(fault_n_), kDropRunS);
+    case Fault::Back: {
+      const bool ahead = fault_ == Fault::Ahead;
+      std::snprintf(b, sizeof b, " %s by %.3f s: %llu frames on end over %.1f s tagged %s",
+                    ahead ? "jumped ahead" : "stepped back", fault_s_,
+                    static_cast<unsigned long long>(fault_n_), kDropRunS,
+                    ahead ? "after they arrived" : "before the last one kept");
       break;
-    case Fault::Back:
-      std::snprintf(b, sizeof b,
-                    " stepped back by %.3f s: %llu frames on end over %.1f s tagged before the "
-                    "last one kept",
-                    fault_s_, static_cast<unsigned long long>(fault_n_), kDropRunS);
-      break;
+    }
     case Fault::Late:
       std::snprintf(b, sizeof b,
                     " fell behind by %.3f s: every frame for %.0f s came over %.0f ms (of real "

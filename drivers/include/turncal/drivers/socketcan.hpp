@@ -22,6 +22,7 @@
 #include <cerrno>
 #include <cstdint>
 #include <deque>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -145,6 +146,9 @@ class Socket {
   enum class TxResult { Sent, Busy, Failed };
   TxResult write_frame(const can::Frame& frame);
   Status sendable(const can::Frame& frame) const;
+  /// Writes the frame and counts it sent or failed; nothing when the kernel
+  /// is busy (the caller queues it).
+  std::optional<TxOutcome> write_now(const can::Frame& frame);
   void link_event(RxBatch& out, can::BusEventKind kind);
 
   Options opt_;
