@@ -121,6 +121,12 @@ struct DaemonConfig {
   /// Disk space reserved for a run's report when it starts, MiB: a disk that
   /// fills during the run can still say why.
   double report_reserve_mib = 8;
+  /// Retention, applied before a run starts: run logs older than this (days)
+  /// are removed, their reports kept; 0 keeps them all.
+  double keep_logs_days = 0;
+  /// Retention: the oldest run logs are removed (reports kept) until all
+  /// logs take at most this much, MiB; 0: no limit.
+  double max_logs_mib = 0;
   /// A stream is lost after 10 periods unseen and never sooner than this,
   /// real milliseconds: the host's scheduling latency.
   double stale_floor_ms = 50;

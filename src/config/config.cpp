@@ -226,7 +226,8 @@ Status read_daemon(const toml::table& t, const std::string& file, DaemonConfig& 
   Reader r(t, file, "daemon.");
   TURNCAL_TRY(r.no_unknown_keys({"state_directory", "socket", "socket_group", "profile",
                                  "profiles_directory", "observe", "heartbeat_hz", "stale_floor_ms",
-                                 "max_clients", "client_idle_s", "report_reserve_mib"}));
+                                 "max_clients", "client_idle_s", "report_reserve_mib",
+                                 "keep_logs_days", "max_logs_mib"}));
   std::string state = d.state_directory.string(), sock = d.socket.string(), prof, profiles;
   TURNCAL_TRY(r.string("state_directory", state));
   TURNCAL_TRY(r.string("socket", sock));
@@ -237,6 +238,8 @@ Status read_daemon(const toml::table& t, const std::string& file, DaemonConfig& 
   TURNCAL_TRY(r.integer("max_clients", d.max_clients, 1, 256));
   TURNCAL_TRY(r.number("client_idle_s", d.client_idle_s, 1, 3600));
   TURNCAL_TRY(r.number("report_reserve_mib", d.report_reserve_mib, 0, 1024));
+  TURNCAL_TRY(r.number("keep_logs_days", d.keep_logs_days, 0, 36500));
+  TURNCAL_TRY(r.number("max_logs_mib", d.max_logs_mib, 0, 1e9));
   TURNCAL_TRY(r.number("heartbeat_hz", d.heartbeat_hz, 2, 100));
   TURNCAL_TRY(r.number("stale_floor_ms", d.stale_floor_ms, 0, 1000));
   const std::filesystem::path base = std::filesystem::path(file).parent_path();

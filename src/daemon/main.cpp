@@ -113,6 +113,17 @@ std::string utc_id(std::int64_t ns) {
   return buf;
 }
 
+/// A run's planned length in real seconds: alignment and navigation, and a
+/// minute for the INS to answer and the estimate.
+double run_real_s(const Plan& plan, double time_scale) {
+  constexpr double kMarginS = 60;
+  return (plan.profile.align_s + plan.profile.duration_s + kMarginS) / time_scale;
+}
+
+std::size_t max_interface_chars(const CanConfig& c) {
+  return std::max(c.ins_interface.size(), c.table_interface.size());
+}
+
 const char* link_name(socketcan::LinkState l) {
   switch (l) {
     case socketcan::LinkState::Up:
@@ -167,7 +178,10 @@ class Daemon {
   std::uint64_t timer_ticks = 0;  ///< watchers get the status every 5th
   std::uint8_t heartbeat_counter = 0;
   std::optional<StateDir> state;
-  std::string config_sha256;  ///< of the configuration as loaded
+  /// Frames the bus has lately carried (what a run's log grows at).
+  BusRate bus_rate;
+  bool space_checked = false;  ///< this run's space checked at its own frame rate
+  std::string config_sha256;   ///< of the configuration as loaded
 
   // the run
   std::unique_ptr<run::Engine> engine;
@@ -223,6 +237,10 @@ class Daemon {
   [[nodiscard]] json can_json(bool since_run_start) const;
   [[nodiscard]] json status() const;
   json start(const StartRequest& req);
+  [[nodiscard]] std::uint64_t frames_seen() const;
+  [[nodiscard]] std::string space_shortfall(double frames_per_s, double bytes_per_frame,
+                                            double real_s, std::uint64_t also) const;
+  void check_run_space();
   void write_report(bool with_estimates);
   void report_interrupted_runs();
   void handle_request(Client& c, const std::string& line);
@@ -725,9 +743,27 @@ json Daemon::start(const StartRequest& req) {
   // two runs within a second: the second gets a suffix, no log is overwritten
   for (int k = 2; state->has_log(id); ++k) id = utc_id(now) + "-" + std::to_string(k);
   const fs::path path = state->path() / (id + ".log");
-  if (auto rs = state->reserve(
-          id, static_cast<std::uint64_t>(cfg.daemon.report_reserve_mib * 1024 * 1024));
-      !rs)
+  // retention first, then the space: the report's and the planned log's
+  const Retention keep{cfg.daemon.keep_logs_days,
+                       static_cast<std::uint64_t>(cfg.daemon.max_logs_mib * 1024 * 1024)};
+  for (const PrunedLog& p : state->prune_logs(keep, static_cast<double>(now) * 1e-9)) {
+    char b[200];
+    std::snprintf(b, sizeof b, "retention: %s the log of run %s (%.1f MiB, %s)%s%s",
+                  p.error.empty() ? "removed" : "cannot remove", p.run_id.c_str(),
+                  static_cast<double>(p.bytes) / (1 << 20), p.why.c_str(),
+                  p.error.empty() ? "; its report is kept" : ": ", p.error.c_str());
+    p.error.empty() ? info(b) : warn(b);
+  }
+  const auto reserve_bytes =
+      static_cast<std::uint64_t>(cfg.daemon.report_reserve_mib * 1024 * 1024);
+  if (const double rate = bus_rate.per_s(); rate > 0) {
+    const double real_s = run_real_s(*plan, cfg.stand.time_scale);
+    const double per_frame = static_cast<double>(log_bytes_bound(1, max_interface_chars(cfg.can)));
+    if (const std::string why = space_shortfall(rate, per_frame, real_s, reserve_bytes);
+        !why.empty())
+      return {{"ok", false}, {"error", "run refused: " + why}};
+  }
+  if (auto rs = state->reserve(id, reserve_bytes); !rs)
     return {{"ok", false}, {"error", rs.error().describe()}};
   auto w = can::LogWriter::open(path.string());
   if (!w) {
@@ -735,6 +771,7 @@ json Daemon::start(const StartRequest& req) {
     return {{"ok", false}, {"error", w.error().describe()}};
   }
   run_start_ns = now;
+  space_checked = false;
   run_id = id;
   log_path = path;
   log.emplace(std::move(*w));
@@ -756,6 +793,50 @@ json Daemon::start(const StartRequest& req) {
   engine->start(now, out);
   after_engine();
   return {{"ok", true}, {"run_id", run_id}, {"log", log_path.string()}};
+}
+
+/// Every frame the sockets have received or seen confirmed: what the log takes.
+std::uint64_t Daemon::frames_seen() const {
+  std::uint64_t n = 0;
+  for (const Port& p : ports)
+    if (p.sock) n += p.sock->stats().rx_frames + p.sock->stats().tx_confirmed;
+  return n;
+}
+
+/// Why the state directory cannot hold `real_s` more of a log growing at
+/// `frames_per_s` frames of `bytes_per_frame`, and `also` bytes more; empty
+/// when it can.
+std::string Daemon::space_shortfall(double frames_per_s, double bytes_per_frame, double real_s,
+                                    std::uint64_t also) const {
+  const auto free = state->free_bytes();
+  if (!free) return free.error().describe();
+  const double log_bytes = std::max(0.0, frames_per_s * bytes_per_frame * real_s);
+  const double need = log_bytes + static_cast<double>(also);
+  if (static_cast<double>(*free) >= need) return {};
+  constexpr double kMiB = 1 << 20;
+  char b[400];
+  std::snprintf(b, sizeof b,
+                "the state directory %s has %.2f MiB free; the run needs %.2f MiB: %.2f MiB of "
+                "log (%.0f s more at the %.0f frames/s the bus has had) and %.2f MiB kept for "
+                "its report",
+                state->path().c_str(), static_cast<double>(*free) / kMiB, need / kMiB,
+                log_bytes / kMiB, real_s, frames_per_s, static_cast<double>(also) / kMiB);
+  return b;
+}
+
+/// Once a run has its own frame rate (3 s in), the log it will still write
+/// must fit: else the run fails now, long before the disk is full. A start
+/// checks the same at the rate of the bus before it, when it has one.
+void Daemon::check_run_space() {
+  if (space_checked || !running() || !log || log->records() == 0) return;
+  const double elapsed_s = static_cast<double>(clock.now_ns() - run_start_ns) * 1e-9;
+  if (elapsed_s < 3.0) return;
+  space_checked = true;
+  const double left_s = run_real_s(engine->plan(), cfg.stand.time_scale) - elapsed_s;
+  const double rate = static_cast<double>(log->records()) / elapsed_s;
+  const double per_frame = static_cast<double>(log->bytes()) / static_cast<double>(log->records());
+  if (const std::string why = space_shortfall(rate, per_frame, left_s, 0); !why.empty())
+    host_fault("the disk cannot hold this run's log: " + why);
 }
 
 // ---- control clients ----
@@ -952,6 +1033,8 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
     d->recover_ports();
     d->tell_clock_steps();
     d->take_syncer_error();
+    d->bus_rate.add(monotonic_us(), d->frames_seen());
+    d->check_run_space();
     if (d->engine) {
       // what has arrived counts before anything is judged lost (one budget's worth)
       for (Port& p : d->ports)

@@ -1,15 +1,19 @@
 #include "state_dir.hpp"
 
 #include <fcntl.h>
+#include <sys/stat.h>
+#include <sys/statvfs.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <cerrno>
+#include <cmath>
 #include <cstring>
 #include <fstream>
 #include <sstream>
 #include <vector>
 
+#include "turncal/can/candump.hpp"
 #include "turncal/run/report.hpp"
 
 namespace turncal::daemon {
@@ -208,6 +212,97 @@ std::vector<std::string> StateDir::logs_without_report() const {
     if (!fs::exists(dir_ / (id + kReportSuffix), gone)) ids.push_back(id);
   }
   return ids;
+}
+
+std::vector<PrunedLog> StateDir::prune_logs(const Retention& r, double now_unix_s,
+                                            const std::string& keep) const {
+  struct Log {
+    std::string id;
+    std::uint64_t bytes;
+    double mtime_s;
+    bool removable;
+  };
+  std::vector<Log> logs;
+  std::error_code ec;
+  for (fs::directory_iterator it(dir_, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (!name.ends_with(".log")) continue;
+    struct stat st {};
+    if (::stat(it->path().c_str(), &st) != 0 || !S_ISREG(st.st_mode)) continue;
+    const std::string id = name.substr(0, name.size() - 4);
+    std::error_code gone;
+    const bool reported = fs::exists(dir_ / (id + kReportSuffix), gone);
+    logs.push_back(
+        {id, static_cast<std::uint64_t>(st.st_size),
+         static_cast<double>(st.st_mtim.tv_sec) + static_cast<double>(st.st_mtim.tv_nsec) * 1e-9,
+         reported && id != keep});
+  }
+  // run ids are UTC times: by name is oldest first
+  std::sort(logs.begin(), logs.end(), [](const Log& a, const Log& b) { return a.id < b.id; });
+  std::uint64_t total = 0;
+  for (const Log& l : logs) total += l.bytes;
+  std::vector<PrunedLog> out;
+  auto remove = [&](Log& l, std::string why) {
+    PrunedLog p{l.id, l.bytes, std::move(why), ""};
+    if (::unlink((dir_ / (l.id + ".log")).c_str()) != 0) {
+      p.error = std::strerror(errno);
+    } else {
+      total -= l.bytes;
+    }
+    l.removable = false;
+    out.push_back(std::move(p));
+  };
+  if (r.keep_days > 0) {
+    char why[64];
+    std::snprintf(why, sizeof why, "older than %g days", r.keep_days);
+    for (Log& l : logs)
+      if (l.removable && now_unix_s - l.mtime_s > r.keep_days * 86400) remove(l, why);
+  }
+  if (r.max_log_bytes > 0) {
+    char why[64];
+    std::snprintf(why, sizeof why, "the logs took over %.1f MiB",
+                  static_cast<double>(r.max_log_bytes) / (1 << 20));
+    for (Log& l : logs) {
+      if (total <= r.max_log_bytes) break;
+      if (l.removable) remove(l, why);
+    }
+  }
+  return out;
+}
+
+Result<std::uint64_t> StateDir::free_bytes() const {
+  struct statvfs v {};
+  if (::statvfs(dir_.c_str(), &v) != 0)
+    return make_error("cannot read the free space of " + dir_.string() + ": " +
+                      std::strerror(errno));
+  return static_cast<std::uint64_t>(v.f_bavail) * v.f_frsize;
+}
+
+void BusRate::add(std::uint64_t t_us, std::uint64_t frames) {
+  if (!points_.empty() && (frames < points_.back().second || t_us < points_.back().first))
+    points_.clear();
+  points_.emplace_back(t_us, frames);
+  constexpr std::uint64_t kWindowUs = 10'000'000;
+  while (points_.size() > 2 && t_us - points_[1].first >= kWindowUs) points_.pop_front();
+}
+
+double BusRate::per_s() const {
+  if (points_.size() < 2) return NAN;
+  const double dt = static_cast<double>(points_.back().first - points_.front().first) * 1e-6;
+  if (dt < 1.0) return NAN;
+  return static_cast<double>(points_.back().second - points_.front().second) / dt;
+}
+
+std::uint64_t log_bytes_bound(double frames, std::size_t interface_chars) {
+  if (!(frames > 0)) return 0;
+  can::LogRecord r;
+  r.time_ns = 9'999'999'999'999'999;  // ten digits of seconds, as until 2286
+  r.interface.assign(interface_chars, 'x');
+  r.frame.id = 0x1FFFFFFF;
+  r.frame.extended = true;
+  r.frame.len = 8;
+  const std::size_t line = can::format_log_line(r).size();
+  return static_cast<std::uint64_t>(std::ceil(frames)) * line;
 }
 
 }  // namespace turncal::daemon

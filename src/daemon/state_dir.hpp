@@ -7,9 +7,13 @@
 
 #include <sys/types.h>
 
+#include <cstdint>
+#include <deque>
 #include <filesystem>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <utility>
+#include <vector>
 
 #include "control.hpp"
 #include "turncal/result.hpp"
@@ -24,6 +28,41 @@ struct FileIo {
   int (*close)(int fd);
 };
 const FileIo& posix_io();
+
+/// Which run logs may go, applied before a run starts (config [daemon]).
+struct Retention {
+  double keep_days = 0;             ///< logs older than this go; 0: any age stays
+  std::uint64_t max_log_bytes = 0;  ///< the oldest go until all take this; 0: no limit
+};
+
+/// A log retention removed, or tried to.
+struct PrunedLog {
+  std::string run_id;
+  std::uint64_t bytes = 0;
+  std::string why;    ///< "older than N days", "logs over N MiB"
+  std::string error;  ///< empty: removed
+};
+
+/// The frame rate the bus has had lately (frames received and our own
+/// confirmed, per second of real time), from the counters sampled on the
+/// daemon's timer: what a run's log will grow at.
+class BusRate {
+ public:
+  /// A sample of the frame counter at a monotonic time, us; a counter that
+  /// went back (a socket re-opened) starts the window again.
+  void add(std::uint64_t t_us, std::uint64_t frames);
+  /// Frames per second over the window (the last 10 s); NaN when it spans
+  /// less than 1 s.
+  [[nodiscard]] double per_s() const;
+
+ private:
+  std::deque<std::pair<std::uint64_t, std::uint64_t>> points_;
+};
+
+/// Bytes a log of `frames` records takes at most, on interfaces whose names
+/// are at most `interface_chars` long (classic frames: a CAN FD frame's line
+/// is longer; the reference stand has none).
+std::uint64_t log_bytes_bound(double frames, std::size_t interface_chars);
 
 class StateDir {
  public:
@@ -59,6 +98,14 @@ class StateDir {
   [[nodiscard]] bool has_log(const std::string& run_id) const;
   /// The run ids of logs without a report: runs a killed daemon left.
   [[nodiscard]] std::vector<std::string> logs_without_report() const;
+  /// Retention: removes the logs of runs that have their report (never a
+  /// report, never a log without one, never `keep`): first those last
+  /// written more than keep_days before `now_unix_s`, then the oldest while
+  /// all logs take more than max_log_bytes. What it removed or failed to.
+  std::vector<PrunedLog> prune_logs(const Retention& r, double now_unix_s,
+                                    const std::string& keep = {}) const;
+  /// Bytes the file system of the directory gives an unprivileged writer.
+  [[nodiscard]] Result<std::uint64_t> free_bytes() const;
 
  private:
   Result<nlohmann::json> load(const std::string& run_id) const;

@@ -234,11 +234,12 @@ TEST_SUITE("faults") {
     hil::TempDir dir;
     write_stand(dir.path, hil::if0());
     // 256 KiB kept for the report; the state directory a file system of
-    // 560 KiB, which the log fills before the run ends (about 600 KiB)
+    // 3 MiB, room for the run's log (about 1 MiB), until another writer
+    // fills it in the turn
     std::ofstream(dir.path / "turncal.toml", std::ios::app) << "report_reserve_mib = 0.25\n";
     hil::fs::create_directories(dir.path / "state");
     const std::string state = (dir.path / "state").string();
-    REQUIRE(std::system(("mount -t tmpfs -o size=560k tmpfs " + state).c_str()) == 0);
+    REQUIRE(std::system(("mount -t tmpfs -o size=3m tmpfs " + state).c_str()) == 0);
     struct Unmount {
       std::string at;
       ~Unmount() { (void)!std::system(("umount " + at).c_str()); }
@@ -247,6 +248,9 @@ TEST_SUITE("faults") {
     Child daemon = start_daemon(dir.path);
     REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
     const std::string id = start_run(dir.path);
+    REQUIRE(wait_phase(dir.path, "turn", 60000ms));
+    // everything left, to another file (dd ends at "No space left")
+    CHECK(std::system(("dd if=/dev/zero of=" + state + "/filler bs=16k 2>/dev/null").c_str()) != 0);
     CHECK(ctl(dir.path, {"watch"}, "w.out", 90000ms) == 1);
     const json r = report_of(dir.path, id);  // there: its space was kept
     const std::string reason = r.value("reason", std::string());
@@ -262,6 +266,7 @@ TEST_SUITE("faults") {
     const std::uint64_t lines = log_records(log);
     CHECK(reason.find("up to line " + std::to_string(lines)) != std::string::npos);
     CHECK(lines > 1000);
+    CHECK(r["phases"].back()["phase"] == "failed");
     (void)ctl(dir.path,
               {"--json", "replay", log.string(), "--config", (dir.path / "turncal.toml").string()},
               "replay.json", 60000ms);
@@ -273,6 +278,73 @@ TEST_SUITE("faults") {
     CHECK(st["table"]["state"] == kQuickStopped);
     CHECK(st["table"]["rate_dps"] == 0.0);
     CHECK(slurp(dir.path / "daemon.err").find("No space left on device") != std::string::npos);
+  }
+
+  TEST_CASE(
+      "a run whose log the disk cannot hold fails before the table moves, or is refused; "
+      "retention makes room first") {
+    hil::TempDir dir;
+    write_stand(dir.path, hil::if0());
+    // the state directory a file system of 600 KiB, 256 KiB of it kept for
+    // the report: the run's log (about 1 MiB) cannot fit
+    std::ofstream(dir.path / "turncal.toml", std::ios::app)
+        << "report_reserve_mib = 0.25\nkeep_logs_days = 1\n";
+    const hil::fs::path state = dir.path / "state";
+    hil::fs::create_directories(state);
+    REQUIRE(std::system(("mount -t tmpfs -o size=600k tmpfs " + state.string()).c_str()) == 0);
+    struct Unmount {
+      std::string at;
+      ~Unmount() { (void)!std::system(("umount " + at).c_str()); }
+    } unmount{state.string()};
+    // an old run's log and report: retention takes the log, keeps the report
+    const std::string old_id = "20200101T000000Z";
+    std::ofstream(state / (old_id + ".log")) << std::string(100000, 'x');
+    REQUIRE(std::system(
+                ("touch -d '2020-01-02' " + (state / (old_id + ".log")).string()).c_str()) == 0);
+    std::ofstream(state / (old_id + ".report.json"))
+        << R"({"run_id":"20200101T000000Z","status":"done","unit":"SN-9"})";
+    Child sim = start_sim(dir.path, "12", {"--state-out", "stand.json"});
+    Child daemon = start_daemon(dir.path);
+    REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+
+    // at once: the bus's rate not known yet, so the run starts, and fails
+    // at its own rate 3 s in (in the alignment: the table never moved)
+    const std::string id = start_run(dir.path);
+    CHECK_FALSE(hil::fs::exists(state / (old_id + ".log")));
+    CHECK(hil::fs::exists(state / (old_id + ".report.json")));
+    CHECK(ctl(dir.path, {"watch"}, "w.out", 60000ms) == 1);
+    const json r = report_of(dir.path, id);
+    const std::string reason = r.value("reason", std::string());
+    CAPTURE(reason);
+    MESSAGE("3 s in: " << reason);
+    CHECK(r["status"] == "failed");
+    CHECK(reason.find("the disk cannot hold this run's log: the state directory ") == 0);
+    CHECK(reason.find("MiB of log") != std::string::npos);
+    const std::string before = r["phases"][r["phases"].size() - 2]["phase"];
+    CHECK((before == "prepare" || before == "align"));
+    CHECK(log_records(state / (id + ".log")) > 0);  // the log up to it is kept, whole
+
+    // again: now the bus has a rate, and the start is refused outright,
+    // with nothing recorded
+    REQUIRE(ctl(dir.path, {"--json", "start"}, "start2.json") != 0);
+    const json refused = json::parse(slurp(dir.path / "start2.json"));
+    CAPTURE(refused.dump());
+    CHECK(refused["ok"] == false);
+    const std::string why = refused.value("error", std::string());
+    MESSAGE("at the start: " << why);
+    CHECK(why.find("run refused: the state directory ") == 0);
+    CHECK(why.find("frames/s the bus has had") != std::string::npos);
+    std::size_t logs = 0;
+    for (const auto& e : hil::fs::directory_iterator(state)) logs += e.path().extension() == ".log";
+    CHECK(logs == 1);
+
+    daemon.terminate();
+    CHECK(daemon.wait(10000ms) == 0);
+    const json st = stand_state(sim, dir.path);
+    CHECK(st["table"]["rate_dps"] == 0.0);
+    CHECK(std::abs(st["table"]["angle_deg"].get<double>()) < 1e-6);  // never turned
+    const std::string err = slurp(dir.path / "daemon.err");
+    CHECK(err.find("retention: removed the log of run " + old_id) != std::string::npos);
   }
 
   TEST_CASE("a flood of unknown frames: the heartbeat keeps its period, the run completes") {

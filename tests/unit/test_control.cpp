@@ -4,8 +4,12 @@
 // leave nothing half-written.
 #include <doctest/doctest.h>
 
+#include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
+
 #include <cerrno>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 
@@ -313,4 +317,92 @@ TEST_CASE("state directory: a write that fails says why and leaves no file, whol
   std::getline(in, s);
   CHECK(s == "abcdefg");
   fs::remove_all(dir);
+}
+
+namespace {
+/// A file of `bytes` last written `days_ago` days before `now`.
+void old_file(const fs::path& p, std::size_t bytes, double now, double days_ago) {
+  std::ofstream(p) << std::string(bytes, 'x');
+  const double t = now - days_ago * 86400;
+  const timespec ts{static_cast<time_t>(t), 0};
+  const timespec times[2] = {ts, ts};
+  REQUIRE(::utimensat(AT_FDCWD, p.c_str(), times, 0) == 0);
+}
+}  // namespace
+
+TEST_CASE("state directory: retention removes old logs, keeps every report and unreported log") {
+  const fs::path dir = fs::temp_directory_path() / ("turncal-keep-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  StateDir st(dir);
+  REQUIRE(st.create().ok());
+  const double now = 2'000'000'000;
+  // runs a, b, c with reports; d a log without one (an interrupted run
+  // before its report); e the running run
+  old_file(dir / "20260101T000000Z.log", 4000, now, 40);
+  old_file(dir / "20260201T000000Z.log", 3000, now, 20);
+  old_file(dir / "20260301T000000Z.log", 2000, now, 5);
+  old_file(dir / "20250101T000000Z.log", 1000, now, 400);
+  old_file(dir / "20260401T000000Z.log", 500, now, 50);
+  for (const char* id : {"20260101T000000Z", "20260201T000000Z", "20260301T000000Z"})
+    REQUIRE(st.write_atomic(std::string(id) + ".report.json", sample_report().dump()).ok());
+  REQUIRE(st.write_atomic("20260401T000000Z.report.json", sample_report().dump()).ok());
+
+  SUBCASE("nothing configured: nothing goes") {
+    CHECK(st.prune_logs({}, now).empty());
+    CHECK(fs::exists(dir / "20260101T000000Z.log"));
+  }
+  SUBCASE("by age: the reported logs older than the limit, never the running run's") {
+    const auto p = st.prune_logs({30, 0}, now, "20260401T000000Z");
+    REQUIRE(p.size() == 1);
+    CHECK(p[0].run_id == "20260101T000000Z");
+    CHECK(p[0].bytes == 4000);
+    CHECK(p[0].why == "older than 30 days");
+    CHECK(p[0].error.empty());
+    CHECK_FALSE(fs::exists(dir / "20260101T000000Z.log"));
+    CHECK(fs::exists(dir / "20260101T000000Z.report.json"));
+    CHECK(fs::exists(dir / "20250101T000000Z.log"));  // no report: the only record
+    CHECK(fs::exists(dir / "20260401T000000Z.log"));  // running
+  }
+  SUBCASE("by size: the oldest reported logs until all fit") {
+    // 10500 bytes in all; 6000 allowed: a (4000) and b (3000) go, c stays
+    const auto p = st.prune_logs({0, 6000}, now);
+    REQUIRE(p.size() == 2);
+    CHECK(p[0].run_id == "20260101T000000Z");
+    CHECK(p[1].run_id == "20260201T000000Z");
+    CHECK(fs::exists(dir / "20260301T000000Z.log"));
+    CHECK(fs::exists(dir / "20250101T000000Z.log"));
+    CHECK(fs::exists(dir / "20260401T000000Z.log"));
+  }
+  SUBCASE("what is not a file is no log: left alone") {
+    fs::remove(dir / "20260101T000000Z.log");
+    fs::create_directory(dir / "20260101T000000Z.log");
+    const auto p = st.prune_logs({0, 1}, now);
+    for (const auto& e : p) CHECK(e.error.empty());
+    CHECK(p.size() == 3);  // b, c and the fourth reported log
+    CHECK(fs::is_directory(dir / "20260101T000000Z.log"));
+  }
+  st.load_index();
+  CHECK(st.index().size() == 4);  // every report is there still
+  fs::remove_all(dir);
+}
+
+TEST_CASE("state directory: the bus's recent frame rate, and the bytes a log of it takes") {
+  BusRate r;
+  CHECK(std::isnan(r.per_s()));
+  r.add(1'000'000, 100);
+  r.add(1'500'000, 200);
+  CHECK(std::isnan(r.per_s()));  // half a second: not yet a rate
+  r.add(3'000'000, 700);
+  CHECK(r.per_s() == doctest::Approx(300.0).epsilon(1e-12));
+  // the window is the last 10 s: an early burst leaves it
+  for (std::uint64_t t = 4; t <= 20; ++t) r.add(t * 1'000'000, 700 + (t - 3) * 50);
+  CHECK(r.per_s() == doctest::Approx(50.0).epsilon(1e-12));
+  // a counter that went back (a socket re-opened) starts again
+  r.add(21'000'000, 10);
+  CHECK(std::isnan(r.per_s()));
+  // a log line: "(9999999999.999999) vcan0 1FFFFFFF#0000000000000000\n"
+  CHECK(log_bytes_bound(1, 5) == 52);
+  CHECK(log_bytes_bound(1000, 5) == 52000);
+  CHECK(log_bytes_bound(0, 5) == 0);
+  CHECK(log_bytes_bound(NAN, 5) == 0);
 }

@@ -86,6 +86,8 @@ class LogWriter {
   Status sync();
   Status close();
   [[nodiscard]] std::uint64_t records() const { return records_; }
+  /// Bytes of the records so far (in the file and still buffered).
+  [[nodiscard]] std::uint64_t bytes() const { return pos_ + buf_.size(); }
   /// The file's descriptor (an fsync off the caller's thread); -1 closed.
   [[nodiscard]] int fd() const { return fd_; }
   /// Whole lines the file has taken (written, not only buffered). After a
