@@ -322,12 +322,15 @@ void Daemon::log_record(const can::LogRecord& r) {
 void Daemon::log_sync() {
   if (!log) return;
   if (auto st = log->flush(); !st) return log_fault(st.error().describe());
-  syncer.request(log->fd());
+  syncer.request(log->fd(), log->records_written());
 }
 
+/// A failed fsync: the lines handed to the kernel since the last good one
+/// may never reach the disk, and the reason says which are sure.
 void Daemon::take_syncer_error() {
   if (const int e = syncer.take_error(); e != 0)
-    log_fault(std::string("log fsync failed: ") + std::strerror(e));
+    log_fault(std::string("log fsync failed: ") + std::strerror(e) + ": lines after " +
+              std::to_string(syncer.synced()) + " may be lost");
 }
 
 /// A fault of the host fails the run with the reason (and a quick stop);
@@ -772,6 +775,8 @@ json Daemon::start(const StartRequest& req) {
   }
   run_start_ns = now;
   space_checked = false;
+  syncer.wait_idle();  // the last run's are done (its report waited for them)
+  syncer.new_file();
   run_id = id;
   log_path = path;
   log.emplace(std::move(*w));

@@ -33,10 +33,11 @@ Syncer::~Syncer() {
   thread_.join();
 }
 
-void Syncer::request(int fd) {
+void Syncer::request(int fd, std::uint64_t mark) {
   {
     const std::lock_guard<std::mutex> l(m_);
     want_fd_ = fd;
+    want_mark_ = mark;
   }
   wake_.notify_one();
 }
@@ -53,6 +54,16 @@ void Syncer::wait_idle() {
   idle_.wait(l, [&] { return want_fd_ < 0 && !busy_; });
 }
 
+std::uint64_t Syncer::synced() const {
+  const std::lock_guard<std::mutex> l(m_);
+  return synced_;
+}
+
+void Syncer::new_file() {
+  const std::lock_guard<std::mutex> l(m_);
+  synced_ = 0;
+}
+
 unsigned long Syncer::done() const {
   const std::lock_guard<std::mutex> l(m_);
   return done_;
@@ -64,6 +75,7 @@ void Syncer::run() {
     wake_.wait(l, [&] { return stop_ || want_fd_ >= 0; });
     if (want_fd_ < 0) return;  // stopped, nothing left to do
     const int fd = want_fd_;
+    const std::uint64_t mark = want_mark_;
     want_fd_ = -1;
     busy_ = true;
     l.unlock();
@@ -77,6 +89,7 @@ void Syncer::run() {
     busy_ = false;
     ++done_;
     if (err != 0 && error_ == 0) error_ = err;
+    if (err == 0) synced_ = mark;
     if (want_fd_ < 0) idle_.notify_all();
   }
 }

@@ -8,6 +8,7 @@
 #pragma once
 
 #include <condition_variable>
+#include <cstdint>
 #include <mutex>
 #include <thread>
 
@@ -21,8 +22,14 @@ class Syncer {
   Syncer(const Syncer&) = delete;
   Syncer& operator=(const Syncer&) = delete;
 
-  /// Asks for an fsync of `fd`; returns at once.
-  void request(int fd);
+  /// Asks for an fsync of `fd`; returns at once. `mark` (the log's line
+  /// count when asked) is what synced() gives once that fsync succeeded.
+  void request(int fd, std::uint64_t mark = 0);
+  /// The mark of the last request whose fsync succeeded (0: none yet): how
+  /// far the file is surely on disk.
+  [[nodiscard]] std::uint64_t synced() const;
+  /// A new file: synced() is 0 again (after wait_idle on the last one).
+  void new_file();
   /// The errno of the first fsync that failed since the last call; 0: none.
   int take_error();
   /// Returns when no fsync is asked for or under way.
@@ -36,6 +43,8 @@ class Syncer {
   mutable std::mutex m_;
   std::condition_variable wake_, idle_;
   int want_fd_ = -1;  ///< asked for, not yet begun
+  std::uint64_t want_mark_ = 0;
+  std::uint64_t synced_ = 0;
   bool busy_ = false;
   bool stop_ = false;
   int error_ = 0;

@@ -281,6 +281,89 @@ TEST_SUITE("faults") {
   }
 
   TEST_CASE(
+      "the disk fails in the turn (I/O errors): the table stops, the log is kept up to the "
+      "failure, the run is failed with the reason") {
+    hil::TempDir dir;
+    write_stand(dir.path, hil::if0());
+    std::ofstream(dir.path / "turncal.toml", std::ios::app) << "report_reserve_mib = 0.25\n";
+    const hil::fs::path state = dir.path / "state";
+    hil::fs::create_directories(state);
+    // the state directory on ext4 on a device-mapper target over a loop
+    // device: a linear map now, the "error" target (every I/O fails) later.
+    // Device nodes from a devtmpfs of the test's own.
+    const std::string d = dir.path.string();
+    const std::string setup =
+        "set -e; dmesg -n 1; m=/usr/lib/uml/modules/$(uname -r)/kernel; "
+        "[ -e /sys/module/loop ] || modprobe loop || insmod $m/drivers/block/loop.ko; "
+        "[ -e /sys/module/dm_mod ] || modprobe dm-mod || insmod $m/drivers/md/dm-mod.ko; "
+        "mkdir -p " +
+        d + "/dev; mount -t devtmpfs devtmpfs " + d +
+        "/dev; "
+        "truncate -s 16M " +
+        d +
+        "/disk.img; "
+        "losetup " +
+        d + "/dev/loop7 " + d +
+        "/disk.img; "
+        "export DM_DEV_DIR=" +
+        d +
+        "/dev; "
+        "dmsetup create tcfail --table \"0 32768 linear " +
+        d +
+        "/dev/loop7 0\"; "
+        "mkfs.ext4 -q " +
+        d +
+        "/dev/mapper/tcfail; "
+        "mount " +
+        d + "/dev/mapper/tcfail " + state.string();
+    REQUIRE_MESSAGE(std::system(setup.c_str()) == 0, "no loop and device-mapper devices here");
+    auto table = [&](const std::string& t) {
+      return "DM_DEV_DIR=" + d + "/dev dmsetup suspend --noflush tcfail && DM_DEV_DIR=" + d +
+             "/dev dmsetup load tcfail --table \"0 32768 " + t + "\" && DM_DEV_DIR=" + d +
+             "/dev dmsetup resume tcfail";
+    };
+    struct Teardown {
+      std::string cmd;
+      ~Teardown() { (void)!std::system(cmd.c_str()); }
+    } teardown{"umount -l " + state.string() + "; DM_DEV_DIR=" + d +
+               "/dev dmsetup remove --force tcfail; losetup -d " + d + "/dev/loop7; umount " + d +
+               "/dev"};
+    Child sim = start_sim(dir.path, "14", {"--state-out", "stand.json"});
+    Child daemon = start_daemon(dir.path);
+    REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+    const std::string id = start_run(dir.path);
+    REQUIRE(wait_phase(dir.path, "turn", 60000ms));
+    REQUIRE(std::system(table("error").c_str()) == 0);
+    CHECK(ctl(dir.path, {"watch"}, "w.out", 90000ms) == 1);
+    REQUIRE(ctl(dir.path, {"--json", "status"}, "st.json") == 0);
+    const json st = json::parse(slurp(dir.path / "st.json"));
+    const std::string reason = st.value("reason", std::string());
+    MESSAGE("disk failing: " << reason);
+    CHECK(st["phase"] == "failed");
+    CHECK(reason.find("log ") == 0);
+    CHECK((reason.find("Input/output error") != std::string::npos ||
+           reason.find("Read-only file system") != std::string::npos));
+    CHECK(reason.find("log kept up to line ") != std::string::npos);
+    // "log fsync failed: E: lines after N may be lost: ...": N are on disk
+    std::uint64_t synced = 0;
+    if (const auto at = reason.find("lines after "); at != std::string::npos)
+      synced = std::stoull(reason.substr(at + 12));
+    CHECK(synced > 1000);  // the phase ends before the turn were synced
+    const std::string err = slurp(dir.path / "daemon.err");
+    // the report could not go on that disk, and the daemon says so
+    CHECK(err.find("report not written") != std::string::npos);
+    daemon.terminate();
+    CHECK(daemon.wait(10000ms) == 0);
+    const json stand = stand_state(sim, dir.path);
+    CHECK(stand["table"]["state"] == kQuickStopped);
+    CHECK(stand["table"]["rate_dps"] == 0.0);
+    // the disk back: the log reads whole, and holds every line it said were
+    // on disk
+    REQUIRE(std::system(table("linear " + d + "/dev/loop7 0").c_str()) == 0);
+    CHECK(log_records(state / (id + ".log")) >= synced);
+  }
+
+  TEST_CASE(
       "a run whose log the disk cannot hold fails before the table moves, or is refused; "
       "retention makes room first") {
     hil::TempDir dir;

@@ -63,15 +63,16 @@ TEST_SUITE("syncer") {
     g_release = false;
     g_calls = 0;
     Syncer s(slow_fsync);
-    s.request(7);
+    s.request(7, 100);
     // the caller goes on while the fsync waits (it returned to get here)
     for (int i = 0; i < 2000 && g_calls == 0; ++i) std::this_thread::sleep_for(1ms);
     REQUIRE(g_calls == 1);
     CHECK(s.done() == 0);
     CHECK(s.take_error() == 0);
+    CHECK(s.synced() == 0);  // nothing is surely on disk yet
     // asked twice more while it runs: one more fsync, of the last asked
-    s.request(8);
-    s.request(99);
+    s.request(8, 150);
+    s.request(99, 200);
     g_release = true;
     s.wait_idle();
     CHECK(s.done() == 2);
@@ -79,6 +80,7 @@ TEST_SUITE("syncer") {
     CHECK(g_last_fd == 99);
     CHECK(s.take_error() == EIO);
     CHECK(s.take_error() == 0);  // told once
+    CHECK(s.synced() == 100);    // the first fsync's mark; the failed one's is not
   }
 
   TEST_CASE("wait_idle returns only when the fsync under way is done") {
