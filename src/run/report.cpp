@@ -223,6 +223,10 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
   // written in the report phase, the report is that of a finished run
   j["status"] = to_string(seq.phase() == Phase::Report ? Phase::Done : seq.phase());
   if (!course.reason.empty()) j["reason"] = course.reason;
+  if (!course.signal_in_estimate.empty())
+    j["stop_signal"] = course.signal_in_estimate +
+                       " during the estimate: the estimate was finished and this report written "
+                       "before the daemon stopped";
   j["start_time_unix_s"] = ctx.start_unix_s;
   j["end_time_unix_s"] = ctx.end_unix_s;
   j["software_version"] = ctx.software_version;
@@ -365,6 +369,7 @@ std::string report_text(const json& r, const json* truth) {
   line("turncal report " + r.value("run_id", std::string("?")) + ": " +
        r.value("status", std::string("?")));
   if (r.contains("reason")) line("  reason: " + r["reason"].get<std::string>());
+  if (r.contains("stop_signal")) line("  stop: " + r["stop_signal"].get<std::string>());
   if (r.contains("unit") && r["unit"].is_string()) line("  unit: " + r["unit"].get<std::string>());
   if (r.contains("profile"))
     line("  profile: " + r["profile"].value("name", std::string()) + " (" +
@@ -560,7 +565,8 @@ std::string check_report(const json& r) {
       r["schema_version"].get<std::int64_t>() > kReportSchemaVersion)
     return "schema_version " + r["schema_version"].dump() + " is newer than this turncal reads (" +
            std::to_string(kReportSchemaVersion) + ")";
-  for (const char* k : {"format", "run_id", "status", "reason", "mode", "software_version"})
+  for (const char* k :
+       {"format", "run_id", "status", "reason", "stop_signal", "mode", "software_version"})
     c.field(r, "", k, Kind::String);
   c.field(r, "", "unit", Kind::String, false, true);  // null: not named
   for (const char* k : {"start_time_unix_s", "end_time_unix_s"}) c.field(r, "", k, Kind::Number);

@@ -201,6 +201,10 @@ void Sequencer::step(const Event& e, std::vector<Command>& out) {
           if (finished(phase_) || stopping_) return;
           const std::string why = "stopped by " + ev.name;
           if (phase_ == Phase::Idle) return;
+          if (phase_ == Phase::Estimate || phase_ == Phase::Report) {
+            if (course_.signal_in_estimate.empty()) course_.signal_in_estimate = ev.name;
+            return;
+          }
           if (may_move_ && !s_.observe) {
             fail(ev.t_s, why + " while the table moved", out, true);
           } else {

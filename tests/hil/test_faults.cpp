@@ -430,6 +430,42 @@ TEST_SUITE("faults") {
     CHECK(err.find("retention: removed the log of run " + old_id) != std::string::npos);
   }
 
+  TEST_CASE(
+      "SIGTERM while the estimate is computed: it is finished and reported, then turncald "
+      "stops") {
+    hil::TempDir dir;
+    write_stand(dir.path, hil::if0());
+    Child sim = start_sim(dir.path, "15", {"--state-out", "stand.json"});
+    Child daemon = start_daemon(dir.path);
+    REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+    const std::string id = start_run(dir.path);
+    // the status, asked on the control socket every 2 ms until the estimate
+    bool in_estimate = false;
+    for (auto end = std::chrono::steady_clock::now() + 120s;
+         !in_estimate && std::chrono::steady_clock::now() < end; std::this_thread::sleep_for(2ms)) {
+      const std::string st = raw_request(dir.path / "control.sock", "{\"cmd\":\"status\"}\n");
+      in_estimate = st.find("\"phase\":\"estimate\"") != std::string::npos;
+      if (st.find("\"phase\":\"done\"") != std::string::npos) break;
+    }
+    REQUIRE_MESSAGE(in_estimate, "the estimate was never seen under way");
+    daemon.terminate();
+    CHECK(daemon.wait(30000ms) == 0);  // the unit's TimeoutStopSec
+    const json r = report_of(dir.path, id);
+    CAPTURE(r.value("reason", std::string()));
+    CHECK(r["status"] == "done");
+    CHECK(r.contains("estimates"));
+    REQUIRE(r.contains("stop_signal"));
+    CHECK(r["stop_signal"].get<std::string>().find("SIGTERM during the estimate") == 0);
+    for (const json& p : r["phases"])
+      if (p["phase"] == "estimate")
+        MESSAGE("the estimate took " << p["duration_s"] << " s (stand)");
+    const std::string err = slurp(dir.path / "daemon.err");
+    CHECK(err.find("SIGTERM received") != std::string::npos);
+    CHECK(err.find("report written") != std::string::npos);
+    const json st = stand_state(sim, dir.path);
+    CHECK(st["table"]["rate_dps"] == 0.0);
+  }
+
   TEST_CASE("a flood of unknown frames: the heartbeat keeps its period, the run completes") {
     hil::TempDir dir;
     write_stand(dir.path, hil::if0(), false, 40);

@@ -101,6 +101,8 @@ struct ClosedLoop {
   std::optional<est::EstimationResult> result;
   std::optional<run::BuiltInput> input;
   std::string estimation_error;
+  /// Called when the estimate is due, before it is computed (a signal then).
+  std::function<void(double, std::vector<run::OutFrame>&)> before_estimate;
   nlohmann::json written;  ///< the report as the daemon writes it, in the report phase
 
   static run::SequencerSettings settings_of(const Plan& p, const stand::StandSetup& s) {
@@ -166,7 +168,10 @@ struct ClosedLoop {
       }
       if (k % 10 == 0) engine->tick(ns(t), out);
       if (k % 100 == 0 && heartbeat) out.push_back(engine->heartbeat());
-      if (engine->estimation_due()) estimate(t, out);
+      if (engine->estimation_due()) {
+        if (before_estimate) before_estimate(t, out);
+        estimate(t, out);
+      }
       if (engine->report_due()) {
         written =
             run::report_json({}, *engine, input ? &*input : nullptr, result ? &*result : nullptr);
@@ -670,6 +675,21 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(out.empty());
     CHECK(h.phase() == run::Phase::Aborted);
     CHECK(h.course().reason == "stopped by SIGINT");
+
+    // while the estimate is computed: it is finished and reported, and the
+    // report says the signal came then
+    ClosedLoop e(plan, setup_of(plan, 5));
+    e.before_estimate = [&](double t, std::vector<run::OutFrame>& o) {
+      e.engine->signal(ns(t), "SIGTERM", o);
+    };
+    e.run_until(400);
+    CHECK(e.phase() == run::Phase::Done);
+    CHECK(e.course().reason.empty());
+    CHECK(e.course().signal_in_estimate == "SIGTERM");
+    CHECK(e.written.contains("estimates"));
+    REQUIRE(e.written.contains("stop_signal"));
+    CHECK(e.written.at("stop_signal").get<std::string>().find("SIGTERM during the estimate") == 0);
+    CHECK(run::check_report(e.written).empty());
   }
 
   TEST_CASE("a profile beyond the configured limits is refused before any command") {

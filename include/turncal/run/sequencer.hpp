@@ -197,6 +197,9 @@ struct Course {
   bool quick_stop_gave_up = false;
   std::vector<double> turn_commanded_s;  ///< host time of each turn command (observe: its start)
   double heading_given_rad = NAN;        ///< in the INS command
+  /// A stop signal that came while the estimate was computed: the table at
+  /// rest and the record whole, the estimate is finished and reported first.
+  std::string signal_in_estimate;
 };
 
 class Sequencer {
