@@ -866,7 +866,9 @@ void Daemon::reap_clients() {
            std::to_string(static_cast<int>(cfg.daemon.client_idle_s)) + " s");
       c->broken = true;
     } else if (!c->watching && c->out.empty() && now - c->last_request_us > idle) {
-      c->broken = true;  // connected, asking nothing
+      info("control client dropped: no request for " +
+           std::to_string(static_cast<int>(cfg.daemon.client_idle_s)) + " s");
+      c->broken = true;
     }
   }
   std::erase_if(clients, [](const auto& c) { return c->done(); });

@@ -40,6 +40,7 @@ class Child {
   }
   Child(const Child&) = delete;
   Child& operator=(const Child&) = delete;
+  [[nodiscard]] pid_t pid() const { return pid_; }
   /// Asks it to stop (SIGTERM).
   void terminate() {
     if (pid_ > 0) ::kill(pid_, SIGTERM);

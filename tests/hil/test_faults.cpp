@@ -3,6 +3,7 @@
 // (the stand's --state-out), the daemon's log (its stderr) and the report.
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
@@ -138,6 +139,82 @@ TEST_SUITE("faults") {
     const std::string log = slurp(dir.path / "daemon.err");
     CHECK(log.find("control connection refused") != std::string::npos);
     CHECK(log.find("report unreadable: estimates.nu0_1.value") != std::string::npos);
+  }
+
+  TEST_CASE(
+      "clients that never read or never ask are dropped; with descriptors exhausted the loop "
+      "pauses accepting, and accepts again") {
+    hil::TempDir dir;
+    write_stand(dir.path, hil::if0());
+    std::ofstream(dir.path / "turncal.toml", std::ios::app) << "client_idle_s = 1\n";
+    Child sim = start_sim(dir.path, "16");
+    Child daemon = start_daemon(dir.path);
+    const hil::fs::path sock = dir.path / "control.sock";
+    REQUIRE(wait_for(sock, 5000ms));
+    auto connect_to = [&] {
+      const int fd = ::socket(AF_UNIX, SOCK_STREAM, 0);
+      sockaddr_un a{};
+      a.sun_family = AF_UNIX;
+      std::strcpy(a.sun_path, sock.c_str());
+      REQUIRE(::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
+      const timeval limit{10, 0};
+      ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &limit, sizeof limit);
+      return fd;
+    };
+    // one asks 2000 statuses (over a megabyte of replies) and reads none;
+    // one connects and asks nothing
+    const int greedy = connect_to();
+    std::string reqs;
+    for (int k = 0; k < 2000; ++k) reqs += "{\"cmd\":\"status\"}\n";
+    REQUIRE(::send(greedy, reqs.data(), reqs.size(), MSG_NOSIGNAL) ==
+            static_cast<ssize_t>(reqs.size()));
+    const int silent = connect_to();
+    std::this_thread::sleep_for(3000ms);
+    char c;
+    CHECK(::recv(silent, &c, 1, 0) == 0);  // closed by the daemon
+    std::size_t replies = 0;
+    std::string buf(65536, '\0');
+    for (ssize_t n; (n = ::recv(greedy, buf.data(), buf.size(), 0)) > 0;)
+      replies += static_cast<std::size_t>(std::count(buf.begin(), buf.begin() + n, '\n'));
+    CHECK(replies < 2000);  // the rest were never sent: it was dropped
+    MESSAGE("the client that did not read got " << replies << " of 2000 replies");
+    ::close(greedy);
+    ::close(silent);
+    CHECK(ctl(dir.path, {"status"}) == 0);
+
+    // descriptors: the daemon's limit set to what it has open and two more
+    std::size_t open_fds = 0;
+    for (const auto& e :
+         hil::fs::directory_iterator("/proc/" + std::to_string(daemon.pid()) + "/fd")) {
+      (void)e;
+      ++open_fds;
+    }
+    const std::string lim = std::to_string(open_fds + 2);
+    REQUIRE(std::system(
+                ("prlimit --pid " + std::to_string(daemon.pid()) + " --nofile=" + lim + ":" + lim)
+                    .c_str()) == 0);
+    std::vector<int> held;
+    for (int k = 0; k < 6; ++k) held.push_back(connect_to());  // the backlog takes them
+    std::this_thread::sleep_for(3500ms);
+    const std::string err = slurp(dir.path / "daemon.err");
+    std::size_t pauses = 0;
+    for (std::size_t at = 0;
+         (at = err.find("cannot accept a control connection: Too many open files", at)) !=
+         std::string::npos;
+         ++at)
+      ++pauses;
+    MESSAGE(pauses << " pauses in 3.5 s");
+    CHECK(pauses >= 2);
+    CHECK(pauses <= 5);  // one a second: the loop does not spin on the listener
+    for (const int fd : held) ::close(fd);
+    std::this_thread::sleep_for(2500ms);  // the idle ones go; accepting resumes
+    CHECK(ctl(dir.path, {"status"}) == 0);
+    daemon.terminate();
+    CHECK(daemon.wait(10000ms) == 0);
+    const std::string log = slurp(dir.path / "daemon.err");
+    CHECK(log.find("control client dropped: its replies were left unread for 1 s") !=
+          std::string::npos);
+    CHECK(log.find("control client dropped: no request for 1 s") != std::string::npos);
   }
 
   TEST_CASE(
