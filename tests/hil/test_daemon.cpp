@@ -22,6 +22,8 @@ using hil::Child;
 using namespace std::chrono_literals;
 using namespace hil::stand;
 
+constexpr int kHeartbeatLostFault = 1;  // can-icd.md: TBL_Status Fault
+
 TEST_SUITE("daemon") {
   TEST_CASE("turncald runs a short experiment through turncalctl; an observer replays its log") {
     hil::TempDir dir;
@@ -227,7 +229,7 @@ TEST_SUITE("daemon") {
       "SIGTERM during the turn: quick stop, then a clean exit; SIGKILL: reported next start") {
     hil::TempDir dir;
     write_stand(dir.path, hil::if0(), false, 30);
-    Child sim = start_sim(dir.path, "4");
+    Child sim = start_sim(dir.path, "4", {"--state-out", "stand.json"});
     const std::string config = (dir.path / "turncal.toml").string();
     {
       Child daemon({kDaemon, "--config", config}, dir.path);
@@ -248,8 +250,8 @@ TEST_SUITE("daemon") {
     CHECK(r["quick_stop"]["sent"] == true);
     CHECK(r["quick_stop"]["acknowledged"] == true);
 
-    // killed during a hold: the next start reports the run as interrupted,
-    // and its log reads to the end
+    // killed in the turn: the table stops itself on the lost heartbeat; the
+    // next start reports the run as interrupted, and its log reads to the end
     std::string killed;
     {
       hil::fs::remove(dir.path / "control.sock");
@@ -257,10 +259,10 @@ TEST_SUITE("daemon") {
       REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
       REQUIRE(ctl(dir.path, {"--json", "start"}, "start.json") == 0);
       killed = nlohmann::json::parse(slurp(dir.path / "start.json"))["run_id"];
-      REQUIRE(wait_phase(dir.path, "hold", 60000ms));
-      std::this_thread::sleep_for(1000ms);
+      REQUIRE(wait_phase(dir.path, "turn", 60000ms));
       // the destructor of a running Child sends SIGKILL
     }
+    std::this_thread::sleep_for(1000ms);  // the table's heartbeat timeout: 0.5 s at 4x
     hil::fs::remove(dir.path / "control.sock");
     Child daemon({kDaemon, "--config", config}, dir.path);
     REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
@@ -273,11 +275,15 @@ TEST_SUITE("daemon") {
     CHECK(entry["status"] == "interrupted");
     const auto ir = nlohmann::json::parse(slurp(dir.path / "state" / (killed + ".report.json")));
     const std::uint64_t records = log_records(dir.path / "state" / (killed + ".log"));
-    CHECK(records > 1000);  // prepare, alignment and part of a hold
+    CHECK(records > 1000);  // prepare, alignment, a hold and part of the turn
     CHECK(ir["log"]["lines"].get<std::uint64_t>() == records);
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
     sim.terminate();
-    sim.wait(5000ms);
+    CHECK(sim.wait(10000ms) == 0);
+    const auto st = nlohmann::json::parse(slurp(dir.path / "stand.json"));
+    CHECK(st["table"]["state"] == 5);  // quick-stopped, by itself
+    CHECK(st["table"]["fault"] == kHeartbeatLostFault);
+    CHECK(st["table"]["rate_dps"] == 0.0);
   }
 }
