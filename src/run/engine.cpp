@@ -42,6 +42,8 @@ Plausibility plausibility_of(const Config& cfg) {
   p.max_velocity_mps = cfg.can.max_ins_velocity_mps;
   p.max_table_rate_rps = 2 * cfg.stand.limits.max_rate_rps;
   p.max_fraction = cfg.can.implausible_fraction;
+  // the host's scheduling latency, as for staleness, in stand time
+  p.step_slack_s = std::max(0.05, cfg.daemon.stale_floor_ms * 1e-3) * cfg.stand.time_scale;
   return p;
 }
 

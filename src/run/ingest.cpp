@@ -238,6 +238,16 @@ double StreamHealth::rate_hz() const {
   return frames < 2 || !(span > 0) ? 0.0 : static_cast<double>(frames - 1) / span;
 }
 
+/// A step from one encoder sample to another the table can make: at most
+/// its rate over the host time between them and the slack, plus two counts
+/// of the angle signal's resolution.
+bool Ingest::plausible_step(double from_host, double from_angle, double host, double angle) const {
+  const double dt = std::max(0.0, host - from_host) + plausible_.step_slack_s;
+  const double resolution =
+      2 * std::abs(roles_[Role::EncoderAngle].signal->factor) * std::numbers::pi / 180;
+  return std::abs(angle - from_angle) <= plausible_.max_table_rate_rps * dt + resolution;
+}
+
 Ingest::Ingest(const can::Database& db, const RoleMap& roles, Plausibility plausibility)
     : plausible_(plausibility), roles_(roles), codec_(db), values_(64) {
   health_[kVelocity].name = "ins-velocity";
@@ -279,7 +289,17 @@ Sample Ingest::implausible(Stream s) {
   return {};
 }
 
+Plausibility Plausibility::none() {
+  Plausibility p;
+  p.max_velocity_mps = std::numeric_limits<double>::infinity();
+  p.max_table_rate_rps = std::numeric_limits<double>::infinity();
+  p.max_fraction = 1;
+  p.dbc_ranges = false;
+  return p;
+}
+
 bool Ingest::in_range(Role r, double value) const {
+  if (!plausible_.dbc_ranges) return true;
   const can::Signal& sig = *roles_[r].signal;
   if (sig.minimum == 0 && sig.maximum == 0) return true;  // as vendor files write "none"
   // the DBC's range is in its decimal text: a value at its end may differ
@@ -361,15 +381,23 @@ Sample Ingest::on_frame(const can::TimedFrame& f) {
     AngleUnwrap unwrap = angle_;
     const double t = tags(tag);
     const double a = unwrap(angle * std::numbers::pi / 180);
-    const double dt = t - last_encoder_t_;
-    if (dt > 0 && std::abs(a - last_encoder_angle_) > plausible_.max_table_rate_rps * dt)
-      return implausible(kEncoder);
+    if (!std::isnan(last_encoder_host_) &&
+        !plausible_step(last_encoder_host_, last_encoder_angle_, host, a)) {
+      // refused; but refused samples that agree with each other, several in
+      // a row, say the reference was the garbled one
+      refused_run_ = refused_run_ > 0 && plausible_step(refused_host_, refused_angle_, host, a)
+                         ? refused_run_ + 1
+                         : 1;
+      refused_host_ = host;
+      refused_angle_ = a;
+      if (refused_run_ < kReanchor) return implausible(kEncoder);
+      ++counters_.encoder_reanchored;
+    }
+    refused_run_ = 0;
     enc_tag_ = tags;
     angle_ = unwrap;
-    if (!(dt <= 0)) {  // the first, or in order: the next step is from here
-      last_encoder_t_ = t;
-      last_encoder_angle_ = a;
-    }
+    last_encoder_host_ = host;
+    last_encoder_angle_ = a;
     saw(kEncoder, host, t);
     clock_sample(table_clock_, t, host);
     return EncoderSample{t, host, a};

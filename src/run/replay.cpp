@@ -122,14 +122,16 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
       live_number(live, "settings", "stale_floor_s")
           .value_or(live != nullptr ? 0.0 : cfg.daemon.stale_floor_ms * 1e-3 * tb.scale);
 
-  // the live run's bounds on what a frame can be (none before reports
-  // carried them: the config's)
-  Plausibility pl = plausibility_of(cfg);
+  // the live run's bounds on what a frame can be; a run from before reports
+  // carried them checked nothing, and neither does its replay
+  Plausibility pl = live != nullptr && !live->contains("plausibility") ? Plausibility::none()
+                                                                       : plausibility_of(cfg);
   pl.max_velocity_mps =
       live_number(live, "plausibility", "max_velocity_mps").value_or(pl.max_velocity_mps);
   pl.max_table_rate_rps =
       live_number(live, "plausibility", "max_table_rate_rps").value_or(pl.max_table_rate_rps);
   pl.max_fraction = live_number(live, "plausibility", "max_fraction").value_or(pl.max_fraction);
+  pl.step_slack_s = live_number(live, "plausibility", "step_slack_s").value_or(pl.step_slack_s);
   Engine engine(db, roles, plan, q, b, tb, pl);
   std::vector<OutFrame> sent;  // observe mode sends nothing; kept for the interface
   engine.start(tb.epoch_us * 1000, sent);

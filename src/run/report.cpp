@@ -253,7 +253,8 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
   // what a replay needs besides the log and the profile to see what this run saw
   j["plausibility"] = {{"max_velocity_mps", engine.plausibility().max_velocity_mps},
                        {"max_table_rate_rps", engine.plausibility().max_table_rate_rps},
-                       {"max_fraction", engine.plausibility().max_fraction}};
+                       {"max_fraction", engine.plausibility().max_fraction},
+                       {"step_slack_s", engine.plausibility().step_slack_s}};
   j["settings"] = {{"heading_offset_rad", seq.settings().heading_offset_rad},
                    {"observe", seq.settings().observe},
                    {"stale_floor_s", seq.settings().stale_floor_s},
@@ -274,6 +275,7 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
       {"encoder_tags_dropped", engine.record().encoder_tags().dropped()},
       {"clock_late_frames", in.ins_clock().late() + in.table_clock().late()},
       {"half_velocity_pairs", in.counters().half_pairs},
+      {"encoder_reanchored", in.counters().encoder_reanchored},
       {"ins_clock_rate_ppm", in.ins_clock().rate_ppm()},
       {"table_clock_rate_ppm", in.table_clock().rate_ppm()},
       {"ins_clock_rms_s", in.ins_clock().rms_s()},

@@ -2,6 +2,7 @@
 #include <doctest/doctest.h>
 
 #include <cmath>
+#include <limits>
 #include <numbers>
 #include <random>
 
@@ -196,6 +197,12 @@ TEST_SUITE("ingest") {
     in3.on_frame(none.vel(20, true, tag, 50.0));
     CHECK(std::holds_alternative<VelocitySample>(in3.on_frame(none.vel(20, false, tag, 0.0))));
     CHECK(in3.health(kVelocity).implausible == 0);
+    // no checks (the replay of a run recorded before turncal checked
+    // frames): the bound and the DBC's range both pass
+    Ingest in4(ranged.db, ranged.roles, Plausibility::none());
+    in4.on_frame(ranged.vel(30, true, tag, 150.0));
+    CHECK(std::holds_alternative<VelocitySample>(in4.on_frame(ranged.vel(30, false, tag, 0.0))));
+    CHECK(in4.health(kVelocity).implausible == 0);
   }
 
   TEST_CASE("an encoder step faster than the table can turn is skipped, and turns nothing") {
@@ -224,6 +231,57 @@ TEST_SUITE("ingest") {
     CHECK(in.health(kEncoder).implausible == 2);
     // the multi-turn angle goes on from before the garble: 350 + 14.85 deg
     CHECK(last * 180 / std::numbers::pi == doctest::Approx(364.85).epsilon(1e-9));
+  }
+
+  TEST_CASE("the encoder step is judged on host time: a garbled tag, a garbled first sample") {
+    Ref r;
+    Plausibility p;
+    p.max_table_rate_rps = 60 * std::numbers::pi / 180;
+    p.step_slack_s = 0.05;
+    // host time, device tag and angle of each frame (the angle signal's
+    // resolution is 8.4e-8 deg: a relative 1e-7 is a few counts)
+    auto run = [&](Ingest& in, double host, double tag_s, double deg) {
+      const Sample s = in.on_frame(r.at(
+          host, r.roles.encode(Role::EncoderAngle,
+                               {{Role::EncoderAngle, deg}, {Role::EncoderTimeTag, tag_s * 1e6}})));
+      const auto* e = std::get_if<EncoderSample>(&s);
+      return e == nullptr ? std::numeric_limits<double>::quiet_NaN()
+                          : e->angle_rad * 180 / std::numbers::pi;
+    };
+    SUBCASE("a tag garbled far ahead does not open the door to a garbled angle") {
+      Ingest in(r.db, r.roles, p);
+      for (int k = 0; k < 10; ++k) CHECK(run(in, 10 + 0.005 * k, 1 + 0.005 * k, 10 + 0.1 * k) > 0);
+      (void)run(in, 10.050, 1000, 11.0);                 // the tag 1000 s ahead
+      CHECK(std::isnan(run(in, 10.055, 1.055, 100.0)));  // 89 deg in 5 ms: refused
+      CHECK(run(in, 10.060, 1.060, 11.2) == doctest::Approx(11.2).epsilon(1e-7));
+      CHECK(in.health(kEncoder).implausible == 1);
+    }
+    SUBCASE("frames that queued arrive together: steps of their period, no host time") {
+      Ingest in(r.db, r.roles, p);
+      // 50 deg/s (under the 60 deg/s allowed), 10 frames in one host instant
+      int kept = 0;
+      for (int k = 0; k < 10; ++k) kept += run(in, 20.0, 1 + 0.005 * k, 0.25 * k) >= 0;
+      CHECK(kept == 10);
+      CHECK(in.health(kEncoder).implausible == 0);
+    }
+    SUBCASE("a garbled first sample: the samples after it agree, and replace it") {
+      Ingest in(r.db, r.roles, p);
+      CHECK(run(in, 10.000, 1.000, 95.0) == doctest::Approx(95.0).epsilon(1e-7));  // 90 off
+      CHECK(std::isnan(run(in, 10.005, 1.005, 5.05)));
+      CHECK(std::isnan(run(in, 10.010, 1.010, 5.10)));
+      CHECK(run(in, 10.015, 1.015, 5.15) == doctest::Approx(5.15).epsilon(1e-7));  // the third
+      CHECK(run(in, 10.020, 1.020, 5.20) == doctest::Approx(5.20).epsilon(1e-7));
+      CHECK(in.health(kEncoder).implausible == 2);
+      CHECK(in.counters().encoder_reanchored == 1);
+    }
+    SUBCASE("refused samples that disagree with each other never replace the reference") {
+      Ingest in(r.db, r.roles, p);
+      CHECK(run(in, 10.000, 1.000, 5.0) >= 0);
+      for (int k = 1; k <= 6; ++k)
+        CHECK(std::isnan(run(in, 10 + 0.005 * k, 1 + 0.005 * k, 5.0 + 40.0 * k)));
+      CHECK(in.counters().encoder_reanchored == 0);
+      CHECK(run(in, 10.040, 1.040, 5.4) == doctest::Approx(5.4).epsilon(1e-7));
+    }
   }
 
   TEST_CASE("table status carries the fault's name from the DBC's value table") {

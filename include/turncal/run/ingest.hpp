@@ -229,12 +229,25 @@ struct IngestCounters {
   std::uint64_t ignored = 0;         ///< known, but no role of turncal's
   std::uint64_t clock_outliers = 0;  ///< time tags off their clock fit by over 50 ms
   std::uint64_t half_pairs = 0;      ///< a velocity frame whose other half never came
+  /// Encoder references given up: several samples in a row agreed with
+  /// each other and not with it (a garbled sample had become it).
+  std::uint64_t encoder_reanchored = 0;
 };
 
 /// What a frame's values can be; beyond it a frame is garbled, not data.
 struct Plausibility {
   double max_velocity_mps = 1000;  ///< either INS velocity component, |v|
   double max_table_rate_rps = std::numeric_limits<double>::infinity();  ///< encoder steps
+  /// An encoder step is judged on host receive times (a garbled device tag
+  /// cannot stretch it) with this much more time allowed, host s: frames
+  /// that queued and arrive together are steps of their device period
+  /// with almost no host time between them.
+  double step_slack_s = 0.05;
+  /// Values outside their DBC signal's [min|max] are implausible.
+  bool dbc_ranges = true;
+  /// No check at all: what a run recorded before turncal checked frames
+  /// did, for its replay.
+  static Plausibility none();
   /// A stream with more than this fraction of its frames implausible (once
   /// it has 100), or 5 on end (before it is called lost for them), fails
   /// the run: the engine's check.
@@ -270,7 +283,15 @@ class Ingest {
   /// Within the DBC's [min|max] of the role's signal ([0|0]: no range).
   [[nodiscard]] bool in_range(Role r, double value) const;
   Plausibility plausible_;
-  double last_encoder_t_ = NAN, last_encoder_angle_ = NAN;
+  double last_encoder_host_ = NAN, last_encoder_angle_ = NAN;
+  /// Encoder samples refused in a row that agree with each other: when
+  /// kReanchor of them do, the reference they were refused against was
+  /// the bad one (a garbled first sample), and the latest becomes it.
+  int refused_run_ = 0;
+  double refused_host_ = NAN, refused_angle_ = NAN;
+  static constexpr int kReanchor = 3;
+  [[nodiscard]] bool plausible_step(double from_host, double from_angle, double host,
+                                    double angle) const;
   void clock_sample(ClockFit& fit, double device_s, double host_s);
   const RoleMap& roles_;
   can::FrameCodec codec_;
