@@ -173,7 +173,8 @@ void Engine::on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out) {
   } else if (const auto* ts = std::get_if<TableStatusSample>(&s)) {
     live_.table_state = ts->state;
     live_.table_rate_rps = ts->rate_rps;
-    feed(TableStatusEvent{ts->host_s, ts->state, ts->ack, ts->fault, ts->fault_name}, out);
+    feed(TableStatusEvent{ts->host_s, ts->state, ts->ack, ts->fault, ts->fault_name, ts->rate_rps},
+         out);
   }
 }
 

@@ -37,7 +37,8 @@ constexpr int code(InsMode m) {
   return static_cast<int>(m);
 }
 constexpr int kHolding = code(TableState::Holding), kInPosition = code(TableState::InPosition),
-              kFault = code(TableState::Fault), kQuickStopped = code(TableState::QuickStopped);
+              kFault = code(TableState::Fault), kQuickStopped = code(TableState::QuickStopped),
+              kMoving = code(TableState::Moving);
 constexpr int kAligning = code(InsMode::Aligning), kNavigating = code(InsMode::Navigating),
               kInsFault = code(InsMode::Fault);
 
@@ -361,10 +362,13 @@ void Sequencer::on_table(const TableStatusEvent& e, std::vector<Command>& out) {
   const bool acked = awaiting_ack_ && e.ack == *awaiting_ack_;
   if (acked) awaiting_ack_.reset();
   if (stopping_) {
-    // any of our quick stops acknowledged, or the table at rest in quick stop
+    // done when the table says it stopped: one of our quick stops
+    // acknowledged, the table not moving, and its own rate at rest (an
+    // acknowledgement alone is a table that has begun to stop)
     const bool stop_acked = static_cast<std::uint8_t>(e.ack - stop_first_seq_) <=
                             static_cast<std::uint8_t>(seq_ - stop_first_seq_);
-    if (acked || (stop_acked && (e.state == kQuickStopped || e.state == kFault))) {
+    const bool at_rest = std::isnan(e.rate_rps) || std::abs(e.rate_rps) < kTableAtRestRps;
+    if ((acked || stop_acked) && e.state != kMoving && at_rest) {
       course_.quick_stop_acked = true;
       stopping_ = false;
       may_move_ = false;

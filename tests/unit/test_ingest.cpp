@@ -348,6 +348,33 @@ TEST_SUITE("sequencer") {
     CHECK(q.course().quick_stops_sent == 20);
     CHECK(q.course().reason.find("sent 20 times") != std::string::npos);
   }
+
+  TEST_CASE("a quick stop is done when the table says it stopped, not when it acknowledged") {
+    SequencerSettings s;
+    s.profile = classic_profile(600, 300, std::numbers::pi, 0.5, 0.5);
+    s.table_seq_base = 41;
+    Sequencer q(s);
+    std::vector<Command> out;
+    q.step(StartRequest{1}, out);  // enable, 42, never acknowledged
+    out.clear();
+    q.step(Tick{2.5}, out);  // the quick stop, 43
+    REQUIRE(out.size() == 1);
+    const std::uint8_t stop = std::get<TableCommand>(out[0]).seq;
+    CHECK(stop == 43);
+    // acknowledged, but still moving: not stopped
+    q.step(TableStatusEvent{2.55, 2, stop, 0, "", 0.3}, out);
+    CHECK(q.host_state() == 2);
+    // quick-stopped, but its rate not yet at rest: decelerating
+    q.step(TableStatusEvent{2.60, 5, stop, 0, "", 0.05}, out);
+    CHECK(q.host_state() == 2);
+    CHECK_FALSE(q.course().quick_stop_acked);
+    CHECK(q.phase() != Phase::Failed);
+    // at rest: done
+    q.step(TableStatusEvent{2.65, 5, stop, 0, "", 0.0}, out);
+    CHECK(q.course().quick_stop_acked);
+    CHECK(q.phase() == Phase::Failed);
+    CHECK(q.course().quick_stops_sent == 1);
+  }
 }
 
 #include "turncal/run/report.hpp"

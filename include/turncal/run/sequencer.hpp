@@ -119,7 +119,11 @@ struct TableStatusEvent {
   int ack;
   int fault;
   std::string fault_name;
+  double rate_rps = NAN;  ///< the table's own rate; NaN: not known
 };
+
+/// A table rate below this, rad/s (0.057 deg/s), is a table at rest.
+inline constexpr double kTableAtRestRps = 1e-3;
 struct EncoderEvent {
   double t_s;
   double angle_rad;  ///< multi-turn
