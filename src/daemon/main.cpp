@@ -822,11 +822,16 @@ std::string Daemon::space_shortfall(double frames_per_s, double bytes_per_frame,
   char b[400];
   std::snprintf(b, sizeof b,
                 "the state directory %s has %.2f MiB free; the run needs %.2f MiB: %.2f MiB of "
-                "log (%.0f s more at the %.0f frames/s the bus has had) and %.2f MiB kept for "
-                "its report",
+                "log (%.0f s more at the %.0f frames/s the bus has had)",
                 state->path().c_str(), static_cast<double>(*free) / kMiB, need / kMiB,
-                log_bytes / kMiB, real_s, frames_per_s, static_cast<double>(also) / kMiB);
-  return b;
+                log_bytes / kMiB, real_s, frames_per_s);
+  std::string why = b;
+  if (also > 0) {
+    std::snprintf(b, sizeof b, " and %.2f MiB kept for its report",
+                  static_cast<double>(also) / kMiB);
+    why += b;
+  }
+  return why;
 }
 
 /// Once a run has its own frame rate (3 s in), the log it will still write

@@ -10,11 +10,13 @@
 #include <unistd.h>
 
 #include <chrono>
+#include <cstdlib>
 #include <cstring>
 #include <fstream>
 #include <sstream>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "hil.hpp"
@@ -110,13 +112,32 @@ inline hil::Child start_sim(const hil::fs::path& dir, const std::string& seed = 
   return hil::Child(args, dir);
 }
 
-/// Sends raw bytes to the control socket; the first reply line.
-inline std::string raw_request(const hil::fs::path& sock, const std::string& bytes) {
+/// A connection to the control socket, whose reads give up after 10 s (a
+/// reply cut short leaves no test waiting for ever).
+inline int connect_control(const hil::fs::path& sock) {
   const int fd = ::socket(AF_UNIX, SOCK_STREAM, 0);
   sockaddr_un a{};
   a.sun_family = AF_UNIX;
   std::strcpy(a.sun_path, sock.c_str());
   REQUIRE(::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
+  const timeval limit{10, 0};
+  ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &limit, sizeof limit);
+  return fd;
+}
+
+/// A shell command run when it goes out of scope: a test's mounts and
+/// devices undone however the test ends.
+struct AtExit {
+  std::string cmd;
+  explicit AtExit(std::string c) : cmd(std::move(c)) {}
+  AtExit(const AtExit&) = delete;
+  AtExit& operator=(const AtExit&) = delete;
+  ~AtExit() { (void)!std::system(cmd.c_str()); }
+};
+
+/// Sends raw bytes to the control socket; the first reply line.
+inline std::string raw_request(const hil::fs::path& sock, const std::string& bytes) {
+  const int fd = connect_control(sock);
   (void)!::send(fd, bytes.data(), bytes.size(), MSG_NOSIGNAL);
   std::string out;
   char c;

@@ -128,13 +128,7 @@ TEST_SUITE("daemon") {
     // replies larger than the socket takes at once arrive whole: 60 reports
     // asked at once (some 2 MB) and read only then
     {
-      const int fd = ::socket(AF_UNIX, SOCK_STREAM, 0);
-      sockaddr_un a{};
-      a.sun_family = AF_UNIX;
-      std::strcpy(a.sun_path, (dir.path / "control.sock").c_str());
-      REQUIRE(::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
-      const timeval limit{10, 0};  // a reply cut short would leave recv waiting
-      ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &limit, sizeof limit);
+      const int fd = connect_control(dir.path / "control.sock");
       std::string reqs;
       for (int k = 0; k < 60; ++k) reqs += "{\"cmd\":\"report\",\"run_id\":\"" + id + "\"}\n";
       REQUIRE(::send(fd, reqs.data(), reqs.size(), MSG_NOSIGNAL) ==

@@ -108,14 +108,7 @@ TEST_SUITE("faults") {
               .find("expected the name of a plan") != std::string::npos);
     // more connections than allowed: the extra one is told why; the others work
     std::vector<int> held;
-    for (int k = 0; k < 16; ++k) {
-      const int fd = ::socket(AF_UNIX, SOCK_STREAM, 0);
-      sockaddr_un a{};
-      a.sun_family = AF_UNIX;
-      std::strcpy(a.sun_path, sock.c_str());
-      REQUIRE(::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
-      held.push_back(fd);
-    }
+    for (int k = 0; k < 16; ++k) held.push_back(connect_control(sock));
     std::this_thread::sleep_for(300ms);  // accepted
     CHECK(raw_request(sock, "{\"cmd\":\"status\"}\n").find("too many control connections") !=
           std::string::npos);
@@ -151,24 +144,14 @@ TEST_SUITE("faults") {
     Child daemon = start_daemon(dir.path);
     const hil::fs::path sock = dir.path / "control.sock";
     REQUIRE(wait_for(sock, 5000ms));
-    auto connect_to = [&] {
-      const int fd = ::socket(AF_UNIX, SOCK_STREAM, 0);
-      sockaddr_un a{};
-      a.sun_family = AF_UNIX;
-      std::strcpy(a.sun_path, sock.c_str());
-      REQUIRE(::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
-      const timeval limit{10, 0};
-      ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &limit, sizeof limit);
-      return fd;
-    };
     // one asks 2000 statuses (over a megabyte of replies) and reads none;
     // one connects and asks nothing
-    const int greedy = connect_to();
+    const int greedy = connect_control(sock);
     std::string reqs;
     for (int k = 0; k < 2000; ++k) reqs += "{\"cmd\":\"status\"}\n";
     REQUIRE(::send(greedy, reqs.data(), reqs.size(), MSG_NOSIGNAL) ==
             static_cast<ssize_t>(reqs.size()));
-    const int silent = connect_to();
+    const int silent = connect_control(sock);
     std::this_thread::sleep_for(3000ms);
     char c;
     CHECK(::recv(silent, &c, 1, 0) == 0);  // closed by the daemon
@@ -194,7 +177,7 @@ TEST_SUITE("faults") {
                 ("prlimit --pid " + std::to_string(daemon.pid()) + " --nofile=" + lim + ":" + lim)
                     .c_str()) == 0);
     std::vector<int> held;
-    for (int k = 0; k < 6; ++k) held.push_back(connect_to());  // the backlog takes them
+    for (int k = 0; k < 6; ++k) held.push_back(connect_control(sock));  // the backlog takes them
     std::this_thread::sleep_for(3500ms);
     const std::string err = slurp(dir.path / "daemon.err");
     std::size_t pauses = 0;
@@ -317,10 +300,7 @@ TEST_SUITE("faults") {
     hil::fs::create_directories(dir.path / "state");
     const std::string state = (dir.path / "state").string();
     REQUIRE(std::system(("mount -t tmpfs -o size=3m tmpfs " + state).c_str()) == 0);
-    struct Unmount {
-      std::string at;
-      ~Unmount() { (void)!std::system(("umount " + at).c_str()); }
-    } unmount{state};
+    const AtExit unmount{"umount " + state};
     Child sim = start_sim(dir.path, "9", {"--state-out", "stand.json"});
     Child daemon = start_daemon(dir.path);
     REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
@@ -399,12 +379,9 @@ TEST_SUITE("faults") {
              "/dev dmsetup load tcfail --table \"0 32768 " + t + "\" && DM_DEV_DIR=" + d +
              "/dev dmsetup resume tcfail";
     };
-    struct Teardown {
-      std::string cmd;
-      ~Teardown() { (void)!std::system(cmd.c_str()); }
-    } teardown{"umount -l " + state.string() + "; DM_DEV_DIR=" + d +
-               "/dev dmsetup remove --force tcfail; losetup -d " + d + "/dev/loop7; umount " + d +
-               "/dev"};
+    const AtExit teardown{"umount -l " + state.string() + "; DM_DEV_DIR=" + d +
+                          "/dev dmsetup remove --force tcfail; losetup -d " + d +
+                          "/dev/loop7; umount " + d + "/dev"};
     Child sim = start_sim(dir.path, "14", {"--state-out", "stand.json"});
     Child daemon = start_daemon(dir.path);
     REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
@@ -452,10 +429,7 @@ TEST_SUITE("faults") {
     const hil::fs::path state = dir.path / "state";
     hil::fs::create_directories(state);
     REQUIRE(std::system(("mount -t tmpfs -o size=600k tmpfs " + state.string()).c_str()) == 0);
-    struct Unmount {
-      std::string at;
-      ~Unmount() { (void)!std::system(("umount " + at).c_str()); }
-    } unmount{state.string()};
+    const AtExit unmount{"umount " + state.string()};
     // an old run's log and report: retention takes the log, keeps the report
     const std::string old_id = "20200101T000000Z";
     std::ofstream(state / (old_id + ".log")) << std::string(100000, 'x');

@@ -702,9 +702,9 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(c.course().reason.find("refused before any command: turn 1: rate 30.000 deg/s") == 0);
     CHECK(c.engine->commands_sent() == 0);
     // its report, as a reader finds it on disk (NaN written as null), reads
-    const nlohmann::json on_disk = nlohmann::json::parse(
-        run::report_json({}, *c.engine, nullptr, nullptr)
-            .dump(2, ' ', false, nlohmann::json::error_handler_t::replace));
+    const nlohmann::json on_disk =
+        nlohmann::json::parse(run::report_json({}, *c.engine, nullptr, nullptr)
+                                  .dump(2, ' ', false, nlohmann::json::error_handler_t::replace));
     CHECK(run::check_report(on_disk) == "");
   }
 
