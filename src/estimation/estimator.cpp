@@ -98,6 +98,45 @@ double chi2_quantile(double k, double z) {
   return k * c * c * c;
 }
 
+}  // namespace
+
+/// Q(a, x) by its power series for P (x < a + 1) or its continued fraction
+/// (modified Lentz), the standard pair of expansions of the incomplete
+/// gamma function (Abramowitz and Stegun 6.5.29 and 6.5.31).
+double chi2_survival(double k, double x) {
+  if (!(k > 0) || std::isnan(x)) return NAN;
+  if (x <= 0) return 1.0;
+  const double a = k / 2, z = x / 2;
+  const double log_front = a * std::log(z) - z - std::lgamma(a);
+  constexpr int kMaxTerms = 10000;
+  constexpr double kEps = 1e-15;
+  if (z < a + 1) {
+    double term = 1 / a, sum = term;
+    for (int n = 1; n < kMaxTerms && std::abs(term) > kEps * std::abs(sum); ++n) {
+      term *= z / (a + n);
+      sum += term;
+    }
+    return std::clamp(1 - sum * std::exp(log_front), 0.0, 1.0);
+  }
+  constexpr double kTiny = 1e-300;
+  double b = z + 1 - a, c = 1 / kTiny, d = 1 / b, h = d;
+  for (int n = 1; n < kMaxTerms; ++n) {
+    const double an = -n * (n - a);
+    b += 2;
+    d = an * d + b;
+    if (std::abs(d) < kTiny) d = kTiny;
+    c = b + an / c;
+    if (std::abs(c) < kTiny) c = kTiny;
+    d = 1 / d;
+    const double step = d * c;
+    h *= step;
+    if (std::abs(step - 1) < kEps) break;
+  }
+  return std::clamp(std::exp(log_front) * h, 0.0, 1.0);
+}
+
+namespace {
+
 constexpr double kZ975 = 1.959963984540054;
 constexpr double kZ95 = 1.6448536269514722;
 
@@ -131,6 +170,8 @@ InnovationStats innovation_stats(const std::vector<Innovation>& innov, int lags)
       q += rho * rho / (n - l);
     }
     s.ljung_box[static_cast<std::size_t>(c)] = n * (n + 2) * q;
+    s.ljung_box_p[static_cast<std::size_t>(c)] =
+        chi2_survival(s.lags, s.ljung_box[static_cast<std::size_t>(c)]);
   }
   s.ljung_box_limit = chi2_quantile(s.lags, kZ95);
   return s;

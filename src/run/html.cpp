@@ -12,6 +12,7 @@
 
 #include "text_format.hpp"
 #include "turncal/config.hpp"
+#include "turncal/run/report.hpp"
 #include "turncal/run/thin.hpp"
 
 namespace turncal::run {
@@ -244,7 +245,8 @@ std::string parameter_table(const json& r) {
   // pass/fail per parameter, from the verdict
   json verdict = json::object();
   for (const auto& c : r["verdict"].value("checks", json::array()))
-    verdict[c.value("parameter", std::string())] = c.value("pass", false);
+    verdict[c.value("parameter", std::string())] =
+        c.value("tested", true) ? json(c.value("pass", false)) : json("not tested");
   std::string o =
       "<h2>Parameters</h2><table class=\"params\"><thead><tr><th>parameter</th><th>estimate</th>"
       "<th>sigma</th><th>prior sigma</th><th>posterior/prior</th><th>unit</th><th>tolerance</th>"
@@ -253,17 +255,28 @@ std::string parameter_table(const json& r) {
     const auto [unit, k] = display_unit(name);
     const double s = e["sigma"].get<double>(), p = e["prior_sigma"].get<double>();
     const double ratio = p > 0 ? s / p : kNaN;
-    std::string cls = ratio < 0.5 ? "estimated" : "";
+    const std::string det = e.value("determined", std::string());
+    const bool undetermined = det == "not determined";
+    std::string cls = ratio < 0.5 ? "estimated" : undetermined ? "undetermined" : "";
     std::string tol = "";
     if (verdict.contains(name)) {
-      const bool ok = verdict[name].get<bool>();
-      cls += ok ? " pass" : " fail";
-      tol = ok ? "pass" : "FAIL";
+      if (verdict[name].is_string()) {
+        tol = "not tested";
+      } else {
+        const bool ok = verdict[name].get<bool>();
+        cls += ok ? " pass" : " fail";
+        tol = ok ? "pass" : "FAIL";
+      }
     }
+    // a parameter the run did not determine has no estimate to show: its
+    // value is the prior's (kept in the JSON)
+    const std::string why = escape(e.value("why", std::string()));
     o += "<tr class=\"" + cls + "\"><td>" + escape(name) + "</td><td>" +
-         number(e["value"].get<double>() * k) + "</td><td>" + number(s * k) + "</td><td>" +
-         number(p * k) + "</td><td>" + number(ratio, "%.3f") + "</td><td>" +
-         escape(std::string(unit)) + "</td><td>" + tol + "</td></tr>";
+         (undetermined ? "<span title=\"" + why + "\">not determined</span>"
+                       : number(e["value"].get<double>() * k)) +
+         "</td><td>" + (undetermined ? std::string("-") : number(s * k)) + "</td><td>" +
+         number(p * k) + "</td><td>" + number(ratio, "%.3f") + (det == "partly" ? " partly" : "") +
+         "</td><td>" + escape(std::string(unit)) + "</td><td>" + tol + "</td></tr>";
   }
   o += "</tbody></table>";
   if (r.contains("combinations") && !r["combinations"].empty()) {
@@ -315,8 +328,8 @@ std::string summary(const json& r) {
     const json& i = r["innovations"];
     item("innovations", fmt("NIS mean %.3f", i.value("nis_mean", 0.0)) +
                             " (95%: " + fmt("%.3f", i["nis_95_interval"][0].get<double>()) +
-                            " to " + fmt("%.3f", i["nis_95_interval"][1].get<double>()) + "), " +
-                            (i.value("white", false) ? "white" : "NOT white"));
+                            " to " + fmt("%.3f", i["nis_95_interval"][1].get<double>()) + "); " +
+                            whiteness_text(i));
   }
   if (r.contains("replay") && r["replay"].is_object() && r["replay"].contains("damage") &&
       r["replay"]["damage"].is_object())

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstring>
+#include <limits>
 #include <numbers>
 
 #include "text_format.hpp"
@@ -152,10 +153,14 @@ Result<FileDigest> sha256_file(const std::string& path) {
 namespace {
 
 json estimate_json(const est::ParameterEstimate& p) {
-  return {{"value", p.value},
-          {"sigma", p.sigma},
-          {"prior_sigma", p.prior_sigma},
-          {"unit", std::string(p.unit)}};
+  const Determination d = determination(p.name, p.sigma, p.prior_sigma);
+  json j = {{"value", p.value},
+            {"sigma", p.sigma},
+            {"prior_sigma", p.prior_sigma},
+            {"unit", std::string(p.unit)},
+            {"determined", d.label}};
+  if (!d.why.empty()) j["why"] = d.why;
+  return j;
 }
 
 json health_json(const StreamHealth& h, double now) {
@@ -169,9 +174,38 @@ json health_json(const StreamHealth& h, double now) {
 
 }  // namespace
 
+Determination determination(std::string_view name, double sigma, double prior_sigma) {
+  const double ratio =
+      prior_sigma > 0 ? sigma / prior_sigma : std::numeric_limits<double>::quiet_NaN();
+  if (ratio < 0.5) return {"determined", ""};
+  const std::string n(name);
+  auto axis = [&](std::size_t at) { return n.size() > at ? n.substr(at, 1) : std::string("?"); };
+  std::string why;
+  if (n.starts_with("theta_") && n.size() == 8 && (n[7] == '1' || n[7] == '2')) {
+    why = "needs a rotation about a horizontal axis";
+  } else if (n == "theta_13" || n == "theta_23") {
+    why = "a turn about the vertical ties it to the accelerometer: only df0_" + axis(6) + " + g G" +
+          axis(6) + "3 - g Theta_" + axis(6) +
+          "3 is seen; parting them needs a rotation about a horizontal axis";
+  } else if (n == "theta_33") {
+    why = "needs net whole revolutions about the vertical (the azimuth jump)";
+  } else if (n.starts_with("df0_") || n == "g13" || n == "g23" || n.starts_with("df_eff_")) {
+    const std::string i = n.starts_with("g") ? axis(1) : n.substr(n.size() - 1);
+    why = "a turn about the vertical sees df0_" + i + " and g G" + i + "3 only as their sum, " +
+          "tied to g Theta_" + i + "3: parting them needs a rotation about a horizontal axis";
+  } else if (n == "r1" || n == "r2") {
+    why = "needs a faster turn, or more turns";
+  } else {
+    why = "the run adds little to the prior: longer holds or more turns";
+  }
+  if (!(ratio <= 0.9)) return {"not determined", why};
+  return {"partly", why};
+}
+
 json judge(const json& estimates, const std::vector<Tolerance>& tolerances) {
   json checks = json::array();
   bool pass = true;
+  int untested = 0;
   for (const Tolerance& t : tolerances) {
     const auto [unit, k] = display_unit(t.parameter);
     json c = {{"parameter", t.parameter}, {"unit", std::string(unit)}};
@@ -179,6 +213,16 @@ json judge(const json& estimates, const std::vector<Tolerance>& tolerances) {
       c["pass"] = false;
       c["why"] = "not estimated";
       pass = false;
+      checks.push_back(c);
+      continue;
+    }
+    const json& e = estimates[t.parameter];
+    if (e.value("determined", std::string()) == "not determined") {
+      // its value is the prior's; a bound on it would pass or fail by chance
+      c["pass"] = true;
+      c["tested"] = false;
+      c["why"] = "not determined by this run: " + e.value("why", std::string());
+      ++untested;
       checks.push_back(c);
       continue;
     }
@@ -193,7 +237,7 @@ json judge(const json& estimates, const std::vector<Tolerance>& tolerances) {
     pass = pass && ok_v && ok_s;
     checks.push_back(c);
   }
-  return {{"pass", pass}, {"checks", checks}};
+  return {{"pass", pass}, {"checks", checks}, {"not_tested", untested}};
 }
 
 json combination_json(const est::Combination& c, bool with_value) {
@@ -337,6 +381,8 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
                         {"ljung_box_lags", s.lags},
                         {"ljung_box", {s.ljung_box[0], s.ljung_box[1]}},
                         {"ljung_box_limit", s.ljung_box_limit},
+                        {"ljung_box_p", {s.ljung_box_p[0], s.ljung_box_p[1]}},
+                        {"alarm_p", est::InnovationStats::kAlarmP},
                         {"white", s.white()},
                         {"degraded_updates", result->degraded_updates}};
     j["verdict"] = judge(e, ctx.tolerances);
@@ -360,6 +406,26 @@ std::optional<double> truth_of(const json& errors, const std::string& name, doub
 }
 
 }  // namespace
+
+std::string whiteness_text(const json& innovations) {
+  const json& i = innovations;
+  // two numbers, as check_report has made sure where the field is there
+  auto pair = [&](const char* k) {
+    return i.contains(k) && i[k].is_array() && i[k].size() == 2 && i[k][0].is_number() &&
+           i[k][1].is_number();
+  };
+  std::string s = "Ljung-Box";
+  if (pair("ljung_box"))
+    s += fmt(" Q %.1f", i["ljung_box"][0].get<double>()) +
+         fmt(", %.1f", i["ljung_box"][1].get<double>()) +
+         fmt(" (%d lags)", i.value("ljung_box_lags", 0));
+  const bool white = i.value("white", false);
+  if (!pair("ljung_box_p")) return s + (white ? ": white" : ": NOT white");  // before p-values
+  const double alarm = i.value("alarm_p", est::InnovationStats::kAlarmP);
+  s += fmt(", p %.3g", i["ljung_box_p"][0].get<double>()) +
+       fmt(", %.3g: ", i["ljung_box_p"][1].get<double>());
+  return s + (white ? "white" : fmt("NOT white (p under %g)", alarm));
+}
 
 std::string report_text(const json& r, const json* truth) {
   const json errors = truth != nullptr ? truth->value("errors", json::object()) : json();
@@ -400,17 +466,31 @@ std::string report_text(const json& r, const json* truth) {
     line("");
     line(std::string("  parameter        estimate        sigma        prior  unit") +
          (truth != nullptr ? "         truth   error/sigma" : ""));
+    std::vector<std::string> undetermined;
     for (const auto& [name, e] : r["estimates"].items()) {
       const auto [unit, k] = display_unit(name);
-      char buf[200];
+      char buf[400];
+      if (e.value("determined", std::string()) == "not determined") {
+        std::snprintf(buf, sizeof buf, "  %-10s %14s %12s %12.4g  %-7s %s", name.c_str(),
+                      "not determined", "", e["prior_sigma"].get<double>() * k,
+                      std::string(unit).c_str(), e.value("why", std::string()).c_str());
+        undetermined.push_back(buf);
+        continue;
+      }
       int n = std::snprintf(buf, sizeof buf, "  %-10s %14.6g %12.4g %12.4g  %-7s", name.c_str(),
                             e["value"].get<double>() * k, e["sigma"].get<double>() * k,
                             e["prior_sigma"].get<double>() * k, std::string(unit).c_str());
+      if (e.value("determined", std::string()) == "partly")
+        n += std::snprintf(buf + n, sizeof buf - static_cast<std::size_t>(n), " partly");
       if (truth != nullptr)
         if (const auto t = truth_of(errors, name, g))
           std::snprintf(buf + n, sizeof buf - static_cast<std::size_t>(n), " %13.6g %+9.2f", *t * k,
                         (e["value"].get<double>() - *t) / e["sigma"].get<double>());
       line(buf);
+    }
+    if (!undetermined.empty()) {
+      line("  not determined by this run (their values are the prior's; kept in the JSON):");
+      for (const std::string& u : undetermined) line(u);
     }
   }
   if (r.contains("combinations") && !r["combinations"].empty()) {
@@ -446,19 +526,24 @@ std::string report_text(const json& r, const json* truth) {
     line("");
     line("  innovations: NIS mean " + fmt("%.3f", i["nis_mean"].get<double>()) +
          " (95%: " + fmt("%.3f", i["nis_95_interval"][0].get<double>()) + " to " +
-         fmt("%.3f", i["nis_95_interval"][1].get<double>()) + "), " +
-         (i["white"].get<bool>() ? "white" : "NOT white"));
+         fmt("%.3f", i["nis_95_interval"][1].get<double>()) + "); " + whiteness_text(i));
   }
   if (r.contains("verdict")) {
     const auto& v = r["verdict"];
     const json checks = v.value("checks", json::array());  // optional (check_report)
-    for (const auto& c : checks)
+    for (const auto& c : checks) {
+      if (!c.value("tested", true)) {
+        line("  not tested " + c["parameter"].get<std::string>() + ": " +
+             c.value("why", std::string()));
+        continue;
+      }
       line("  " + std::string(c["pass"].get<bool>() ? "pass " : "FAIL ") +
            c["parameter"].get<std::string>() +
            (c.contains("value")
                 ? fmt(" = %.4g", c["value"].get<double>()) +
                       fmt(" +- %.3g ", c["sigma"].get<double>()) + c["unit"].get<std::string>()
                 : std::string(": not estimated")));
+    }
     line(std::string("  verdict: ") + (v["pass"].get<bool>() ? "PASS" : "FAIL"));
   }
   return out;
@@ -612,6 +697,7 @@ std::string check_report(const json& r) {
   if (c.field(r, "", "estimates", Kind::Object))
     c.objects(r["estimates"], "estimates", [&](const json& e, const std::string& at) {
       for (const char* k : {"value", "sigma", "prior_sigma"}) c.field(e, at, k, Kind::Number, true);
+      for (const char* k : {"determined", "why"}) c.field(e, at, k, Kind::String);
       c.field(e, at, "unit", Kind::String);
     });
   if (c.field(r, "", "combinations", Kind::Array))
@@ -625,6 +711,12 @@ std::string check_report(const json& r) {
     const json& i = r["innovations"];
     c.field(i, "innovations.", "nis_mean", Kind::Number, true);
     c.field(i, "innovations.", "white", Kind::Boolean, true);
+    c.field(i, "innovations.", "ljung_box_lags", Kind::Integer);
+    c.field(i, "innovations.", "alarm_p", Kind::Number);
+    for (const char* k : {"ljung_box", "ljung_box_p"})
+      if (c.field(i, "innovations.", k, Kind::Array) &&
+          c.each(i[k], std::string("innovations.") + k, Kind::Number) && i[k].size() != 2)
+        c.fail(std::string("innovations.") + k, "expected two numbers");
     if (c.field(i, "innovations.", "nis_95_interval", Kind::Array, true) &&
         c.each(i["nis_95_interval"], "innovations.nis_95_interval", Kind::Number) &&
         i["nis_95_interval"].size() != 2)
@@ -633,10 +725,13 @@ std::string check_report(const json& r) {
   if (c.field(r, "", "verdict", Kind::Object)) {
     const json& v = r["verdict"];
     c.field(v, "verdict.", "pass", Kind::Boolean, true);
+    c.field(v, "verdict.", "not_tested", Kind::Integer);
     if (c.field(v, "verdict.", "checks", Kind::Array))
       c.objects(v["checks"], "verdict.checks", [&](const json& k, const std::string& at) {
         c.field(k, at, "pass", Kind::Boolean, true);
         c.field(k, at, "parameter", Kind::String, true);
+        c.field(k, at, "tested", Kind::Boolean);
+        c.field(k, at, "why", Kind::String);
         if (c.field(k, at, "value", Kind::Number)) {
           c.field(k, at, "sigma", Kind::Number, true);
           c.field(k, at, "unit", Kind::String, true);

@@ -19,7 +19,7 @@ struct MonteCarlo {
   std::array<double, 2> rms_z_df_eff{};
   double nis_mean = 0;  ///< over every innovation of every run
   double nis_lo = 0, nis_hi = 0;
-  int not_white = 0;     ///< runs failing the Ljung-Box test on either axis
+  int not_white = 0;     ///< runs failing the Ljung-Box test at 5% on either axis
   int inconsistent = 0;  ///< runs outside their own NIS interval
   std::size_t degraded = 0;
   std::vector<std::string> errors;
@@ -68,7 +68,9 @@ inline RunZ one_run(const Scenario& s, std::uint64_t seed) {
   const est::InnovationStats& st = r->innovation_stats;
   out.nis_sum = st.nis_mean * static_cast<double>(st.count);
   out.nis_count = st.count;
-  out.white = st.white();
+  // the Ljung-Box test's calibration at 5% on each axis (a white sequence
+  // fails 9.75% of runs), not the report's rare alarm
+  out.white = st.ljung_box_p[0] >= 0.05 && st.ljung_box_p[1] >= 0.05;
   out.consistent = st.consistent();
   out.degraded = r->degraded_updates;
   return out;

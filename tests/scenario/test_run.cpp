@@ -708,6 +708,49 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(run::check_report(on_disk) == "");
   }
 
+  TEST_CASE("the report says what the run determined, and tests no tolerance on the rest") {
+    const LiveRun& l = LiveRun::get();
+    const nlohmann::json& e = l.live.written["estimates"];
+    std::string labels;
+    for (const auto& [name, v] : e.items())
+      labels += name + " " + v["determined"].get<std::string>() + " (" +
+                std::to_string(v["sigma"].get<double>() / v["prior_sigma"].get<double>()) + "); ";
+    MESSAGE(labels);
+    // the label follows posterior/prior, and every label has its reason
+    for (const auto& [name, v] : e.items()) {
+      CAPTURE(name);
+      const double ratio = v["sigma"].get<double>() / v["prior_sigma"].get<double>();
+      const std::string d = v["determined"];
+      CHECK(d == (ratio < 0.5 ? "determined" : ratio <= 0.9 ? "partly" : "not determined"));
+      CHECK(v.contains("why") == (d != "determined"));
+    }
+    // one turn about the vertical: the lever arm and the horizontal gyro
+    // biases are measured; the Theta_.1/.2 terms need another axis
+    for (const char* n : {"r1", "r2", "nu0_1", "nu0_2"}) CHECK(e[n]["determined"] == "determined");
+    for (const char* n : {"theta_11", "theta_12", "theta_21", "theta_22"}) {
+      CHECK(e[n]["determined"] == "not determined");
+      CHECK(e[n]["why"] == "needs a rotation about a horizontal axis");
+    }
+    // a tolerance on a parameter not determined is not tested; on one that
+    // is, it is judged
+    const nlohmann::json v = run::judge(e, {{"theta_11", 1e-9, INFINITY}, {"r1", 1e-9, INFINITY}});
+    CHECK(v["checks"][0]["tested"] == false);
+    CHECK(v["checks"][0]["pass"] == true);
+    CHECK(v["checks"][1]["pass"] == false);  // r1 is not within 1e-9 mm of zero
+    CHECK(v["not_tested"] == 1);
+    CHECK(v["pass"] == false);
+    nlohmann::json r = l.live.written;
+    r["verdict"] = v;
+    CHECK(run::check_report(r) == "");
+    const std::string text = run::report_text(r);
+    CHECK(text.find("not determined by this run") != std::string::npos);
+    CHECK(text.find("not tested theta_11: not determined by this run: needs a rotation") !=
+          std::string::npos);
+    // the innovations' whiteness with its statistics
+    CHECK(text.find("Ljung-Box Q ") != std::string::npos);
+    CHECK(text.find(", p ") != std::string::npos);
+  }
+
   TEST_CASE("replay of the log with the live run's report: the estimation bit for bit") {
     const LiveRun& l = LiveRun::get();
     TempDir dir;

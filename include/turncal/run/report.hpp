@@ -62,10 +62,23 @@ nlohmann::json combination_json(const est::Combination& c, bool with_value);
 /// names, SI), each estimate and combination also shows the injected value
 /// and its error in sigmas.
 std::string report_text(const nlohmann::json& report, const nlohmann::json* truth = nullptr);
+/// The innovations' whiteness in words: the Ljung-Box statistics, their
+/// p-values, and "NOT white" only under the alarm's p-value.
+std::string whiteness_text(const nlohmann::json& innovations);
 
 /// Pass/fail of the estimates against the tolerances: {"pass": bool,
 /// "checks": [...]}; every run passes when there are none.
 nlohmann::json judge(const nlohmann::json& estimates, const std::vector<Tolerance>& tolerances);
+
+/// How much of a parameter a run determined, by its posterior over its
+/// prior standard deviation: "determined" (under 0.5), "partly" (0.5 to
+/// 0.9) or "not determined" (over 0.9), and for the last two why, from
+/// what a turn about the vertical can and cannot tell (model.md, 8).
+struct Determination {
+  std::string label;
+  std::string why;  ///< empty when determined
+};
+Determination determination(std::string_view name, double sigma, double prior_sigma);
 
 /// SHA-256 (FIPS 180-4), fed in pieces of any size.
 class Sha256 {
