@@ -220,21 +220,20 @@ std::string Plot::svg() const {
 constexpr std::array<const char*, 6> kColors = {"#1f77b4", "#d62728", "#2ca02c",
                                                 "#9467bd", "#ff7f0e", "#8c564b"};
 
-/// Parameter groups for the sigma plots: state indices from sx::kNu0.
-struct Group {
-  const char* title;
-  std::vector<int> params;
-};
+}  // namespace
 
-const std::vector<Group>& groups() {
-  static const std::vector<Group> g = {
+const std::vector<SigmaPlotGroup>& sigma_plot_groups() {
+  static const std::vector<SigmaPlotGroup> g = {
       {"Gyro biases: sigma against time", {0, 1, 2}},
       {"Gyro scale and misalignment (Theta): sigma against time", {3, 4, 5, 6, 7, 8, 9, 10, 11}},
-      {"Accelerometer biases and misalignments: sigma against time", {12, 13, 14, 15}},
+      {"Accelerometer biases: sigma against time", {12, 13}},
+      {"Accelerometer misalignments towards the vertical: sigma against time", {14, 15}},
       {"Proof-mass offsets: sigma against time", {16, 17}},
   };
   return g;
 }
+
+namespace {
 
 std::string number(double v, const char* f = "%.6g") {
   return std::isfinite(v) ? fmt(f, v) : std::string("-");
@@ -392,7 +391,7 @@ std::string report_html(const json& r, const BuiltInput* input,
     turns.push_back({t["start_s"].get<double>(), t["end_s"].get<double>()});
   if (input != nullptr && result != nullptr) {
     o += "<h2>Accuracy against time</h2>";
-    for (const Group& g : groups()) {
+    for (const SigmaPlotGroup& g : sigma_plot_groups()) {
       const auto [unit, k] =
           display_unit(est::kParamNames[static_cast<std::size_t>(g.params.front())]);
       Plot p(g.title, "time from t0, s", "sigma, " + std::string(unit), true);

@@ -16,6 +16,7 @@
 #include "turncal/can/candump.hpp"
 #include "turncal/drivers/scripted_host.hpp"
 #include "turncal/run/engine.hpp"
+#include "turncal/run/html.hpp"
 #include "turncal/run/planning.hpp"
 #include "turncal/run/replay.hpp"
 #include "turncal/run/report.hpp"
@@ -749,6 +750,16 @@ TEST_SUITE("run engine on the virtual stand") {
     // the innovations' whiteness with its statistics
     CHECK(text.find("Ljung-Box Q ") != std::string::npos);
     CHECK(text.find(", p ") != std::string::npos);
+    // every sigma plot has one unit on its axis, and shows every parameter
+    std::size_t shown = 0;
+    for (const run::SigmaPlotGroup& g : run::sigma_plot_groups()) {
+      CAPTURE(g.title);
+      const auto unit = display_unit(est::kParamNames[static_cast<std::size_t>(g.params[0])]).first;
+      for (const int p : g.params)
+        CHECK(display_unit(est::kParamNames[static_cast<std::size_t>(p)]).first == unit);
+      shown += g.params.size();
+    }
+    CHECK(shown == est::kParamNames.size());
   }
 
   TEST_CASE("replay of the log with the live run's report: the estimation bit for bit") {

@@ -10,6 +10,7 @@
 
 #include <nlohmann/json.hpp>
 #include <string>
+#include <vector>
 
 #include "turncal/estimation/estimator.hpp"
 #include "turncal/run/record.hpp"
@@ -21,5 +22,13 @@ namespace turncal::run {
 /// page shows the report alone.
 std::string report_html(const nlohmann::json& report, const BuiltInput* input,
                         const est::EstimationResult* result);
+
+/// One plot of sigma against time: parameters (indices from sx::kNu0) that
+/// share one display unit, so the plot has one unit on its axis.
+struct SigmaPlotGroup {
+  const char* title;
+  std::vector<int> params;
+};
+const std::vector<SigmaPlotGroup>& sigma_plot_groups();
 
 }  // namespace turncal::run
