@@ -283,7 +283,8 @@ std::pair<std::string_view, double> display_unit(std::string_view p) {
   if (p.starts_with("theta_") && p.size() == 8 && p[6] >= '1' && p[6] <= '3' && p[7] >= '1' &&
       p[7] <= '3')
     return {"ppm", 1e6};
-  if (p == "df0_1" || p == "df0_2" || p == "df_eff_1" || p == "df_eff_2")
+  if (p == "df0_1" || p == "df0_2" || p == "df_eff_1" || p == "df_eff_2" || p == "df_obs_1" ||
+      p == "df_obs_2")
     return {"ug", 1 / kMicroG};
   if (p == "g13" || p == "g23") return {"ppm", 1e6};
   if (p == "r1" || p == "r2") return {"mm", 1e3};

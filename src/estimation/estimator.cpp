@@ -188,14 +188,20 @@ void interpret(const EstimationInput& in, EstimationResult& r) {
     r.parameters[u] = {kParamNames[u], kParamUnits[u], x(j), std::sqrt(std::max(0.0, p(j, j))),
                        prior(j)};
   }
+  // the model's named combinations (model.md, 8)
+  std::array<ParamVec, 2> obs_dir{};
   for (int i = 0; i < 2; ++i) {
     ParamVec c = ParamVec::Zero();
     c(sx::kDf0 - sx::kNu0 + i) = 1;
     c(sx::kG - sx::kNu0 + i) = e.g;
-    const double prior_var = c.cwiseProduct(prior).squaredNorm();
-    r.df_eff[static_cast<std::size_t>(i)] = {i == 0 ? "df_eff_1" : "df_eff_2", "m/s^2", c.dot(x),
-                                             std::sqrt(std::max(0.0, c.dot(p * c))),
-                                             std::sqrt(prior_var)};
+    auto named = [&](std::string_view name, const ParamVec& v) {
+      return ParameterEstimate{name, "m/s^2", v.dot(x), std::sqrt(std::max(0.0, v.dot(p * v))),
+                               v.cwiseProduct(prior).norm()};
+    };
+    r.df_eff[static_cast<std::size_t>(i)] = named(i == 0 ? "df_eff_1" : "df_eff_2", c);
+    c(sx::theta(i + 1, 3) - sx::kNu0) = -e.g;
+    r.df_obs[static_cast<std::size_t>(i)] = named(i == 0 ? "df_obs_1" : "df_obs_2", c);
+    obs_dir[static_cast<std::size_t>(i)] = c;
   }
   for (int i = 0; i < sx::kParams; ++i)
     for (int j = 0; j < sx::kParams; ++j) {
@@ -216,24 +222,83 @@ void interpret(const EstimationInput& in, EstimationResult& r) {
       w(a, b) = p(i, j) / (prior(i) * prior(j));
     }
   Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> es(w);
+  // the sharp directions (ascending eigenvalues: sharpest first)
+  Eigen::Index sharp = 0;
+  while (sharp < m && std::sqrt(std::max(0.0, es.eigenvalues()(sharp))) <= in.sharp_ratio) ++sharp;
+  Eigen::MatrixXd dirs = es.eigenvectors().leftCols(sharp);
+  std::vector<bool> degenerate(static_cast<std::size_t>(sharp), false);
+  // eigenvalues within 2% of each other: the directions of that eigenspace
+  // are arbitrary mixtures; take instead the parameter axes it spans most,
+  // projected onto it and orthonormalised in that order
+  for (Eigen::Index k = 0; k < sharp;) {
+    Eigen::Index end = k + 1;
+    while (end < sharp && es.eigenvalues()(end) <= 1.02 * es.eigenvalues()(k)) ++end;
+    const Eigen::Index n = end - k;
+    if (n > 1) {
+      const Eigen::MatrixXd span = es.eigenvectors().middleCols(k, n);
+      std::vector<Eigen::Index> axes(static_cast<std::size_t>(m));
+      for (Eigen::Index a = 0; a < m; ++a) axes[static_cast<std::size_t>(a)] = a;
+      std::sort(axes.begin(), axes.end(), [&](Eigen::Index a, Eigen::Index b) {
+        return span.row(a).squaredNorm() > span.row(b).squaredNorm();
+      });
+      for (Eigen::Index q = 0; q < n; ++q) {
+        Eigen::VectorXd v = span * span.row(axes[static_cast<std::size_t>(q)]).transpose();
+        for (Eigen::Index o = 0; o < q; ++o) v -= dirs.col(k + o).dot(v) * dirs.col(k + o);
+        dirs.col(k + q) = v.normalized();
+        degenerate[static_cast<std::size_t>(k + q)] = true;
+      }
+    }
+    k = end;
+  }
   r.combinations.clear();
-  for (Eigen::Index k = 0; k < m; ++k) {  // ascending eigenvalues: sharpest first
-    const double ratio = std::sqrt(std::max(0.0, es.eigenvalues()(k)));
-    if (ratio > in.sharp_ratio) break;
-    const Eigen::VectorXd v = es.eigenvectors().col(k);
+  for (Eigen::Index k = 0; k < sharp; ++k) {
+    const Eigen::VectorXd v = dirs.col(k);
+    const double ratio = std::sqrt(std::max(0.0, v.dot(w * v)));
     Eigen::Index lead_k = 0;
     v.cwiseAbs().maxCoeff(&lead_k);
     Combination c;
+    c.from_degenerate = degenerate[static_cast<std::size_t>(k)];
     c.lead = free[static_cast<std::size_t>(lead_k)];
     const double scale = v(lead_k) / prior(c.lead);  // coefficient of lead before scaling
     for (Eigen::Index a = 0; a < m; ++a) {
       const int j = free[static_cast<std::size_t>(a)];
       c.coeff[static_cast<std::size_t>(j)] = a == lead_k ? 1.0 : v(a) / prior(j) / scale;
     }
-    const ParamVec cv = Eigen::Map<const ParamVec>(c.coeff.data());
+    ParamVec cv = Eigen::Map<const ParamVec>(c.coeff.data());
     c.value = cv.dot(x);
     c.prior_sigma = prior(c.lead) / std::fabs(v(lead_k));
     c.sigma = ratio * c.prior_sigma;
+    // one of the model's named combinations? When the direction, scaled to
+    // df0_i's coefficient 1, has the named one's coefficients on its terms
+    // (to 10%) and the named combination alone is determined as well (its
+    // own posterior sigma within 25% of the direction's, either way): the
+    // other terms are ones the run determines apart, and the name is what
+    // it measured. Each name once, for the sharpest such direction.
+    for (std::size_t i = 0; i < 2; ++i) {
+      const int df = sx::kDf0 - sx::kNu0 + static_cast<int>(i);
+      const double at_df = cv(df);
+      if (at_df == 0 || r.df_obs[i].prior_sigma <= 0 || !c.name.empty()) continue;
+      if (std::any_of(r.combinations.begin(), r.combinations.end(),
+                      [&](const Combination& o) { return o.name == r.df_obs[i].name; }))
+        continue;
+      bool same = true;
+      for (int j = 0; j < sx::kParams; ++j)
+        if (obs_dir[i](j) != 0)
+          same = same && std::abs(cv(j) / at_df - obs_dir[i](j)) <= 0.1 * std::abs(obs_dir[i](j));
+      const double sigma_scaled =
+          c.sigma * std::abs(c.coeff[static_cast<std::size_t>(c.lead)]) / std::abs(at_df);
+      if (same && r.df_obs[i].sigma <= 1.25 * sigma_scaled &&
+          r.df_obs[i].sigma >= 0.8 * sigma_scaled) {
+        c.name = r.df_obs[i].name;
+        c.from_degenerate = false;  // the model's own combination: no basis chosen
+        c.coeff = {};
+        for (int j = 0; j < sx::kParams; ++j) c.coeff[static_cast<std::size_t>(j)] = obs_dir[i](j);
+        c.lead = sx::kDf0 - sx::kNu0 + static_cast<int>(i);
+        c.value = r.df_obs[i].value;
+        c.sigma = r.df_obs[i].sigma;
+        c.prior_sigma = r.df_obs[i].prior_sigma;
+      }
+    }
     r.combinations.push_back(c);
   }
 }

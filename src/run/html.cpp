@@ -280,15 +280,14 @@ std::string parameter_table(const json& r) {
   o += "</tbody></table>";
   if (r.contains("combinations") && !r["combinations"].empty()) {
     o += "<h2>Combinations the run determined</h2><table class=\"combos\"><thead><tr>"
-         "<th>combination (lead coefficient 1)</th><th>value</th><th>sigma</th><th>prior "
+         "<th>combination</th><th>value</th><th>sigma</th><th>prior "
          "sigma</th><th>unit</th></tr></thead><tbody>";
     for (const auto& c : r["combinations"]) {
       const std::string lead = c.value("lead", std::string());
       const auto [unit, k] = display_unit(lead);
-      std::string terms;
-      for (const auto& [n, v] : c["coefficients"].items())
-        terms +=
-            (terms.empty() ? "" : " + ") + number(v.get<double>(), "%.3g") + "&#8239;" + escape(n);
+      const std::string terms =
+          escape(combination_terms(c, r)) +
+          (c.contains("name") ? " (" + escape(c["name"].get<std::string>()) + ")" : "");
       o += "<tr><td class=\"combo\">" + terms + "</td><td>" + number(c["value"].get<double>() * k) +
            "</td><td>" + number(c["sigma"].get<double>() * k) + "</td><td>" +
            number(c["prior_sigma"].get<double>() * k) + "</td><td>" + escape(std::string(unit)) +

@@ -19,12 +19,14 @@ namespace {
 constexpr double kDeg = 0.017453292519943295;
 
 /// The biases whose sigmas the sweep shows.
-constexpr std::array<const char*, 5> kBiases = {"nu0_1", "nu0_2", "nu0_3", "df_eff_1", "df_eff_2"};
+/// (df_obs: what a turn about the vertical determines of the accelerometer)
+constexpr std::array<const char*, 5> kBiases = {"nu0_1", "nu0_2", "nu0_3", "df_obs_1", "df_obs_2"};
 
 json sigmas_of(const est::EstimationResult& r) {
   json out = json::object();
   for (const auto& p : r.parameters) out[std::string(p.name)] = p.sigma;
   for (const auto& p : r.df_eff) out[std::string(p.name)] = p.sigma;
+  for (const auto& p : r.df_obs) out[std::string(p.name)] = p.sigma;
   return out;
 }
 
@@ -102,6 +104,7 @@ Result<json> plan_json(const Plan& plan, const PlanningSettings& s) {
   };
   for (const auto& p : r.parameters) add(p);
   for (const auto& p : r.df_eff) add(p);
+  for (const auto& p : r.df_obs) add(p);
   j["predicted"] = pred;
   j["estimable"] = estimable;
   json combos = json::array();
@@ -156,8 +159,8 @@ std::string plan_text(const json& j) {
     line("");
     line("  bias sigmas against hold length and turn angle:");
     line(
-        "  holds x  turn deg  run s    nu0_1 deg/h  nu0_2 deg/h  nu0_3 deg/h  df_eff_1 ug  "
-        "df_eff_2 ug");
+        "  holds x  turn deg  run s    nu0_1 deg/h  nu0_2 deg/h  nu0_3 deg/h  df_obs_1 ug  "
+        "df_obs_2 ug");
     for (const auto& r : j["sweep"]) {
       const json& s = r["sigma"];
       char buf[200];
@@ -167,8 +170,8 @@ std::string plan_text(const json& j) {
           r["duration_s"].get<double>(), s["nu0_1"].get<double>() * display_unit("nu0_1").second,
           s["nu0_2"].get<double>() * display_unit("nu0_2").second,
           s["nu0_3"].get<double>() * display_unit("nu0_3").second,
-          s["df_eff_1"].get<double>() * display_unit("df_eff_1").second,
-          s["df_eff_2"].get<double>() * display_unit("df_eff_2").second);
+          s["df_obs_1"].get<double>() * display_unit("df_obs_1").second,
+          s["df_obs_2"].get<double>() * display_unit("df_obs_2").second);
       line(buf);
     }
   }

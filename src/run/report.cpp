@@ -251,6 +251,12 @@ json combination_json(const est::Combination& c, bool with_value) {
   if (with_value) j["value"] = c.value;
   j["sigma"] = c.sigma;
   j["prior_sigma"] = c.prior_sigma;
+  if (!c.name.empty()) {
+    j["name"] = std::string(c.name);
+    const std::string i(c.name.substr(c.name.size() - 1));
+    j["formula"] = "df0_" + i + " + g G" + i + "3 - g Theta_" + i + "3";
+  }
+  if (c.from_degenerate) j["degenerate"] = true;
   return j;
 }
 
@@ -360,6 +366,7 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
     json e = json::object();
     for (const auto& p : result->parameters) e[std::string(p.name)] = estimate_json(p);
     for (const auto& p : result->df_eff) e[std::string(p.name)] = estimate_json(p);
+    for (const auto& p : result->df_obs) e[std::string(p.name)] = estimate_json(p);
     j["estimates"] = e;
     json combos = json::array();
     for (const est::Combination& c : result->combinations)
@@ -406,6 +413,33 @@ std::optional<double> truth_of(const json& errors, const std::string& name, doub
 }
 
 }  // namespace
+
+std::string combination_terms(const json& c, const json& report) {
+  if (c.contains("formula") && c["formula"].is_string()) return c["formula"].get<std::string>();
+  // the terms that matter: a term's part of the combination's prior
+  // spread over 5% of the lead's, each with a coefficient from its own
+  // display unit to the lead's
+  const std::string lead = c.value("lead", std::string());
+  const auto [lead_unit, k_lead] = display_unit(lead);
+  const json est = report.value("estimates", json::object());
+  auto prior_of = [&](const std::string& n) {
+    return est.contains(n) && est[n].contains("prior_sigma") && est[n]["prior_sigma"].is_number()
+               ? est[n]["prior_sigma"].get<double>()
+               : std::numeric_limits<double>::quiet_NaN();
+  };
+  const double lead_prior = prior_of(lead);
+  std::string terms = lead + " (" + std::string(lead_unit) + ")";
+  for (const auto& [n, v] : c["coefficients"].items()) {
+    if (n == lead || !v.is_number()) continue;
+    const double weight = std::abs(v.get<double>() * prior_of(n) / lead_prior);
+    if (!(weight > 0.05)) continue;
+    const auto [u, k] = display_unit(n);
+    const double coeff = k != 0 ? v.get<double>() * k_lead / k : v.get<double>();
+    terms += (coeff < 0 ? " - " : " + ") + fmt("%.3g ", std::abs(coeff)) + n + " (" +
+             std::string(u) + ")";
+  }
+  return terms;
+}
 
 std::string whiteness_text(const json& innovations) {
   const json& i = innovations;
@@ -495,15 +529,11 @@ std::string report_text(const json& r, const json* truth) {
   }
   if (r.contains("combinations") && !r["combinations"].empty()) {
     line("");
-    line("  combinations the run determined (lead coefficient 1):");
+    line("  combinations the run determined:");
     for (const auto& c : r["combinations"]) {
       const std::string lead = c["lead"].get<std::string>();
       const auto [unit, k] = display_unit(lead);
-      std::string terms;
-      for (const auto& [n, v] : c["coefficients"].items()) {
-        if (std::abs(v.get<double>()) < 1e-3) continue;
-        terms += (terms.empty() ? "" : " + ") + fmt("%.3g ", v.get<double>()) + n;
-      }
+      const std::string terms = combination_terms(c, r);
       std::string against;
       if (truth != nullptr) {
         double tv = 0;
@@ -518,7 +548,9 @@ std::string report_text(const json& r, const json* truth) {
                     fmt("%+.2f sigma)", (c["value"].get<double>() - tv) / c["sigma"].get<double>());
       }
       line("    " + terms + " = " + fmt("%.6g", c["value"].get<double>() * k) + " +- " +
-           fmt("%.3g ", c["sigma"].get<double>() * k) + std::string(unit) + against);
+           fmt("%.3g ", c["sigma"].get<double>() * k) + std::string(unit) + against +
+           (c.contains("name") ? " (" + c["name"].get<std::string>() + ")" : "") +
+           (c.value("degenerate", false) ? " (one of equally sharp directions)" : ""));
     }
   }
   if (r.contains("innovations")) {
@@ -706,6 +738,8 @@ std::string check_report(const json& r) {
       if (c.field(m, at, "coefficients", Kind::Object, true))
         c.each(m["coefficients"], at + "coefficients", Kind::Number);
       for (const char* k : {"value", "sigma"}) c.field(m, at, k, Kind::Number, true);
+      for (const char* k : {"name", "formula"}) c.field(m, at, k, Kind::String);
+      c.field(m, at, "degenerate", Kind::Boolean);
     });
   if (c.field(r, "", "innovations", Kind::Object)) {
     const json& i = r["innovations"];

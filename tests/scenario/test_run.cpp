@@ -416,7 +416,7 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(j["status"] == "done");
     CHECK(j["unit"] == "SN-7");
     CHECK(live.written["status"] == "done");  // as written, before the phase moves on
-    REQUIRE(j["estimates"].size() == 20);
+    REQUIRE(j["estimates"].size() == 22);
     for (const auto& [name, e] : j["estimates"].items()) {
       CAPTURE(name);
       CHECK(e["sigma"].get<double>() > 0);
@@ -510,7 +510,7 @@ TEST_SUITE("run engine on the virtual stand") {
       const std::string why = r->report.contains("reason") ? r->report["reason"].dump() : "";
       MESSAGE("abort " << after << " s into the turn: " << r->report["status"] << " " << why);
       CHECK(r->report["status"] == "done");
-      CHECK(r->report["estimates"].size() == 20);
+      CHECK(r->report["estimates"].size() == 22);
     }
   }
 
@@ -750,6 +750,16 @@ TEST_SUITE("run engine on the virtual stand") {
     // the innovations' whiteness with its statistics
     CHECK(text.find("Ljung-Box Q ") != std::string::npos);
     CHECK(text.find(", p ") != std::string::npos);
+    // the sharp accelerometer directions are the model's named combination,
+    // said so in ug; the rest in their parameters' own units
+    const std::string combos = text.substr(text.find("combinations the run determined"));
+    MESSAGE(combos.substr(0, combos.find("innovations")));
+    bool named = false;
+    for (const auto& c : r["combinations"])
+      named = named || (c.contains("name") && c["name"] == "df_obs_1");
+    CHECK(named);
+    CHECK(text.find("df0_1 + g G13 - g Theta_13 = ") != std::string::npos);
+    CHECK(text.find(" ug (df_obs_1)") != std::string::npos);
     // every sigma plot has one unit on its axis, and shows every parameter
     std::size_t shown = 0;
     for (const run::SigmaPlotGroup& g : run::sigma_plot_groups()) {
@@ -848,7 +858,7 @@ TEST_SUITE("run engine on the virtual stand") {
       const std::string reason = j.contains("reason") ? j["reason"].get<std::string>() : "";
       if (k.all) {
         CHECK_MESSAGE(j["status"] == "done", reason);
-        CHECK(j["estimates"].size() == 20);
+        CHECK(j["estimates"].size() == 22);
       } else {
         CHECK(j["status"] == "failed");
         CHECK_MESSAGE(reason.find(k.reason) == 0, reason);
@@ -887,7 +897,7 @@ TEST_SUITE("run engine on the virtual stand") {
           std::string::npos);
     // the record ends about 20 s early; the estimates are of what there is
     const auto& e = r->report["estimates"];
-    REQUIRE(e.size() == 20);
+    REQUIRE(e.size() == 22);
     CHECK(e["nu0_1"]["sigma"].get<double>() >
           l.live.written["estimates"]["nu0_1"]["sigma"].get<double>());
     CHECK(r->report["notes"].dump().find("before the planned end") != std::string::npos);
@@ -966,7 +976,7 @@ TEST_SUITE("run engine on the virtual stand") {
     REQUIRE(j.ok());
     REQUIRE(nominal.ok());
     const auto& pred = (*j)["predicted"];
-    REQUIRE(pred.size() == 20);
+    REQUIRE(pred.size() == 22);
     double worst = 0, worst_nominal = 0;
     for (const auto& p : l.live.result->parameters) {
       CAPTURE(p.name);
@@ -1041,7 +1051,7 @@ TEST_SUITE("run engine on the virtual stand") {
       const std::string why = j.contains("reason") ? j["reason"].dump() : "";
       REQUIRE_MESSAGE(j["status"] == "done", why);
       CHECK_FALSE(r->damage);
-      REQUIRE(j["estimates"].size() == 20);
+      REQUIRE(j["estimates"].size() == 22);
       const auto truth = truth_of(setup.ins.sim);
       for (std::size_t i = 0; i < truth.size(); ++i) {
         const std::string name(est::kParamNames[i]);

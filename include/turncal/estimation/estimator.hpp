@@ -75,6 +75,14 @@ struct Combination {
   double value = 0;
   double sigma = 0;
   double prior_sigma = 0;
+  /// When the direction is one of the model's named combinations (within
+  /// 8 degrees in the prior-whitened space): its name ("df_obs_1", ...),
+  /// and value and sigma are that combination's, in its unit. Else empty.
+  std::string_view name;
+  /// Eigenvalues within 2% of each other span a degenerate eigenspace, in
+  /// which any basis is as sharp: such combinations are rotated onto the
+  /// parameter axes they span, and marked so.
+  bool from_degenerate = false;
 };
 
 /// Consistency and whiteness of the normalized innovations
@@ -126,7 +134,10 @@ struct EstimationResult {
   TimelineReport timeline;
   std::array<ParameterEstimate, sx::kParams> parameters{};
   std::array<ParameterEstimate, 2> df_eff{};  ///< df0_i + g G_i3
-  std::vector<Combination> combinations;      ///< sharpest first
+  /// df0_i + g G_i3 - g Theta_i3: what one turn about the vertical sees of
+  /// the accelerometer (model.md, 8)
+  std::array<ParameterEstimate, 2> df_obs{};
+  std::vector<Combination> combinations;  ///< sharpest first
   Eigen::Matrix<double, sx::kParams, sx::kParams> correlation =
       Eigen::Matrix<double, sx::kParams, sx::kParams>::Zero();
   InnovationStats innovation_stats;

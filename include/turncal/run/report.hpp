@@ -62,6 +62,10 @@ nlohmann::json combination_json(const est::Combination& c, bool with_value);
 /// names, SI), each estimate and combination also shows the injected value
 /// and its error in sigmas.
 std::string report_text(const nlohmann::json& report, const nlohmann::json* truth = nullptr);
+/// A combination of the report in physical form: its formula when it is
+/// one of the model's named combinations, else its lead and the terms that
+/// matter, each with its display unit.
+std::string combination_terms(const nlohmann::json& combination, const nlohmann::json& report);
 /// The innovations' whiteness in words: the Ljung-Box statistics, their
 /// p-values, and "NOT white" only under the alarm's p-value.
 std::string whiteness_text(const nlohmann::json& innovations);
