@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <map>
 #include <memory>
 #include <numbers>
 #include <sstream>
@@ -770,6 +771,40 @@ TEST_SUITE("run engine on the virtual stand") {
       shown += g.params.size();
     }
     CHECK(shown == est::kParamNames.size());
+  }
+
+  TEST_CASE("the tactical plan's combinations: df_obs by name, the lever arm's twins apart") {
+    run::PlanningSettings ps;
+    auto j = run::plan_json(load("tactical.toml"), ps);
+    REQUIRE(j.ok());
+    const auto& combos = (*j)["combinations"];
+    std::map<std::string, int> by_name, by_lead;
+    for (const auto& c : combos) {
+      if (c.contains("name")) {
+        const std::string n = c["name"];
+        ++by_name[n];
+        // the named combination's own sigma, and its formula's coefficients
+        CHECK(c["sigma"].get<double>() ==
+              doctest::Approx((*j)["predicted"][n]["sigma"].get<double>()).epsilon(1e-12));
+        const std::string i = n.substr(n.size() - 1);
+        CHECK(c["coefficients"]["df0_" + i] == 1.0);
+        CHECK(c["coefficients"]["theta_" + i + "3"].get<double>() ==
+              doctest::Approx(-c["coefficients"]["g" + i + "3"].get<double>()).epsilon(1e-12));
+      }
+      ++by_lead[c["lead"].get<std::string>()];
+    }
+    CHECK(by_name["df_obs_1"] == 1);
+    CHECK(by_name["df_obs_2"] == 1);
+    // r1 and r2 are equally sharp: one combination each, led by each, not
+    // two mixtures of both
+    CHECK(by_lead["r1"] == 1);
+    CHECK(by_lead["r2"] == 1);
+    for (const auto& c : combos)
+      if (c["lead"] == "r1") {
+        CHECK((c.contains("degenerate") && c.at("degenerate") == true));
+        const auto& k = c.at("coefficients");
+        CHECK((!k.contains("r2") || std::abs(k.at("r2").get<double>()) < 0.05));
+      }
   }
 
   TEST_CASE("replay of the log with the live run's report: the estimation bit for bit") {
