@@ -140,8 +140,21 @@ Result<Request> parse_request(std::string_view line) {
 
 json report_summary(const json& r) {
   json s = json::object();
-  for (const char* k : {"run_id", "status", "unit", "start_time_unix_s", "estimates"})
+  for (const char* k : {"run_id", "status", "unit", "start_time_unix_s"})
     if (r.contains(k)) s[k] = r[k];
+  // of each estimate what the list and the history read: the index holds
+  // one summary per report kept, for the daemon's life
+  if (const auto est = r.find("estimates"); est != r.end() && est->is_object()) {
+    json e = json::object();
+    for (auto it = est->begin(); it != est->end(); ++it) {
+      json t = json::object();
+      if (it->is_object())
+        for (const char* k : {"value", "sigma", "unit", "determined"})
+          if (const auto f = it->find(k); f != it->end()) t[k] = *f;
+      e[it.key()] = std::move(t);
+    }
+    s["estimates"] = std::move(e);
+  }
   const bool has_profile = r.contains("profile") && r["profile"].is_object();
   const bool has_verdict = r.contains("verdict") && r["verdict"].is_object();
   s["profile"] = {{"name", has_profile ? r["profile"].value("name", "") : ""}};

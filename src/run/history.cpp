@@ -35,6 +35,9 @@ json history_json(const std::string& unit, const std::vector<json>& reports) {
   for (const json* r : runs) {
     json est = json::object();
     for (const auto& [name, e] : (*r)["estimates"].items()) {
+      // a parameter the run did not determine has the prior's value: no
+      // part of the unit's history
+      if (e.contains("determined") && e["determined"] == "not determined") continue;
       est[name] = {{"value", e["value"]}, {"sigma", e["sigma"]}};
       values[name].emplace_back(e["value"].get<double>(), e["sigma"].get<double>());
       units[name] = e.value("unit", std::string());

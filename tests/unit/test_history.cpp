@@ -71,3 +71,17 @@ TEST_SUITE("history") {
     CHECK(none["parameters"].empty());
   }
 }
+
+TEST_CASE("history: a parameter a run did not determine is no part of it") {
+  json a = report("a", "SN-1", "done", 100, 1e-6, 0.3e-6);
+  json b = report("b", "SN-1", "done", 200, 2e-6, 0.5e-6);
+  a["estimates"]["theta_11"] = {
+      {"value", 0.0}, {"sigma", 1e-4}, {"unit", "1"}, {"determined", "not determined"}};
+  b["estimates"]["theta_11"] = {
+      {"value", 1e-7}, {"sigma", 1e-4}, {"unit", "1"}, {"determined", "not determined"}};
+  b["estimates"]["r1"]["determined"] = "determined";
+  const json h = history_json("SN-1", {a, b});
+  CHECK_FALSE(h["parameters"].contains("theta_11"));
+  CHECK(h["parameters"]["r1"]["n"] == 2);
+  CHECK_FALSE(h["runs"][0]["estimates"].contains("theta_11"));
+}
