@@ -180,8 +180,8 @@ class Daemon {
   std::optional<StateDir> state;
   /// Frames the bus has lately carried (what a run's log grows at).
   BusRate bus_rate;
-  bool space_checked = false;  ///< this run's space checked at its own frame rate
-  std::string config_sha256;   ///< of the configuration as loaded
+  double next_space_check_s = 0;  ///< of this run, real s from its start
+  std::string config_sha256;      ///< of the configuration as loaded
 
   // the run
   std::unique_ptr<run::Engine> engine;
@@ -679,6 +679,7 @@ json Daemon::status() const {
 }
 
 json Daemon::start(const StartRequest& req) {
+  if (stopping) return {{"ok", false}, {"error", "turncald is stopping: no new run"}};
   if (running()) return {{"ok", false}, {"error", "a run is in progress: " + run_id}};
   if (worker_busy) return {{"ok", false}, {"error", "the last run's estimation is still running"}};
   if (engine && engine->sequencer().course().quick_stop_gave_up) {
@@ -744,7 +745,9 @@ json Daemon::start(const StartRequest& req) {
   const std::int64_t now = clock.now_ns();
   std::string id = utc_id(now);
   // two runs within a second: the second gets a suffix, no log is overwritten
-  for (int k = 2; state->has_log(id); ++k) id = utc_id(now) + "-" + std::to_string(k);
+  // (a report too: retention may have taken the log of an old run)
+  for (int k = 2; state->has_log(id) || state->index().contains(id); ++k)
+    id = utc_id(now) + "-" + std::to_string(k);
   const fs::path path = state->path() / (id + ".log");
   // retention first, then the space: the report's and the planned log's
   const Retention keep{cfg.daemon.keep_logs_days,
@@ -774,7 +777,7 @@ json Daemon::start(const StartRequest& req) {
     return {{"ok", false}, {"error", w.error().describe()}};
   }
   run_start_ns = now;
-  space_checked = false;
+  next_space_check_s = 0;
   syncer.wait_idle();  // the last run's are done (its report waited for them)
   syncer.new_file();
   run_id = id;
@@ -814,7 +817,10 @@ std::uint64_t Daemon::frames_seen() const {
 std::string Daemon::space_shortfall(double frames_per_s, double bytes_per_frame, double real_s,
                                     std::uint64_t also) const {
   const auto free = state->free_bytes();
-  if (!free) return free.error().describe();
+  if (!free) {  // not a shortfall: said, and looked at again
+    warn(free.error().describe());
+    return {};
+  }
   const double log_bytes = std::max(0.0, frames_per_s * bytes_per_frame * real_s);
   const double need = log_bytes + static_cast<double>(also);
   if (static_cast<double>(*free) >= need) return {};
@@ -834,16 +840,21 @@ std::string Daemon::space_shortfall(double frames_per_s, double bytes_per_frame,
   return why;
 }
 
-/// Once a run has its own frame rate (3 s in), the log it will still write
-/// must fit: else the run fails now, long before the disk is full. A start
-/// checks the same at the rate of the bus before it, when it has one.
+/// From 3 s into a run and every second after, the log it will still
+/// write must fit, at the faster of its own mean frame rate and the bus's
+/// over the last 10 s (the INS sends more once it navigates): else the
+/// run fails now, before the disk is full. A start checks the same at the
+/// rate of the bus before it, when it has one.
 void Daemon::check_run_space() {
-  if (space_checked || !running() || !log || log->records() == 0) return;
+  if (!running() || !log || log->records() == 0) return;
   const double elapsed_s = static_cast<double>(clock.now_ns() - run_start_ns) * 1e-9;
-  if (elapsed_s < 3.0) return;
-  space_checked = true;
+  if (elapsed_s < 3.0 || elapsed_s < next_space_check_s) return;
+  next_space_check_s = elapsed_s + 1.0;
   const double left_s = run_real_s(engine->plan(), cfg.stand.time_scale) - elapsed_s;
-  const double rate = static_cast<double>(log->records()) / elapsed_s;
+  if (!(left_s > 0)) return;
+  const double mean_rate = static_cast<double>(log->records()) / elapsed_s;
+  const double recent = bus_rate.per_s();
+  const double rate = std::isnan(recent) ? mean_rate : std::max(mean_rate, recent);
   const double per_frame = static_cast<double>(log->bytes()) / static_cast<double>(log->records());
   if (const std::string why = space_shortfall(rate, per_frame, left_s, 0); !why.empty())
     host_fault("the disk cannot hold this run's log: " + why);

@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstring>
 #include <fstream>
+#include <limits>
 #include <sstream>
 #include <vector>
 
@@ -230,8 +231,12 @@ std::vector<PrunedLog> StateDir::prune_logs(const Retention& r, double now_unix_
     struct stat st {};
     if (::stat(it->path().c_str(), &st) != 0 || !S_ISREG(st.st_mode)) continue;
     const std::string id = name.substr(0, name.size() - 4);
-    std::error_code gone;
-    const bool reported = fs::exists(dir_ / (id + kReportSuffix), gone);
+    // removable only with a report that reads and holds the run: not an
+    // unreadable one, nor the note of an interrupted run (its log is all)
+    const auto at = index_.find(id);
+    const bool reported = at != index_.end() && at->second.unreadable.empty() &&
+                          at->second.summary.is_object() && at->second.summary.contains("status") &&
+                          at->second.summary["status"] != "interrupted";
     logs.push_back(
         {id, static_cast<std::uint64_t>(st.st_size),
          static_cast<double>(st.st_mtim.tv_sec) + static_cast<double>(st.st_mtim.tv_nsec) * 1e-9,
@@ -295,6 +300,7 @@ double BusRate::per_s() const {
 
 std::uint64_t log_bytes_bound(double frames, std::size_t interface_chars) {
   if (!(frames > 0)) return 0;
+  if (!(frames < 1e15)) return std::numeric_limits<std::uint64_t>::max();
   can::LogRecord r;
   r.time_ns = 9'999'999'999'999'999;  // ten digits of seconds, as until 2286
   r.interface.assign(interface_chars, 'x');

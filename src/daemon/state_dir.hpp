@@ -98,8 +98,9 @@ class StateDir {
   [[nodiscard]] bool has_log(const std::string& run_id) const;
   /// The run ids of logs without a report: runs a killed daemon left.
   [[nodiscard]] std::vector<std::string> logs_without_report() const;
-  /// Retention: removes the logs of runs that have their report (never a
-  /// report, never a log without one, never `keep`): first those last
+  /// Retention: removes the logs of runs whose report is in the index,
+  /// readable and not an interrupted run's (never a report, never a log
+  /// without one, never `keep`): first those last
   /// written more than keep_days before `now_unix_s`, then the oldest while
   /// all logs take more than max_log_bytes. What it removed or failed to.
   std::vector<PrunedLog> prune_logs(const Retention& r, double now_unix_s,

@@ -62,6 +62,7 @@ std::uint64_t Syncer::synced() const {
 void Syncer::new_file() {
   const std::lock_guard<std::mutex> l(m_);
   synced_ = 0;
+  failed_ = false;
 }
 
 unsigned long Syncer::done() const {
@@ -89,7 +90,11 @@ void Syncer::run() {
     busy_ = false;
     ++done_;
     if (err != 0 && error_ == 0) error_ = err;
-    if (err == 0) synced_ = mark;
+    // after a failed fsync a later one may succeed with the lost pages
+    // gone (the kernel reports a writeback error once): nothing after the
+    // failure is known to be on disk
+    if (err != 0) failed_ = true;
+    if (err == 0 && !failed_) synced_ = mark;
     if (want_fd_ < 0) idle_.notify_all();
   }
 }

@@ -45,6 +45,7 @@ class Syncer {
   int want_fd_ = -1;  ///< asked for, not yet begun
   std::uint64_t want_mark_ = 0;
   std::uint64_t synced_ = 0;
+  bool failed_ = false;  ///< an fsync of this file failed: synced_ stays where it was
   bool busy_ = false;
   bool stop_ = false;
   int error_ = 0;

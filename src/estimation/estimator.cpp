@@ -235,17 +235,31 @@ void interpret(const EstimationInput& in, EstimationResult& r) {
     while (end < sharp && es.eigenvalues()(end) <= 1.02 * es.eigenvalues()(k)) ++end;
     const Eigen::Index n = end - k;
     if (n > 1) {
+      // at each step the parameter axis whose projection onto the space,
+      // less the directions already taken, is longest (pivoted
+      // Gram-Schmidt): never a near-zero vector normalised
       const Eigen::MatrixXd span = es.eigenvectors().middleCols(k, n);
-      std::vector<Eigen::Index> axes(static_cast<std::size_t>(m));
-      for (Eigen::Index a = 0; a < m; ++a) axes[static_cast<std::size_t>(a)] = a;
-      std::sort(axes.begin(), axes.end(), [&](Eigen::Index a, Eigen::Index b) {
-        return span.row(a).squaredNorm() > span.row(b).squaredNorm();
-      });
-      for (Eigen::Index q = 0; q < n; ++q) {
-        Eigen::VectorXd v = span * span.row(axes[static_cast<std::size_t>(q)]).transpose();
-        for (Eigen::Index o = 0; o < q; ++o) v -= dirs.col(k + o).dot(v) * dirs.col(k + o);
-        dirs.col(k + q) = v.normalized();
-        degenerate[static_cast<std::size_t>(k + q)] = true;
+      Eigen::MatrixXd taken(m, n);
+      Eigen::Index got = 0;
+      for (; got < n; ++got) {
+        Eigen::VectorXd best;
+        double best_norm = 0;
+        for (Eigen::Index a = 0; a < m; ++a) {
+          Eigen::VectorXd v = span * span.row(a).transpose();
+          for (Eigen::Index o = 0; o < got; ++o) v -= taken.col(o).dot(v) * taken.col(o);
+          if (v.norm() > best_norm) {
+            best_norm = v.norm();
+            best = v;
+          }
+        }
+        if (best_norm < 1e-6) break;
+        taken.col(got) = best / best_norm;
+      }
+      if (got == n) {  // else the eigenvectors stay: no cleaner basis found
+        for (Eigen::Index q = 0; q < n; ++q) {
+          dirs.col(k + q) = taken.col(q);
+          degenerate[static_cast<std::size_t>(k + q)] = true;
+        }
       }
     }
     k = end;

@@ -390,10 +390,15 @@ Sample Ingest::on_frame(const can::TimedFrame& f) {
                          : 1;
       refused_host_ = host;
       refused_angle_ = a;
-      if (refused_run_ < kReanchor) return implausible(kEncoder);
+      // only a reference with almost nothing after it (the stream's first
+      // samples) can be the garbled one; later, a run of agreeing samples
+      // off it is a fault of the encoder, refused until the run fails
+      if (refused_run_ < kReanchor || accepted_encoder_ > kReanchor) return implausible(kEncoder);
       ++counters_.encoder_reanchored;
+      accepted_encoder_ = 0;
     }
     refused_run_ = 0;
+    ++accepted_encoder_;
     enc_tag_ = tags;
     angle_ = unwrap;
     last_encoder_host_ = host;

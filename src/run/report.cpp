@@ -217,8 +217,9 @@ json judge(const json& estimates, const std::vector<Tolerance>& tolerances) {
       continue;
     }
     const json& e = estimates[t.parameter];
-    if (e.value("determined", std::string()) == "not determined") {
-      // its value is the prior's; a bound on it would pass or fail by chance
+    if (e.value("determined", std::string()) == "not determined" && !std::isfinite(t.max_sigma)) {
+      // its value is the prior's: a bound on it would pass or fail by chance
+      // (a bound on its sigma is judged: it asks that the run determine it)
       c["pass"] = true;
       c["tested"] = false;
       c["why"] = "not determined by this run: " + e.value("why", std::string());
@@ -228,7 +229,10 @@ json judge(const json& estimates, const std::vector<Tolerance>& tolerances) {
     }
     const double v = estimates[t.parameter]["value"].get<double>() * k;
     const double s = estimates[t.parameter]["sigma"].get<double>() * k;
-    const bool ok_v = std::abs(v) <= t.max_abs, ok_s = s <= t.max_sigma;
+    // not determined, with a bound on its sigma: that bound decides
+    const bool value_judged = e.value("determined", std::string()) != "not determined";
+    const bool ok_v = !value_judged || std::abs(v) <= t.max_abs, ok_s = s <= t.max_sigma;
+    if (!value_judged) c["why"] = "not determined by this run: its value is not judged";
     c["value"] = v;
     c["sigma"] = s;
     if (std::isfinite(t.max_abs)) c["max_abs"] = t.max_abs;
@@ -409,6 +413,12 @@ std::optional<double> truth_of(const json& errors, const std::string& name, doub
     const auto df = truth_of(errors, "df0_" + i, g), gi3 = truth_of(errors, "g" + i + "3", g);
     if (df && gi3) return *df + g * *gi3;
   }
+  if (name.starts_with("df_obs_")) {
+    const std::string i = name.substr(7);
+    const auto eff = truth_of(errors, "df_eff_" + i, g);
+    const auto th = truth_of(errors, "theta_" + i + "3", g);
+    if (eff && th) return *eff - g * *th;
+  }
   return std::nullopt;
 }
 
@@ -576,7 +586,11 @@ std::string report_text(const json& r, const json* truth) {
                       fmt(" +- %.3g ", c["sigma"].get<double>()) + c["unit"].get<std::string>()
                 : std::string(": not estimated")));
     }
-    line(std::string("  verdict: ") + (v["pass"].get<bool>() ? "PASS" : "FAIL"));
+    const int untested = v.contains("not_tested") ? v["not_tested"].get<int>() : 0;
+    line(std::string("  verdict: ") + (v["pass"].get<bool>() ? "PASS" : "FAIL") +
+         (untested > 0 ? " (" + std::to_string(untested) + " tolerance" +
+                             (untested > 1 ? "s" : "") + " not tested: not determined)"
+                       : std::string()));
   }
   return out;
 }

