@@ -490,6 +490,10 @@ int live(const Options& o) {
   double hb_last = NAN;
   std::vector<double> hb_gaps;
   double hb_max_gap = 0, hb_max_gap_end = NAN;  // the longest gap, and when it ended (stand s)
+  // the longest gap ending in a flood (--fault flood) or the 5 s after it
+  const double flood_from = w->setup.faults.flood_at_s;
+  const double flood_to = flood_from + w->setup.faults.flood_s + 5;
+  double hb_max_gap_flood = 0;
   while (g_stop == 0 && !loop.done()) {
     for (socketcan::Socket& s : sockets) {
       rx.clear();
@@ -508,6 +512,8 @@ int live(const Options& o) {
               hb_max_gap = at - hb_last;
               hb_max_gap_end = at;
             }
+            if (at >= flood_from && at <= flood_to)
+              hb_max_gap_flood = std::max(hb_max_gap_flood, at - hb_last);
             hb_gaps.push_back(at - hb_last);
           }
           hb_last = at;
@@ -549,25 +555,28 @@ int live(const Options& o) {
     std::uint64_t off = 0;
     for (const double g : hb_gaps) off += std::abs(g - mean_gap) > 0.2 * mean_gap;
     const auto st = loop.stand().table().status(now);
-    const nlohmann::json j = {{"stand_time_s", now},
-                              {"table",
-                               {{"state", static_cast<int>(st.state)},
-                                {"fault", static_cast<int>(st.fault)},
-                                {"rate_dps", st.rate_rps / kDeg},
-                                {"angle_deg", loop.stand().table().angle(now) / kDeg}}},
-                              {"counts",
-                               {{"host_frames", c.host_frames},
-                                {"host_undecodable", c.host_undecodable},
-                                {"table_commands", c.table_commands},
-                                {"quick_stops", c.quick_stops},
-                                {"refused", c.refused},
-                                {"heartbeats", c.heartbeats}}},
-                              {"heartbeat",
-                               {{"gaps", hb_gaps.size()},
-                                {"mean_gap_s", mean_gap},
-                                {"max_gap_s", hb_max_gap},
-                                {"max_gap_end_s", hb_max_gap_end},
-                                {"gaps_off_20_percent", off}}}};
+    const nlohmann::json j = {
+        {"stand_time_s", now},
+        {"table",
+         {{"state", static_cast<int>(st.state)},
+          {"fault", static_cast<int>(st.fault)},
+          {"rate_dps", st.rate_rps / kDeg},
+          {"angle_deg", loop.stand().table().angle(now) / kDeg}}},
+        {"counts",
+         {{"host_frames", c.host_frames},
+          {"host_undecodable", c.host_undecodable},
+          {"table_commands", c.table_commands},
+          {"quick_stops", c.quick_stops},
+          {"refused", c.refused},
+          {"heartbeats", c.heartbeats}}},
+        {"heartbeat",
+         {{"gaps", hb_gaps.size()},
+          {"mean_gap_s", mean_gap},
+          {"max_gap_s", hb_max_gap},
+          {"max_gap_end_s", hb_max_gap_end},
+          {"max_gap_in_flood_s",
+           std::isnan(flood_from) ? nlohmann::json(nullptr) : nlohmann::json(hb_max_gap_flood)},
+          {"gaps_off_20_percent", off}}}};
     std::ofstream f(o.state_out);
     f << j.dump(2) << "\n";
     f.close();

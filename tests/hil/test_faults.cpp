@@ -315,13 +315,20 @@ TEST_SUITE("faults") {
     MESSAGE("disk full: " << reason << " (phase " << r["phases"].back()["phase"] << " after "
                           << r["phases"][r["phases"].size() - 2]["phase"] << ")");
     CHECK(r["status"] == "failed");
-    CHECK(reason.find("log write failed: No space left on device: log kept up to line ") == 0);
+    // the space check (every second) sees the full disk, or a log write
+    // fails first: either stops the run
+    const bool seen = reason.find("the disk cannot hold this run's log: the state directory ") == 0;
+    const bool failed_write =
+        reason.find("log write failed: No space left on device: log kept up to line ") == 0;
+    CHECK((seen || failed_write));
     CHECK(r["quick_stop"]["sent"] == true);
     CHECK(r["quick_stop"]["acknowledged"] == true);
-    // the log ends at a whole line, the one the reason names, and replays
+    // the log ends at a whole line (the one the reason names, if a write
+    // failed), and replays
     const hil::fs::path log = dir.path / "state" / (id + ".log");
     const std::uint64_t lines = log_records(log);
-    CHECK(reason.find("up to line " + std::to_string(lines)) != std::string::npos);
+    if (failed_write)
+      CHECK(reason.find("up to line " + std::to_string(lines)) != std::string::npos);
     CHECK(lines > 1000);
     CHECK(r["phases"].back()["phase"] == "failed");
     (void)ctl(dir.path,
@@ -418,7 +425,18 @@ TEST_SUITE("faults") {
     REQUIRE(std::system(("sync; echo 3 > /proc/sys/vm/drop_caches; umount " + state.string() +
                          " && mount " + d + "/dev/mapper/tcfail " + state.string())
                             .c_str()) == 0);
-    CHECK(log_records(state / (id + ".log")) >= synced);
+    // the lines said to be on disk read whole; after them the disk may hold
+    // what the failure left (lost pages), which is why they were not counted
+    std::uint64_t whole = 0;
+    if (auto rd = turncal::can::LogReader::open((state / (id + ".log")).string())) {
+      for (turncal::can::LogRecord rec;;) {
+        auto more = rd->next(rec);
+        if (!more || !*more) break;
+        ++whole;
+      }
+    }
+    MESSAGE("read back from the disk: " << whole << " whole lines; " << synced << " said synced");
+    CHECK(whole >= synced);
   }
 
   TEST_CASE(
@@ -441,41 +459,50 @@ TEST_SUITE("faults") {
                 ("touch -d '2020-01-02' " + (state / (old_id + ".log")).string()).c_str()) == 0);
     std::ofstream(state / (old_id + ".report.json"))
         << R"({"run_id":"20200101T000000Z","status":"done","unit":"SN-9"})";
+    Child sim = start_sim(dir.path, "12", {"--state-out", "stand.json"});
     Child daemon = start_daemon(dir.path);
     REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+    std::this_thread::sleep_for(2000ms);  // the bus's rate known: the idle stand's
 
-    // the stand not yet on the bus: no rate to refuse the start on, so the
-    // run starts; the stand comes, and the run fails at its own rate 3 s in
-    // (in the alignment: the table never moved)
-    const std::string id = start_run(dir.path);
-    Child sim = start_sim(dir.path, "12", {"--state-out", "stand.json"});
+    // A start the bus's rate already rules out is refused outright, with
+    // nothing recorded. Where the idle stand's rate lets it through (the
+    // INS sends its velocity once it navigates), the run's own rate fails
+    // it before the turn, and the next start is refused.
+    auto expect_refused = [&](const char* out) {
+      REQUIRE(ctl(dir.path, {"--json", "start"}, out) != 0);
+      const json refused = json::parse(slurp(dir.path / out));
+      CAPTURE(refused.dump());
+      CHECK(refused["ok"] == false);
+      const std::string why = refused.value("error", std::string());
+      MESSAGE("at the start: " << why);
+      CHECK(why.find("run refused: the state directory ") == 0);
+      CHECK(why.find("frames/s the bus has had") != std::string::npos);
+    };
+    std::size_t runs = 0;
+    if (ctl(dir.path, {"--json", "start"}, "start.json") != 0) {
+      expect_refused("start.json");
+    } else {
+      runs = 1;
+      const std::string id = json::parse(slurp(dir.path / "start.json"))["run_id"];
+      CHECK(ctl(dir.path, {"watch"}, "w.out", 60000ms) == 1);
+      const json r = report_of(dir.path, id);
+      const std::string reason = r.value("reason", std::string());
+      CAPTURE(reason);
+      MESSAGE("in the run: " << reason);
+      CHECK(r["status"] == "failed");
+      CHECK(reason.find("the disk cannot hold this run's log: the state directory ") == 0);
+      CHECK(reason.find("MiB of log") != std::string::npos);
+      const std::string before = r["phases"][r["phases"].size() - 2]["phase"];
+      CHECK((before == "prepare" || before == "align" || before == "hold"));
+      CHECK(log_records(state / (id + ".log")) > 0);  // the log up to it is kept, whole
+      expect_refused("start2.json");
+    }
+    // retention ran first either way: the old log gone, its report kept
     CHECK_FALSE(hil::fs::exists(state / (old_id + ".log")));
     CHECK(hil::fs::exists(state / (old_id + ".report.json")));
-    CHECK(ctl(dir.path, {"watch"}, "w.out", 60000ms) == 1);
-    const json r = report_of(dir.path, id);
-    const std::string reason = r.value("reason", std::string());
-    CAPTURE(reason);
-    MESSAGE("3 s in: " << reason);
-    CHECK(r["status"] == "failed");
-    CHECK(reason.find("the disk cannot hold this run's log: the state directory ") == 0);
-    CHECK(reason.find("MiB of log") != std::string::npos);
-    const std::string before = r["phases"][r["phases"].size() - 2]["phase"];
-    CHECK((before == "prepare" || before == "align"));
-    CHECK(log_records(state / (id + ".log")) > 0);  // the log up to it is kept, whole
-
-    // again: now the bus has a rate, and the start is refused outright,
-    // with nothing recorded
-    REQUIRE(ctl(dir.path, {"--json", "start"}, "start2.json") != 0);
-    const json refused = json::parse(slurp(dir.path / "start2.json"));
-    CAPTURE(refused.dump());
-    CHECK(refused["ok"] == false);
-    const std::string why = refused.value("error", std::string());
-    MESSAGE("at the start: " << why);
-    CHECK(why.find("run refused: the state directory ") == 0);
-    CHECK(why.find("frames/s the bus has had") != std::string::npos);
     std::size_t logs = 0;
     for (const auto& e : hil::fs::directory_iterator(state)) logs += e.path().extension() == ".log";
-    CHECK(logs == 1);
+    CHECK(logs == runs);
 
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
@@ -556,7 +583,11 @@ TEST_SUITE("faults") {
     // CPU runs the stand, its flood and the daemon, and schedules them late
     // now and then (measured: 0 of 1415 off, and 1 of about 1400 in another run)
     CHECK(hb["gaps_off_20_percent"].get<int>() * 100 <= hb["gaps"].get<int>());
-    CHECK(hb["max_gap_s"].get<double>() < 0.5);  // under the table's heartbeat timeout
+    // in the flood and the 5 s after: under the table's heartbeat timeout.
+    // (The longest gap of the whole recording can be the report's writing
+    // at the end, on the loop, with the table at rest: said, not judged.)
+    CHECK(hb["max_gap_in_flood_s"].get<double>() < 0.5);
+    MESSAGE("longest gap in the flood " << hb["max_gap_in_flood_s"] << " s");
   }
 
   TEST_CASE("the fault list through the daemon: each stops the table, the log replays to it") {
