@@ -840,16 +840,19 @@ std::string Daemon::space_shortfall(double frames_per_s, double bytes_per_frame,
   return why;
 }
 
-/// From 3 s into a run and every second after, the log it will still
-/// write must fit, at the faster of its own mean frame rate and the bus's
-/// over the last 10 s (the INS sends more once it navigates): else the
-/// run fails now, before the disk is full. A start checks the same at the
-/// rate of the bus before it, when it has one.
+/// From 3 s into a run and every 10 s after, the log it will still write
+/// must fit, at the faster of its own mean frame rate and the bus's over
+/// the last 10 s (the INS sends more once it navigates): else the run
+/// fails now, before the disk is full. A start checks the same at the rate
+/// of the bus before it, when it has one. (Not more often: statvfs is a
+/// system call on the loop, and where it is slow, as on user-mode Linux's
+/// host file system, every one delays a heartbeat.)
 void Daemon::check_run_space() {
+  constexpr double kSpaceCheckS = 10;
   if (!running() || !log || log->records() == 0) return;
   const double elapsed_s = static_cast<double>(clock.now_ns() - run_start_ns) * 1e-9;
   if (elapsed_s < 3.0 || elapsed_s < next_space_check_s) return;
-  next_space_check_s = elapsed_s + 1.0;
+  next_space_check_s = elapsed_s + kSpaceCheckS;
   const double left_s = run_real_s(engine->plan(), cfg.stand.time_scale) - elapsed_s;
   if (!(left_s > 0)) return;
   const double mean_rate = static_cast<double>(log->records()) / elapsed_s;

@@ -553,7 +553,11 @@ int live(const Options& o) {
     double mean_gap = 0;
     for (const double g : hb_gaps) mean_gap += g / static_cast<double>(hb_gaps.size());
     std::uint64_t off = 0;
-    for (const double g : hb_gaps) off += std::abs(g - mean_gap) > 0.2 * mean_gap;
+    std::uint64_t off_half = 0;  // more than half a period off
+    for (const double g : hb_gaps) {
+      off += std::abs(g - mean_gap) > 0.2 * mean_gap;
+      off_half += std::abs(g - mean_gap) > 0.5 * mean_gap;
+    }
     const auto st = loop.stand().table().status(now);
     const nlohmann::json j = {
         {"stand_time_s", now},
@@ -576,7 +580,8 @@ int live(const Options& o) {
           {"max_gap_end_s", hb_max_gap_end},
           {"max_gap_in_flood_s",
            std::isnan(flood_from) ? nlohmann::json(nullptr) : nlohmann::json(hb_max_gap_flood)},
-          {"gaps_off_20_percent", off}}}};
+          {"gaps_off_20_percent", off},
+          {"gaps_off_50_percent", off_half}}}};
     std::ofstream f(o.state_out);
     f << j.dump(2) << "\n";
     f.close();

@@ -245,6 +245,13 @@ TEST_SUITE("daemon") {
     CHECK(r["reason"].get<std::string>().find("SIGTERM") != std::string::npos);
     CHECK(r["quick_stop"]["sent"] == true);
     CHECK(r["quick_stop"]["acknowledged"] == true);
+    // its log replays whole, to the stop
+    const std::string term_log =
+        (dir.path / "state" / r["log"]["file"].get<std::string>()).string();
+    (void)ctl(dir.path, {"--json", "replay", term_log, "--config", config}, "replay-term.json",
+              60000ms);
+    const auto rp_term = nlohmann::json::parse(slurp(dir.path / "replay-term.json"));
+    CHECK(rp_term["replay"]["damage"].is_null());
 
     // killed in the turn: the table stops itself on the lost heartbeat; the
     // next start reports the run as interrupted, and its log reads to the end

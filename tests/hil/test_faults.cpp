@@ -122,7 +122,8 @@ TEST_SUITE("faults") {
     CHECK(r["status"] == "aborted");
     CHECK(r["reason"] == "operator test");
     CHECK(r["quick_stop"]["acknowledged"] == true);
-    CHECK(r["schema_version"] == 2);  // report.hpp: kReportSchemaVersion
+    CHECK(r["schema_version"] == 2);       // report.hpp: kReportSchemaVersion
+    (void)replay_of_log(dir.path, id, r);  // whole, every frame in it
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
     const json st = stand_state(sim, dir.path);
@@ -315,7 +316,7 @@ TEST_SUITE("faults") {
     MESSAGE("disk full: " << reason << " (phase " << r["phases"].back()["phase"] << " after "
                           << r["phases"][r["phases"].size() - 2]["phase"] << ")");
     CHECK(r["status"] == "failed");
-    // the space check (every second) sees the full disk, or a log write
+    // the space check (every 10 s) sees the full disk, or a log write
     // fails first: either stops the run
     const bool seen = reason.find("the disk cannot hold this run's log: the state directory ") == 0;
     const bool failed_write =
@@ -380,9 +381,13 @@ TEST_SUITE("faults") {
         "/dev/mapper/tcfail; "
         "mount " +
         d + "/dev/mapper/tcfail " + state.string();
-    const AtExit teardown{"umount -l " + state.string() + "; DM_DEV_DIR=" + d +
+    // (the kernel's console stays quiet after: in user-mode Linux every
+    // message is a synchronous write to the host, and the ext4 and device
+    // errors the test provokes would hold up the tests after it)
+    const AtExit teardown{"umount " + state.string() + " || umount -l " + state.string() +
+                          "; DM_DEV_DIR=" + d + "/dev dmsetup remove tcfail || DM_DEV_DIR=" + d +
                           "/dev dmsetup remove --force tcfail; losetup -d " + d +
-                          "/dev/loop7; umount -l " + d + "/dev; dmesg -n 7"};
+                          "/dev/loop7; umount " + d + "/dev || umount -l " + d + "/dev"};
     REQUIRE_MESSAGE(std::system(setup.c_str()) == 0, "no loop and device-mapper devices here");
     auto table = [&](const std::string& t) {
       return "DM_DEV_DIR=" + d + "/dev dmsetup suspend --noflush tcfail && DM_DEV_DIR=" + d +
@@ -568,6 +573,7 @@ TEST_SUITE("faults") {
     const json r = report_of(dir.path, id);
     CAPTURE(r.value("reason", std::string()));
     CHECK(r["status"] == "done");
+    (void)replay_of_log(dir.path, id, r);  // the flood's frames in it too, whole
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
     const json st = stand_state(sim, dir.path);
@@ -579,10 +585,13 @@ TEST_SUITE("faults") {
     CHECK(hb["gaps"].get<int>() > 500);
     // 10 Hz of stand time: within 20%
     CHECK(hb["mean_gap_s"].get<double>() == doctest::Approx(0.1).epsilon(0.2));
-    // every gap within 20% of the period but for 1 in 100: the guest's one
-    // CPU runs the stand, its flood and the daemon, and schedules them late
-    // now and then (measured: 0 of 1415 off, and 1 of about 1400 in another run)
-    CHECK(hb["gaps_off_20_percent"].get<int>() * 100 <= hb["gaps"].get<int>());
+    // every gap within half a period but for 1 in 100. (Within 20%, 5 ms
+    // of real time at 4x, measures the guest's one CPU, which runs the
+    // stand, its flood and the daemon: with the same code it ranged from 5
+    // to 186 gaps of 1430 from one run to the next. A loop the flood
+    // starved would miss whole periods.)
+    MESSAGE(hb["gaps_off_50_percent"] << " gaps off by over half a period");
+    CHECK(hb["gaps_off_50_percent"].get<int>() * 100 <= hb["gaps"].get<int>());
     // in the flood and the 5 s after: under the table's heartbeat timeout.
     // (The longest gap of the whole recording can be the report's writing
     // at the end, on the loop, with the table at rest: said, not judged.)
