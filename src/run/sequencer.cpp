@@ -139,7 +139,8 @@ void Sequencer::table(TableCode code, double t, std::vector<Command>& out, doubl
   ++seq_;
   out.emplace_back(TableCommand{code, seq_, target, rate});
   awaiting_ack_ = seq_;
-  ack_deadline_ = t + s_.ack_timeout_s;
+  // the table's own time to answer, and the host's latency (in stand time)
+  ack_deadline_ = t + s_.ack_timeout_s + s_.stale_floor_s;
   if (code == TableCode::MoveAbsolute || code == TableCode::MoveRelative) may_move_ = true;
 }
 
@@ -188,13 +189,9 @@ void Sequencer::step(const Event& e, std::vector<Command>& out) {
           }
           enter(Phase::Prepare, ev.t_s);
           run_start_ = ev.t_s;
-          if (!s_.observe) {
-            awaiting_what_ = "enable";
-            table(TableCode::Enable, ev.t_s, out);
-            phase_deadline_ = ev.t_s + s_.enable_timeout_s;
-            waiting_for_ = "the table not holding within " +
-                           std::to_string(static_cast<int>(s_.enable_timeout_s)) + " s of enable";
-          }
+          // command mode: enable goes with the table's first status (a
+          // drive that cannot be heard is not enabled blind)
+          enable_pending_ = !s_.observe;
         } else if constexpr (std::is_same_v<E, AbortRequest>) {
           if (phase_ == Phase::Idle) return;
           fail(ev.t_s, ev.reason.empty() ? "aborted by the operator" : ev.reason, out, true);
@@ -278,8 +275,9 @@ void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
   if (!s_.observe && awaiting_ack_ && t > ack_deadline_) {
     fail(t,
          "the table did not acknowledge " + awaiting_what_ + " within " +
-             std::to_string(static_cast<int>(std::lround(s_.ack_timeout_s * 1000))) + " ms" +
-             (last_fault_.empty() ? "" : " (table fault: " + last_fault_ + ")"),
+             std::to_string(
+                 static_cast<int>(std::lround((s_.ack_timeout_s + s_.stale_floor_s) * 1000))) +
+             " ms" + (last_fault_.empty() ? "" : " (table fault: " + last_fault_ + ")"),
          out);
     return;
   }
@@ -288,7 +286,10 @@ void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
   const bool heard_time = t - run_start_ > s_.grace_s;
   if (!s_.observe && heard_time) {
     if (e.table_status_stale)
-      return fail(t, "table status lost (no TBL_Status for 10 periods)", out);
+      return fail(t,
+                  table_heard_ ? "table status lost (no TBL_Status for 10 periods)"
+                               : "the table not heard: no TBL_Status since the start of the run",
+                  out);
     if (e.encoder_stale)
       return fail(t, "table encoder lost (no encoder frame for 10 periods)", out);
   }
@@ -377,6 +378,16 @@ void Sequencer::on_table(const TableStatusEvent& e, std::vector<Command>& out) {
     return;
   }
   if (s_.observe || finished(phase_) || phase_ == Phase::Idle) return;
+  table_heard_ = true;
+  if (enable_pending_) {
+    enable_pending_ = false;
+    awaiting_what_ = "enable";
+    table(TableCode::Enable, t, out);
+    phase_deadline_ = t + s_.enable_timeout_s;
+    waiting_for_ = "the table not holding within " +
+                   std::to_string(static_cast<int>(s_.enable_timeout_s)) + " s of enable";
+    return;
+  }
   const bool ours_acked = !awaiting_ack_ && e.ack == seq_;
   if (e.state == kFault)
     return fail(t, "table fault: " + (e.fault_name.empty() ? "unknown" : e.fault_name), out);

@@ -5,6 +5,8 @@
 
 #include <doctest/doctest.h>
 
+#include <linux/can.h>
+#include <net/if.h>
 #include <sys/socket.h>
 #include <sys/un.h>
 #include <unistd.h>
@@ -45,10 +47,12 @@ inline std::string slurp(const hil::fs::path& p) {
   return ss.str();
 }
 
-/// A short plan (20 s alignment, 120 s, +180 deg at `turn_s`) and a daemon
-/// configuration for it, in `dir`.
-inline void write_stand(const hil::fs::path& dir, const std::string& iface, bool observe = false,
-                        int turn_s = 60) {
+/// A short plan (20 s alignment, 120 s, +180 deg at `turn_s`) in `dir`,
+/// as `name`. The turn's rate limit is 30 deg/s (7 s of stand time, 1.75 s
+/// of real time at 4x); a test that acts while the table turns gives itself
+/// a slower one, so that a guest slow to answer does not find the turn over.
+inline void write_plan(const hil::fs::path& dir, const std::string& name, int turn_s = 60,
+                       int turn_rate_dps = 30) {
   std::ifstream in(kSrc + "/config/profiles/tactical.toml");
   std::stringstream ss;
   ss << in.rdbuf();
@@ -62,13 +66,28 @@ inline void write_stand(const hil::fs::path& dir, const std::string& iface, bool
   set("duration_s", "120");
   set("align_s", "20");
   set("start_s", std::to_string(turn_s));
-  std::ofstream(dir / "short.toml") << plan;
+  set("max_rate_dps", std::to_string(turn_rate_dps));
+  std::ofstream(dir / name) << plan;
+}
+
+/// The turn rate for a test that acts during the turn: 180 deg at 10 deg/s,
+/// 18 s of stand time, 4.6 s of real time at 4x.
+constexpr int kSlowTurnDps = 10;
+
+/// The short plan as short.toml, and a daemon configuration for it, in `dir`.
+inline void write_stand(const hil::fs::path& dir, const std::string& iface, bool observe = false,
+                        int turn_s = 60, int turn_rate_dps = 30) {
+  write_plan(dir, "short.toml", turn_s, turn_rate_dps);
   std::ofstream(dir / "turncal.toml")
       << "[can]\nins_interface = \"" << iface << "\"\ntable_interface = \"" << iface
       << "\"\ndbc = [\"" << kSrc << "/config/reference-stand.dbc\"]\n"
-      << "[stand]\ntime_scale = " << kSpeed << "\n"
-      << "[daemon]\nstate_directory = \"" << (dir / "state").string() << "\"\nsocket = \""
-      << (dir / "control.sock").string()
+      << "[stand]\ntime_scale = " << kSpeed
+      << "\n"
+      // the host's scheduling latency (real ms): the guest shares one
+      // virtual CPU between the stand, the daemon and the test, on a CI
+      // host that may itself be shared; 250 ms of it were seen
+      << "[daemon]\nstale_floor_ms = 250\nstate_directory = \"" << (dir / "state").string()
+      << "\"\nsocket = \"" << (dir / "control.sock").string()
       << "\"\nprofile = \"short.toml\"\nobserve = " << (observe ? "true" : "false") << "\n";
 }
 
@@ -78,38 +97,6 @@ inline int ctl(const hil::fs::path& dir, std::vector<std::string> args,
   args.insert(args.begin(), {kCtl, "--socket", (dir / "control.sock").string()});
   hil::Child c(args, dir, dir / out);
   return c.wait(timeout);
-}
-
-/// Polls the daemon's status until its phase is `phase`.
-inline bool wait_phase(const hil::fs::path& dir, const std::string& phase,
-                       std::chrono::milliseconds timeout) {
-  for (auto end = std::chrono::steady_clock::now() + timeout;
-       std::chrono::steady_clock::now() < end; std::this_thread::sleep_for(50ms))
-    if (ctl(dir, {"--json", "status"}, "st.json") == 0 &&
-        slurp(dir / "st.json").find("\"phase\": \"" + phase + "\"") != std::string::npos)
-      return true;
-  return false;
-}
-
-/// The virtual stand for the short plan; `extra` arguments after the
-/// common ones (faults, --state-out).
-inline hil::Child start_sim(const hil::fs::path& dir, const std::string& seed = "3",
-                            const std::vector<std::string>& extra = {}) {
-  std::vector<std::string> args = {kSim,
-                                   "--config",
-                                   (dir / "turncal.toml").string(),
-                                   "--profile",
-                                   (dir / "short.toml").string(),
-                                   "--speed",
-                                   std::to_string(kSpeed),
-                                   "--rates",
-                                   kRates,
-                                   "--seed",
-                                   seed,
-                                   "--truth",
-                                   "truth.json"};
-  args.insert(args.end(), extra.begin(), extra.end());
-  return hil::Child(args, dir);
 }
 
 /// A connection to the control socket, whose reads give up after 10 s (a
@@ -146,6 +133,69 @@ inline std::string raw_request(const hil::fs::path& sock, const std::string& byt
   return out;
 }
 
+/// Polls the daemon's status until its phase is `phase`: raw requests on
+/// the control socket every 20 ms (no turncalctl started each time: in a
+/// user-mode Linux guest a process start can take longer than a turn).
+inline bool wait_phase(const hil::fs::path& dir, const std::string& phase,
+                       std::chrono::milliseconds timeout) {
+  const std::string want = "\"phase\":\"" + phase + "\"";
+  for (auto end = std::chrono::steady_clock::now() + timeout;
+       std::chrono::steady_clock::now() < end; std::this_thread::sleep_for(20ms))
+    if (raw_request(dir / "control.sock", "{\"cmd\":\"status\"}\n").find(want) != std::string::npos)
+      return true;
+  return false;
+}
+
+/// Waits until the stand is on the bus: a frame on `iface` (the stand sends
+/// from its start; the daemon is not yet started, so the frame is the
+/// stand's). A daemon's run started before the stand is up would fail on a
+/// table not heard.
+inline bool wait_bus(const std::string& iface, std::chrono::milliseconds timeout) {
+  const int fd = ::socket(PF_CAN, SOCK_RAW, CAN_RAW);
+  REQUIRE(fd >= 0);
+  sockaddr_can a{};
+  a.can_family = AF_CAN;
+  a.can_ifindex = static_cast<int>(::if_nametoindex(iface.c_str()));
+  REQUIRE(a.can_ifindex > 0);
+  REQUIRE(::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
+  const timeval step{0, 100000};
+  ::setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &step, sizeof step);
+  bool heard = false;
+  can_frame f{};
+  for (auto end = std::chrono::steady_clock::now() + timeout;
+       !heard && std::chrono::steady_clock::now() < end;)
+    heard = ::read(fd, &f, sizeof f) == static_cast<ssize_t>(sizeof f);
+  ::close(fd);
+  return heard;
+}
+
+/// The virtual stand for the short plan; `extra` arguments after the
+/// common ones (faults, --state-out).
+inline hil::Child start_sim(const hil::fs::path& dir, const std::string& seed = "3",
+                            const std::vector<std::string>& extra = {}) {
+  std::vector<std::string> args = {kSim,
+                                   "--config",
+                                   (dir / "turncal.toml").string(),
+                                   "--profile",
+                                   (dir / "short.toml").string(),
+                                   "--speed",
+                                   std::to_string(kSpeed),
+                                   "--rates",
+                                   kRates,
+                                   "--seed",
+                                   seed,
+                                   "--truth",
+                                   "truth.json"};
+  args.insert(args.end(), extra.begin(), extra.end());
+  hil::Child sim(args, dir);
+  // the INS's interface, as write_stand wrote it
+  const std::string conf = slurp(dir / "turncal.toml");
+  const auto at = conf.find("ins_interface = \"") + 17;
+  REQUIRE_MESSAGE(wait_bus(conf.substr(at, conf.find('"', at) - at), 10000ms),
+                  "the stand sent nothing within 10 s");
+  return sim;
+}
+
 inline bool wait_for(const hil::fs::path& p, std::chrono::milliseconds t) {
   for (auto end = std::chrono::steady_clock::now() + t; std::chrono::steady_clock::now() < end;
        std::this_thread::sleep_for(20ms))
@@ -160,7 +210,7 @@ inline std::uint64_t log_records(const hil::fs::path& log) {
   std::uint64_t n = 0;
   for (;;) {
     auto rec = reader->next();
-    REQUIRE_MESSAGE(rec.ok(), rec.error().describe());
+    if (!rec.ok()) FAIL("the log is damaged: " << rec.error().describe());
     if (!rec->has_value()) break;
     ++n;
   }

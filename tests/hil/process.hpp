@@ -40,6 +40,8 @@ class Child {
   }
   Child(const Child&) = delete;
   Child& operator=(const Child&) = delete;
+  Child(Child&& o) noexcept : pid_(o.pid_) { o.pid_ = -1; }
+  Child& operator=(Child&&) = delete;
   [[nodiscard]] pid_t pid() const { return pid_; }
   /// Asks it to stop (SIGTERM).
   void terminate() {

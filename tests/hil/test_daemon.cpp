@@ -158,8 +158,10 @@ TEST_SUITE("daemon") {
       CHECK(whole == 60);
     }
 
-    // a second run, aborted during the turn: the table quick-stops
-    REQUIRE(ctl(dir.path, {"start"}) == 0);
+    // a second run, aborted during the turn: the table quick-stops (a plan
+    // with a slower turn, so the abort is surely in it)
+    write_plan(dir.path, "slow.toml", 60, kSlowTurnDps);
+    REQUIRE(ctl(dir.path, {"start", "--profile", (dir.path / "slow.toml").string()}) == 0);
     REQUIRE(wait_phase(dir.path, "turn", 60000ms));
     CHECK(ctl(dir.path, {"abort"}) == 0);
     CHECK(ctl(dir.path, {"watch"}, "w2.out", 20000ms) == 1);  // the watched run ended aborted
@@ -224,7 +226,7 @@ TEST_SUITE("daemon") {
   TEST_CASE(
       "SIGTERM during the turn: quick stop, then a clean exit; SIGKILL: reported next start") {
     hil::TempDir dir;
-    write_stand(dir.path, hil::if0(), false, 30);
+    write_stand(dir.path, hil::if0(), false, 30, kSlowTurnDps);
     Child sim = start_sim(dir.path, "4", {"--state-out", "stand.json"});
     const std::string config = (dir.path / "turncal.toml").string();
     {

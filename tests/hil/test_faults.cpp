@@ -71,7 +71,7 @@ json replay_of_log(const hil::fs::path& dir, const std::string& id, const json& 
 TEST_SUITE("faults") {
   TEST_CASE("hostile control requests during the turn: error replies, the run goes on") {
     hil::TempDir dir;
-    write_stand(dir.path, hil::if0());
+    write_stand(dir.path, hil::if0(), false, 60, kSlowTurnDps);
     // a report file of a wrong shape, as a crash loop would have read it
     hil::fs::create_directories(dir.path / "state");
     std::ofstream(dir.path / "state" / "20200101T000000Z.report.json")
@@ -205,7 +205,7 @@ TEST_SUITE("faults") {
       "the CAN interface goes down in the turn: the run fails, the quick stop goes when it is "
       "back") {
     hil::TempDir dir;
-    write_stand(dir.path, hil::if0());
+    write_stand(dir.path, hil::if0(), false, 60, kSlowTurnDps);
     // the table's own heartbeat watchdog out of the way (30 s, not 0.5 s), so
     // only the daemon's quick stop can stop it
     Child sim =
@@ -293,7 +293,7 @@ TEST_SUITE("faults") {
   TEST_CASE(
       "the disk fills during the run: the table stops, the log replays, the report says why") {
     hil::TempDir dir;
-    write_stand(dir.path, hil::if0());
+    write_stand(dir.path, hil::if0(), false, 60, kSlowTurnDps);
     // 256 KiB kept for the report; the state directory a file system of
     // 3 MiB, room for the run's log (about 1 MiB), until another writer
     // fills it in the turn
@@ -349,7 +349,7 @@ TEST_SUITE("faults") {
       "the disk fails in the turn (I/O errors): the table stops, the log is kept up to the "
       "failure, the run is failed with the reason") {
     hil::TempDir dir;
-    write_stand(dir.path, hil::if0());
+    write_stand(dir.path, hil::if0(), false, 60, kSlowTurnDps);
     std::ofstream(dir.path / "turncal.toml", std::ios::app) << "report_reserve_mib = 0.25\n";
     const hil::fs::path state = dir.path / "state";
     hil::fs::create_directories(state);
@@ -741,7 +741,7 @@ TEST_SUITE("faults") {
       return;
     }
     hil::TempDir dir;
-    write_stand(dir.path, hil::if0(), false, 40);
+    write_stand(dir.path, hil::if0(), false, 40, kSlowTurnDps);
     Child sim = start_sim(dir.path, "2", {"--state-out", "stand.json"});
     Child daemon = start_daemon(dir.path);
     REQUIRE(wait_for(dir.path / "control.sock", 5000ms));

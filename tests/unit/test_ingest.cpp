@@ -318,6 +318,26 @@ TEST_SUITE("sequencer") {
     CHECK(check_plan(s).find("turn 1: acceleration") == 0);
   }
 
+  TEST_CASE("a start with the table unheard: no enable sent blind, a fault after the grace") {
+    SequencerSettings s;
+    s.profile = classic_profile(600, 300, std::numbers::pi, 0.5, 0.5);
+    Sequencer q(s);
+    std::vector<Command> out;
+    q.step(StartRequest{1}, out);
+    CHECK(out.empty());
+    Tick quiet{1.5};
+    quiet.table_status_stale = true;
+    q.step(quiet, out);  // within the grace: not yet lost
+    CHECK(out.empty());
+    CHECK(q.phase() == Phase::Prepare);
+    quiet.t_s = 2.1;
+    q.step(quiet, out);
+    CHECK(q.course().reason == "the table not heard: no TBL_Status since the start of the run");
+    // the table may be there and deaf to us: it is told to stop all the same
+    REQUIRE(out.size() == 1);
+    CHECK(std::get<TableCommand>(out[0]).code == TableCode::QuickStop);
+  }
+
   TEST_CASE("idle: a signal or an abort changes nothing; a start enables the table") {
     SequencerSettings s;
     s.profile = classic_profile(600, 300, std::numbers::pi, 0.5, 0.5);
@@ -329,6 +349,8 @@ TEST_SUITE("sequencer") {
     CHECK(q.phase() == Phase::Idle);
     CHECK(out.empty());
     q.step(StartRequest{1}, out);
+    CHECK(out.empty());  // enable goes with the table's first status
+    q.step(TableStatusEvent{1.05, 0, 41, 0, "", 0.0}, out);
     REQUIRE(out.size() == 1);
     const auto& t = std::get<TableCommand>(out[0]);
     CHECK(t.code == TableCode::Enable);
@@ -365,7 +387,8 @@ TEST_SUITE("sequencer") {
     s.table_seq_base = 41;
     Sequencer q(s);
     std::vector<Command> out;
-    q.step(StartRequest{1}, out);  // enable, 42, never acknowledged
+    q.step(StartRequest{1}, out);
+    q.step(TableStatusEvent{1.05, 0, 41, 0, "", 0.0}, out);  // enable, 42, never acknowledged
     out.clear();
     q.step(Tick{2.5}, out);  // the quick stop, 43
     REQUIRE(out.size() == 1);

@@ -84,7 +84,8 @@ struct SequencerSettings {
   double grace_s = 1.0;  ///< after the start and after t0: a stream not yet heard is not lost
   /// A stream is lost after 10 periods unseen, and never sooner than this
   /// (stand seconds): the host's scheduling latency, which a virtual stand
-  /// running N times faster stretches N times in stand time.
+  /// running N times faster stretches N times in stand time. The table's
+  /// acknowledgement timeout has it added for the same reason.
   double stale_floor_s = 0;
   /// Observe mode: the table has left its hold when it is this far from
   /// it (0.05 deg), and is at rest again after still_time_s within a tenth.
@@ -266,6 +267,10 @@ class Sequencer {
   std::string last_fault_;   ///< the table's fault name, empty for none
   bool may_move_ = false;
   bool enabled_ = false;
+  /// Command mode: the run has started but the table has not been heard
+  /// yet; enable goes out with its first status, never blind.
+  bool enable_pending_ = false;
+  bool table_heard_ = false;
   bool prepare_moving_ = false;
   bool seen_aligning_ = false;
   bool stopping_ = false;  ///< a quick stop is out; finish when it is acknowledged
