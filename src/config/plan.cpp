@@ -196,7 +196,7 @@ Result<Plan> parse_plan(std::string_view text, const std::string& file,
     TURNCAL_TRY(r.string("measurement", m));
     if (m != "sample" && m != "mean")
       return r.error_at(*est->get("measurement"), "measurement",
-                        "expected \"sample\" (nearest sample) or \"mean\" (mean over the epoch)");
+                        "expected \"sample\" (nearest sample) or \"mean\" (mean around the epoch)");
     plan.mean_measurement = m == "mean";
   }
   return plan;

@@ -192,6 +192,7 @@ int turncal::ctl::usage(const char* why) {
                "        [--epoch S] [--mean|--sample] [--heading-offset DEG]\n"
                "        [--rate HZ]                       INS velocity rate (default 100)\n"
                "        [--no-sweep] [--json OUT]         without the hold/turn table\n"
+               "        [--compare PLAN.toml...]          several plans' sigmas side by side\n"
                "exit codes: 0 ok; 1 refused, the watched run failed, or a replay gave no\n"
                "estimates or met a damaged log; 2 usage or bad configuration; 3 no daemon\n",
                why);

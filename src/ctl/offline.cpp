@@ -4,7 +4,8 @@
 //              [--profile PLAN.toml] [--set KEY=VALUE]... [--epoch S]
 //              [--mean | --sample] [--two-stage | --no-two-stage]
 //              [--heading-offset DEG] [--json OUT] [--html OUT] [--truth TRUTH.json]
-//   plan [--config FILE] [--profile PLAN.toml] [--set KEY=VALUE]... [--epoch S]
+//   plan [--config FILE] [--profile PLAN.toml | --compare PLAN.toml...] [--set KEY=VALUE]...
+//   [--epoch S]
 //        [--mean | --sample] [--heading-offset DEG] [--rate HZ] [--no-sweep]
 //        [--json OUT]
 #include "offline.hpp"
@@ -196,12 +197,18 @@ int replay(int argc, char** argv, int i, bool as_json) {
 int plan(int argc, char** argv, int i, bool as_json) {
   SharedOptions so;
   run::PlanningSettings ps;
+  std::vector<std::string> compare;
   for (; i < argc; ++i) {
     const std::string a = argv[i];
     const bool has = i + 1 < argc;
     double v = 0;
     if (std::string bad; shared_option(argc, argv, i, so, bad)) {
       if (!bad.empty()) return usage(("plan: " + bad).c_str());
+    } else if (a == "--compare") {
+      // the plans up to the next option
+      while (i + 1 < argc && std::string(argv[i + 1]).rfind("--", 0) != 0)
+        compare.emplace_back(argv[++i]);
+      if (compare.size() < 2) return usage("plan: --compare needs two or more PLAN.toml");
     } else if (a == "--rate" && has) {
       if (!number(argv[++i], v) || !(v > 0)) return usage("plan: --rate needs the INS rate in Hz");
       ps.sample_rate_hz = v;
@@ -211,32 +218,62 @@ int plan(int argc, char** argv, int i, bool as_json) {
       return usage(("plan: unknown argument " + a).c_str());
     }
   }
+  if (!compare.empty() && !so.profile.empty())
+    return usage("plan: --compare takes the plans itself, not --profile as well");
   auto cfg = load_config(so.config);
   if (!or_say(cfg)) return kUsage;
   ps.heading_offset_rad = so.heading_offset_rad.value_or(cfg->stand.heading_offset_rad);
-  const std::string profile = so.profile.empty() ? cfg->daemon.profile.string() : so.profile;
-  auto p = load_plan(profile, so.overrides);
-  if (!or_say(p)) return kUsage;
-  // the plan on this stand, as a start checks it: the table's limits and
+  // each plan on this stand, as a start checks it: the table's limits and
   // what its command signals carry
   auto db = load_databases(cfg->can);
   if (!or_say(db)) return kUsage;
   auto roles = resolve_roles(cfg->can, *db);
   if (!or_say(roles)) return kUsage;
-  run::SequencerSettings q;
-  q.profile = p->profile;
-  q.start_angle_rad = p->start_angle_rad;
-  q.limits = cfg->stand.limits;
-  q.commands = run::command_signals(*roles);
-  if (const std::string bad = run::check_plan(q); !bad.empty()) {
-    std::fprintf(stderr, "turncalctl: %s: the stand would refuse this plan: %s\n", profile.c_str(),
-                 bad.c_str());
-    return kRefused;
+  auto analysed = [&](const std::string& profile, int& rc) -> std::optional<nlohmann::json> {
+    auto p = load_plan(profile, so.overrides);
+    if (!or_say(p)) {
+      rc = kUsage;
+      return std::nullopt;
+    }
+    run::SequencerSettings q;
+    q.profile = p->profile;
+    q.start_angle_rad = p->start_angle_rad;
+    q.limits = cfg->stand.limits;
+    q.commands = run::command_signals(*roles);
+    if (const std::string bad = run::check_plan(q); !bad.empty()) {
+      std::fprintf(stderr, "turncalctl: %s: the stand would refuse this plan: %s\n",
+                   profile.c_str(), bad.c_str());
+      rc = kRefused;
+      return std::nullopt;
+    }
+    auto j = run::plan_json(*p, ps);
+    if (!or_say(j)) {
+      rc = kRefused;
+      return std::nullopt;
+    }
+    return std::move(*j);
+  };
+  int rc = kOk;
+  nlohmann::json out;
+  std::string text;
+  if (compare.empty()) {
+    auto j = analysed(so.profile.empty() ? cfg->daemon.profile.string() : so.profile, rc);
+    if (!j) return rc;
+    out = std::move(*j);
+    text = run::plan_text(out);
+  } else {
+    ps.sweep = false;  // the plans themselves, side by side
+    std::vector<nlohmann::json> each;
+    for (const std::string& f : compare) {
+      auto j = analysed(f, rc);
+      if (!j) return rc;
+      each.push_back(std::move(*j));
+    }
+    out = run::compare_json(each);
+    text = run::compare_text(out);
   }
-  auto j = run::plan_json(*p, ps);
-  if (!or_say(j)) return kRefused;
-  if (!so.json_out.empty() && !write_text(so.json_out, j->dump(2) + "\n")) return kRefused;
-  std::printf("%s", as_json ? (j->dump(2) + "\n").c_str() : run::plan_text(*j).c_str());
+  if (!so.json_out.empty() && !write_text(so.json_out, out.dump(2) + "\n")) return kRefused;
+  std::printf("%s", as_json ? (out.dump(2) + "\n").c_str() : text.c_str());
   return kOk;
 }
 

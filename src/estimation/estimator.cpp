@@ -11,46 +11,114 @@ namespace {
 using ParamVec = Eigen::Matrix<double, sx::kParams, 1>;
 using ParamMat = Eigen::Matrix<double, sx::kParams, sx::kParams>;
 
-/// The measurement for the epoch ending at t: the nearest sample (within
-/// half an epoch) or the mean of the samples in (t - epoch, t].
-bool measurement_at(const EstimationInput& in, double t, Meas& z, double& sigma) {
+/// The velocity samples with lo < t_s < hi.
+std::pair<const VelocityObs*, const VelocityObs*> samples_in(const std::vector<VelocityObs>& v,
+                                                             double lo, double hi) {
+  auto first = std::upper_bound(v.begin(), v.end(), lo,
+                                [](double x, const VelocityObs& o) { return x < o.t_s; });
+  auto last = std::lower_bound(first, v.end(), hi,
+                               [](const VelocityObs& o, double x) { return o.t_s < x; });
+  return {v.data() + (first - v.begin()), v.data() + (last - v.begin())};
+}
+
+/// Where an epoch's measurement takes its samples from: within half an
+/// epoch of t and inside the still interval; the mean over a window
+/// centred on t (so the mean is where the model evaluates it), shrunk to
+/// stay in the still interval.
+std::pair<double, double> epoch_window(const EstimationInput& in, const TimelineStep& step) {
+  constexpr double kClosed = 1e-6;  // s: an end a sample on it is inside (samples are ms apart)
+  const double t = step.t_to, half = 0.5 * in.timeline.epoch_s;
+  if (!in.mean_measurement)
+    return {std::max(t - half - kClosed, step.still_from_s),
+            std::min(t + half + kClosed, step.still_to_s)};
+  const double h = std::min({half, t - step.still_from_s, step.still_to_s - t});
+  // (t - h, t + h], the upper end open where it is the still interval's
+  return {t - h, h < half ? t + h : t + h + kClosed};
+}
+
+/// The measurement at the step's end: at a turn boundary the sample at
+/// exactly that time; at an epoch the nearest sample in its window, or
+/// the mean of the samples there.
+bool measurement_at(const EstimationInput& in, const TimelineStep& step, Meas& z, double& sigma) {
   const auto& v = in.velocity;
-  const double epoch = in.timeline.epoch_s;
-  if (in.mean_measurement) {
-    auto lo = std::upper_bound(v.begin(), v.end(), t - epoch,
-                               [](double x, const VelocityObs& o) { return x < o.t_s; });
-    auto hi = std::upper_bound(v.begin(), v.end(), t + 1e-9,
-                               [](double x, const VelocityObs& o) { return x < o.t_s; });
+  const double t = step.t_to;
+  if (step.boundary) {
+    auto [lo, hi] = samples_in(v, t - 1e-9, t + 1e-9);
     if (lo == hi) return false;
+    z = Meas(lo->ve, lo->vn);
+    sigma = in.sigma_z;
+    return true;
+  }
+  const auto [from, to] = epoch_window(in, step);
+  auto [lo, hi] = samples_in(v, from, to);
+  if (lo == hi) return false;
+  if (in.mean_measurement) {
     z.setZero();
-    for (auto it = lo; it != hi; ++it) z += Meas(it->ve, it->vn);
+    for (const VelocityObs* it = lo; it != hi; ++it) z += Meas(it->ve, it->vn);
     const auto n = static_cast<double>(hi - lo);
     z /= n;
     sigma = in.sigma_z / std::sqrt(n);
     return true;
   }
-  auto it = std::lower_bound(v.begin(), v.end(), t,
-                             [](const VelocityObs& o, double x) { return o.t_s < x; });
-  const VelocityObs* best = nullptr;
-  if (it != v.end()) best = &*it;
-  if (it != v.begin() && (best == nullptr || t - (it - 1)->t_s < best->t_s - t)) best = &*(it - 1);
-  if (best == nullptr || std::fabs(best->t_s - t) > 0.5 * epoch) return false;
+  const VelocityObs* best = lo;
+  for (const VelocityObs* it = lo; it != hi; ++it)
+    if (std::fabs(it->t_s - t) < std::fabs(best->t_s - t)) best = it;
   z = Meas(best->ve, best->vn);
   sigma = in.sigma_z;
   return true;
 }
 
-/// The measurement noise the covariance analysis assumes at each epoch.
-double planned_sigma(const EstimationInput& in) {
-  if (!in.mean_measurement) return in.sigma_z;
-  const double n = std::max(1.0, std::floor(in.sample_rate_hz * in.timeline.epoch_s + 1e-9));
-  return in.sigma_z / std::sqrt(n);
+/// The measurement noise the covariance analysis assumes at the step's
+/// end, with the samples on a grid of the INS rate from t0; false where
+/// that grid has no sample for it.
+bool planned_measurement(const EstimationInput& in, const TimelineStep& step, double& sigma) {
+  sigma = in.sigma_z;
+  if (step.boundary) return true;
+  const double rate = in.sample_rate_hz;
+  const auto [from, to] = epoch_window(in, step);
+  // grid samples k / rate with from < k / rate < to
+  const double k_lo = std::floor(from * rate + 1e-8);
+  const double k_hi = std::ceil(to * rate - 1e-8) - 1;
+  const double n = std::max(0.0, k_hi - k_lo);
+  if (n < 1) return false;
+  if (in.mean_measurement) sigma = in.sigma_z / std::sqrt(n);
+  return true;
+}
+
+/// The turns' boundary samples (model.md, 5): the recorded INS samples, or
+/// in a covariance analysis the grid of the INS rate from t0.
+void boundary_samples(const EstimationInput& in, TimelineInput& tl, bool data) {
+  const double rate = in.sample_rate_hz;
+  for (std::size_t i = 0; i < tl.turns.size(); ++i) {
+    TurnWindow& w = tl.turns[i];
+    w.sample_before_s = w.sample_after_s = NAN;
+    if (!in.boundary_measurements) continue;
+    const double lo = i == 0 ? 0.0 : tl.turns[i - 1].t_end_s;
+    const double hi = i + 1 < tl.turns.size() ? tl.turns[i + 1].t_start_s : tl.duration_s;
+    double before = NAN, after = NAN;
+    if (data) {
+      const auto& v = in.velocity;
+      auto b = std::upper_bound(v.begin(), v.end(), w.t_start_s,
+                                [](double x, const VelocityObs& o) { return x < o.t_s; });
+      if (b != v.begin()) before = (b - 1)->t_s;
+      auto a = std::lower_bound(v.begin(), v.end(), w.t_end_s,
+                                [](const VelocityObs& o, double x) { return o.t_s < x; });
+      if (a != v.end()) after = a->t_s;
+    } else if (rate > 0) {
+      before = std::floor(w.t_start_s * rate + 1e-9) / rate;
+      after = std::ceil(w.t_end_s * rate - 1e-9) / rate;
+    }
+    if (before > lo && before <= w.t_start_s) w.sample_before_s = before;
+    if (after >= w.t_end_s && after < hi && after <= tl.duration_s) w.sample_after_s = after;
+  }
 }
 
 /// The filter over `tl` from the alignment prior at tl.psi_start_rad; with
 /// data from in.velocity, or (covariance analysis) a measurement at every
 /// epoch and no data.
-Result<EstimationResult> run(const EstimationInput& in, const TimelineInput& tl, bool data) {
+Result<EstimationResult> run(const EstimationInput& in, const TimelineInput& given, bool data) {
+  TimelineInput tl = given;
+  boundary_samples(in, tl, data);
   if (!(in.sigma_z > 0)) return make_error("the velocity noise sigma must be positive");
   const EarthAt e = EarthAt::at(tl.site);
   const XiMat t = initial_map(e, tl.psi_start_rad);
@@ -59,7 +127,6 @@ Result<EstimationResult> run(const EstimationInput& in, const TimelineInput& tl,
   // internal scaling: the prior sigma of each state
   SqrtFilter f(StateVec::Zero(), s0, s0.rowwise().norm());
   const MeasMat h = velocity_measurement();
-  const double sigma_plan = planned_sigma(in);
   EstimationResult r;
   const std::size_t expected = static_cast<std::size_t>(tl.duration_s / tl.epoch_s) + 1;
   r.epoch_t.reserve(expected);
@@ -69,8 +136,8 @@ Result<EstimationResult> run(const EstimationInput& in, const TimelineInput& tl,
   auto report = for_each_step(tl, [&](const TimelineStep& step) {
     f.predict(step.d->phi, step.d->sqrt_q);
     Meas z = Meas::Zero();
-    double sigma = sigma_plan;
-    if (!data || measurement_at(in, step.t_to, z, sigma)) {
+    double sigma = in.sigma_z;
+    if (data ? measurement_at(in, step, z, sigma) : planned_measurement(in, step, sigma)) {
       const UpdateResult u = f.update(z, h, sigma);
       if (!u.ok) ++r.degraded_updates;
       if (data) r.innovations.push_back({step.t_to, u.innovation, u.innovation_cov});

@@ -128,39 +128,73 @@ TurnIntegrals turn_integrals(std::span<const AngleSample> samples) {
 
 TurnIntegrals turn_integrals_constant_rate(double psi1, double psi2, double plateau_rate) {
   return {plateau_rate * (std::sin(psi2) - std::sin(psi1)),
-          -plateau_rate * (std::cos(psi2) - std::cos(psi1))};
+          -plateau_rate * (std::cos(psi2) - std::cos(psi1)), plateau_rate};
 }
 
 Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
                          const ProcessNoise& noise, const TurnIntegrals* integrals) {
+  // Only the 7 navigation rows move: the parameters are constants, so each
+  // step is [[S_nn, S_np], [0, I]], the product keeps that form, and the
+  // noise stays in the navigation block. Per encoder sample that is a few
+  // 7x7 and 7x18 products, not four 25x25 ones.
   using namespace sx;
-  Discrete d{StateMat::Identity(), StateMat::Zero(), StateMat::Zero()};
-  const StateMat gqg = noise_input(noise);
+  using NavMat = Eigen::Matrix<double, kNav, kNav>;
+  using NavParMat = Eigen::Matrix<double, kNav, kParams>;
+  NavMat pnn = NavMat::Identity();
+  NavParMat pnp = NavParMat::Zero();
+  NavMat qnn = NavMat::Zero();
+  const NavMat gqg = noise_input(noise).topLeftCorner<kNav, kNav>();
+  const bool closed_rate = integrals != nullptr && std::isfinite(integrals->plateau_rate);
+  const bool spread_at_end = integrals != nullptr && !closed_rate;
   for (std::size_t k = 0; k + 1 < samples.size(); ++k) {
     const double dt = samples[k + 1].t_s - samples[k].t_s;
     if (dt <= 0) continue;
     const double psi1 = samples[k].psi_rad, psi2 = samples[k + 1].psi_rad;
-    // Bounded terms of F at the mid angle, second-order transition.
-    const StateMat fdt = hold_dynamics(e, 0.5 * (psi1 + psi2)) * dt;
-    StateMat step = StateMat::Identity() + fdt + 0.5 * fdt * fdt;
+    // Bounded terms of F at the mid angle, second-order transition:
+    // I + F dt + (F dt)^2 / 2, whose parameter rows are those of I.
+    const StateMat f = hold_dynamics(e, 0.5 * (psi1 + psi2));
+    const NavMat fnn = f.topLeftCorner<kNav, kNav>() * dt;
+    const NavParMat fnp = f.topRightCorner<kNav, kParams>() * dt;
+    const NavMat snn = NavMat::Identity() + fnn + 0.5 * fnn * fnn;
+    NavParMat snp = fnp + 0.5 * fnn * fnp;
     // Theta_.3 Omega integrates over angle: Delta b = -[int A dpsi] Theta_.3,
     // int A dpsi = [[S, C, 0], [-C, S, 0], [0, 0, psi2 - psi1]].
     const double sd = std::sin(psi2) - std::sin(psi1), cd = std::cos(psi2) - std::cos(psi1);
     const double ia[3][3] = {{sd, cd, 0}, {-cd, sd, 0}, {0, 0, psi2 - psi1}};
     for (int i = 0; i < 3; ++i)
-      for (int j = 0; j < 3; ++j) step(kB + i, theta(j + 1, 3)) -= ia[i][j];
-    d.phi = step * d.phi;
-    d.q = step * d.q * step.transpose() + gqg * dt;
+      for (int j = 0; j < 3; ++j) snp(kB + i, theta(j + 1, 3) - kNav) -= ia[i][j];
+    // the proof-mass jump of this step: Omega cos psi dpsi and Omega sin
+    // psi dpsi (midpoint), or the closed form's at its plateau rate
+    double jc = 0, js = 0;
+    if (!spread_at_end) {
+      if (closed_rate) {
+        jc = integrals->plateau_rate * sd;
+        js = -integrals->plateau_rate * cd;
+      } else {
+        const double mid = 0.5 * (psi1 + psi2), dpsi = psi2 - psi1, omega = dpsi / dt;
+        jc = omega * std::cos(mid) * dpsi;
+        js = omega * std::sin(mid) * dpsi;
+      }
+    }
+    snp(kDv, kR - kNav) += jc;
+    snp(kDv, kR + 1 - kNav) += js;
+    snp(kDv + 1, kR - kNav) += js;
+    snp(kDv + 1, kR + 1 - kNav) -= jc;
+    pnp = snn * pnp + snp;
+    pnn = snn * pnn;
+    qnn = snn * qnn * snn.transpose() + gqg * dt;
   }
-  // Proof-mass terms: Delta dv1 = r1 Jc + r2 Js, Delta dv2 = r1 Js - r2 Jc.
-  const TurnIntegrals j = integrals != nullptr ? *integrals : turn_integrals(samples);
-  StateMat jump = StateMat::Identity();
-  jump(kDv, kR) = j.jc;
-  jump(kDv, kR + 1) = j.js;
-  jump(kDv + 1, kR) = j.js;
-  jump(kDv + 1, kR + 1) = -j.jc;
-  d.phi = jump * d.phi;
-  d.q = 0.5 * (d.q + d.q.transpose()).eval();
+  Discrete d{StateMat::Identity(), StateMat::Zero(), StateMat::Zero()};
+  d.phi.topLeftCorner<kNav, kNav>() = pnn;
+  d.phi.topRightCorner<kNav, kParams>() = pnp;
+  if (spread_at_end) {
+    // Delta dv1 = r1 Jc + r2 Js, Delta dv2 = r1 Js - r2 Jc, at the end
+    d.phi(kDv, kR) += integrals->jc;
+    d.phi(kDv, kR + 1) += integrals->js;
+    d.phi(kDv + 1, kR) += integrals->js;
+    d.phi(kDv + 1, kR + 1) -= integrals->jc;
+  }
+  d.q.topLeftCorner<kNav, kNav>() = 0.5 * (qnn + qnn.transpose());
   d.sqrt_q = psd_sqrt(d.q);
   return d;
 }

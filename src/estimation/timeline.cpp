@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <string>
 
 namespace turncal::est {
@@ -90,48 +91,124 @@ std::vector<HoldSpan> holds_of(const TimelineInput& in, const std::vector<Resolv
 
 }  // namespace
 
+namespace {
+
+/// A measurement time of the schedule.
+struct Mark {
+  double t;
+  bool boundary;
+};
+
+constexpr double kSameTime = 1e-9;  // s: two marks closer than this are one
+
+/// The measurement schedule: the epochs not inside a turn and the turns'
+/// boundary samples, ascending.
+std::vector<Mark> schedule(const TimelineInput& in, const std::vector<ResolvedTurn>& turns) {
+  std::vector<Mark> marks;
+  const auto n_epochs = static_cast<long>(std::floor(in.duration_s / in.epoch_s + 1e-9));
+  std::size_t i = 0;
+  for (long k = 1; k <= n_epochs; ++k) {
+    const double t = static_cast<double>(k) * in.epoch_s;
+    while (i < turns.size() && turns[i].w.t_end_s < t) ++i;
+    if (i < turns.size() && turns[i].w.t_start_s <= t) continue;  // within turn i
+    marks.push_back({t, false});
+  }
+  for (const ResolvedTurn& r : turns) {
+    if (std::isfinite(r.w.sample_before_s)) marks.push_back({r.w.sample_before_s, true});
+    if (std::isfinite(r.w.sample_after_s) && r.w.sample_after_s <= in.duration_s + kSameTime)
+      marks.push_back({r.w.sample_after_s, true});
+  }
+  std::sort(marks.begin(), marks.end(), [](const Mark& a, const Mark& b) { return a.t < b.t; });
+  std::vector<Mark> out;
+  for (const Mark& m : marks) {
+    if (!out.empty() && m.t - out.back().t < kSameTime) {
+      out.back().boundary = out.back().boundary || m.boundary;  // the exact sample
+      continue;
+    }
+    out.push_back(m);
+  }
+  return out;
+}
+
+/// The composition of `piece` after `d` (d := piece o d).
+void compose(Discrete& d, const Discrete& piece) {
+  d.q = piece.phi * d.q * piece.phi.transpose() + piece.q;
+  d.phi = piece.phi * d.phi;
+}
+
+}  // namespace
+
 Result<TimelineReport> for_each_step(const TimelineInput& in,
                                      const std::function<void(const TimelineStep&)>& fn) {
   if (!(in.epoch_s > 0)) return make_error("the filter epoch must be positive");
   TURNCAL_ASSIGN(turns, resolve_turns(in));
+  for (std::size_t i = 0; i < turns.size(); ++i) {
+    const TurnWindow& w = turns[i].w;
+    const double before_end = i == 0 ? 0.0 : turns[i - 1].w.t_end_s;
+    const double after_start =
+        i + 1 < turns.size() ? turns[i + 1].w.t_start_s : std::numeric_limits<double>::infinity();
+    if (w.t_start_s < before_end)
+      return make_error(at_turn(i, w) + ": starts before the turn before it has ended");
+    if (std::isfinite(w.sample_before_s) &&
+        !(w.sample_before_s <= w.t_start_s && w.sample_before_s > before_end))
+      return make_error(at_turn(i, w) + ": its sample before the turn is not in the hold before");
+    if (std::isfinite(w.sample_after_s) &&
+        !(w.sample_after_s >= w.t_end_s && w.sample_after_s < after_start))
+      return make_error(at_turn(i, w) + ": its sample after the turn is not in the hold after");
+  }
   TimelineReport report;
   report.holds = holds_of(in, turns);
   const EarthAt e = EarthAt::at(in.site);
-  const auto n_epochs = static_cast<long>(std::floor(in.duration_s / in.epoch_s + 1e-9));
+  double psi = in.psi_start_rad;
+  Discrete epoch = discretize_hold(e, psi, in.epoch_s, in.noise);
+  double epoch_psi = psi;  // the orientation `epoch` is for
+  double t = 0;
   std::size_t next_turn = 0;
-  double psi_hold = in.psi_start_rad;
-  Discrete hold = discretize_hold(e, psi_hold, in.epoch_s, in.noise);
-  long k = 0;
-  while (k < n_epochs) {
-    const double t_from = static_cast<double>(k) * in.epoch_s;
-    double t_to = static_cast<double>(k + 1) * in.epoch_s;
-    if (next_turn < turns.size() && turns[next_turn].w.t_start_s < t_to) {
-      // hold to the turn, the turn, hold to the first epoch after it
-      const ResolvedTurn& r = turns[next_turn++];
-      long k_after = static_cast<long>(std::ceil(r.w.t_end_s / in.epoch_s - 1e-9));
-      if (k_after <= k) k_after = k + 1;
-      t_to = static_cast<double>(k_after) * in.epoch_s;
-      const Discrete before = discretize_hold(e, psi_hold, r.w.t_start_s - t_from, in.noise);
-      const Discrete turn = turn_transition(
-          e, r.samples, in.noise, r.source == TurnSource::ClosedForm ? &r.closed_form : nullptr);
-      report.turns.push_back(r.source);
-      psi_hold = r.samples.back().psi_rad;
-      const Discrete after = discretize_hold(e, psi_hold, t_to - r.w.t_end_s, in.noise);
-      Discrete d;
-      d.phi = after.phi * turn.phi * before.phi;
-      d.q = after.phi * (turn.phi * before.q * turn.phi.transpose() + turn.q) *
-                after.phi.transpose() +
-            after.q;
-      d.sqrt_q = psd_sqrt(d.q);
-      fn(TimelineStep{t_from, t_to, &d});
-      ++report.steps;
-      hold = discretize_hold(e, psi_hold, in.epoch_s, in.noise);
-      k = k_after;
-      continue;
+  for (const Mark& m : schedule(in, turns)) {
+    TimelineStep step{t, m.t, &epoch, m.boundary};
+    // the still interval around an epoch: from the last turn's end (or its
+    // sample after) to the next turn's start (or its sample before)
+    if (!m.boundary) {
+      step.still_from_s = 0;
+      step.still_to_s = in.duration_s + kSameTime;
+      for (const ResolvedTurn& r : turns) {
+        if (r.w.t_end_s <= m.t)
+          step.still_from_s = std::isfinite(r.w.sample_after_s) ? r.w.sample_after_s : r.w.t_end_s;
+        if (r.w.t_start_s > m.t) {
+          step.still_to_s =
+              std::isfinite(r.w.sample_before_s) ? r.w.sample_before_s : r.w.t_start_s;
+          break;
+        }
+      }
     }
-    fn(TimelineStep{t_from, t_to, &hold});
+    const bool crosses = next_turn < turns.size() && turns[next_turn].w.t_start_s < m.t;
+    if (!crosses && std::abs(m.t - t - in.epoch_s) < kSameTime) {
+      if (psi != epoch_psi) {
+        epoch = discretize_hold(e, psi, in.epoch_s, in.noise);
+        epoch_psi = psi;
+      }
+      fn(step);  // a whole epoch of hold
+    } else {
+      Discrete d;
+      d.phi.setIdentity();
+      d.q.setZero();
+      while (next_turn < turns.size() && turns[next_turn].w.t_start_s < m.t) {
+        const ResolvedTurn& r = turns[next_turn++];
+        if (r.w.t_start_s - t > kSameTime)
+          compose(d, discretize_hold(e, psi, r.w.t_start_s - t, in.noise));
+        compose(d, turn_transition(e, r.samples, in.noise,
+                                   r.source == TurnSource::ClosedForm ? &r.closed_form : nullptr));
+        report.turns.push_back(r.source);
+        psi = r.samples.back().psi_rad;
+        t = r.w.t_end_s;
+      }
+      if (m.t - t > kSameTime) compose(d, discretize_hold(e, psi, m.t - t, in.noise));
+      d.sqrt_q = psd_sqrt(d.q);
+      step.d = &d;
+      fn(step);
+    }
     ++report.steps;
-    ++k;
+    t = m.t;
   }
   return report;
 }

@@ -219,6 +219,7 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out) {
   Tick k{t};
   const double floor = seq_.settings().stale_floor_s;
   k.velocity_stale = ingest_.health(kVelocity).stale(t, floor);
+  k.velocity_quiet = ingest_.health(kVelocity).stale(t);
   k.ins_status_stale = ingest_.health(kInsStatus).stale(t, floor);
   k.encoder_stale = ingest_.health(kEncoder).stale(t, floor);
   k.table_status_stale = ingest_.health(kTableStatus).stale(t, floor);

@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <numbers>
 
 #include "text_format.hpp"
 #include "turncal/config.hpp"
@@ -21,6 +22,28 @@ constexpr double kDeg = 0.017453292519943295;
 /// The biases whose sigmas the sweep shows.
 /// (df_obs: what a turn about the vertical determines of the accelerometer)
 constexpr std::array<const char*, 5> kBiases = {"nu0_1", "nu0_2", "nu0_3", "df_obs_1", "df_obs_2"};
+
+/// What the reversal and revolution sweep shows: the biases, Theta_33
+/// (whole revolutions) and the proof-mass offset (every turn).
+constexpr std::array<const char*, 8> kTurnSweep = {"nu0_1", "nu0_2",    "nu0_3",    "theta_33",
+                                                   "r1",    "df_obs_1", "df_obs_2", "r2"};
+
+double total_angle(const Plan& p) {
+  double a = 0;
+  for (const TurnSpec& t : p.profile.turns) a += std::abs(t.angle_rad);
+  return a;
+}
+
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wformat-nonliteral"
+/// snprintf to a string; `f` is always a literal format.
+template <class... A>
+std::string pf(const char* f, A... a) {
+  char buf[160];
+  std::snprintf(buf, sizeof buf, f, a...);
+  return buf;
+}
+#pragma GCC diagnostic pop
 
 json sigmas_of(const est::EstimationResult& r) {
   json out = json::object();
@@ -127,8 +150,40 @@ Result<json> plan_json(const Plan& plan, const PlanningSettings& s) {
                         {"sigma", b}});
       }
     j["sweep"] = rows;
+    // the same hour spent on reversals (turns of 180 deg, back and forth,
+    // evenly spread) and on whole revolutions (the first turn's timing)
+    json more = json::array();
+    auto row = [&](const char* kind, int n, const Plan& q) -> Status {
+      TURNCAL_ASSIGN(qr, est::analyse(planned_input(q, one)));
+      const json sig = sigmas_of(qr);
+      json b = json::object();
+      for (const char* k : kTurnSweep) b[k] = sig[k];
+      more.push_back({{"kind", kind},
+                      {"turns", n},
+                      {"total_angle_rad", total_angle(q)},
+                      {"duration_s", q.profile.duration_s},
+                      {"sigma", b}});
+      return Status{Ok{}};
+    };
+    for (const int n : {1, 2, 4, 8}) TURNCAL_TRY(row("reversals", n, reversals_plan(plan, n)));
+    for (const double a : {360.0, 1800.0, 3600.0})
+      TURNCAL_TRY(row("revolutions", 1, scaled_plan(plan, 1.0, a * kDeg)));
+    j["sweep_turns"] = more;
   }
   return j;
+}
+
+Plan reversals_plan(const Plan& plan, int n) {
+  Plan p = plan;
+  const TurnSpec first = plan.profile.turns.empty() ? TurnSpec{} : plan.profile.turns.front();
+  p.profile.turns.clear();
+  for (int k = 0; k < n; ++k) {
+    TurnSpec t = first;
+    t.angle_rad = (k % 2 == 0 ? 1 : -1) * 180 * kDeg;
+    t.start_s = plan.profile.duration_s * (k + 1) / (n + 1);
+    p.profile.turns.push_back(t);
+  }
+  return p;
 }
 
 std::string plan_text(const json& j) {
@@ -174,6 +229,69 @@ std::string plan_text(const json& j) {
           s["df_obs_2"].get<double>() * display_unit("df_obs_2").second);
       line(buf);
     }
+  }
+  if (j.contains("sweep_turns")) {
+    line("");
+    line("  the same run spent on reversals (180 deg, back and forth) or whole revolutions:");
+    std::string head = "  turns            total deg";
+    for (const char* k : kTurnSweep)
+      head += pf(" %12s", (std::string(k) + " " + std::string(display_unit(k).first)).c_str());
+    line(head);
+    for (const auto& r : j["sweep_turns"]) {
+      const bool rev = r["kind"] == "reversals";
+      std::string row =
+          rev ? pf("  %d reversal%s", r["turns"].get<int>(), r["turns"].get<int>() > 1 ? "s" : "")
+              : pf("  %.0f revolution%s",
+                   r["total_angle_rad"].get<double>() / (2 * std::numbers::pi),
+                   r["total_angle_rad"].get<double>() > 2.1 * std::numbers::pi ? "s" : "");
+      row.resize(19, ' ');
+      row += pf("%9.0f", r["total_angle_rad"].get<double>() / kDeg);
+      for (const char* k : kTurnSweep)
+        row += pf(" %12.4g", r["sigma"][k].get<double>() * display_unit(k).second);
+      line(row);
+    }
+  }
+  return out;
+}
+
+json compare_json(const std::vector<json>& plans) {
+  return {{"format", "turncal-plan-compare-1"}, {"plans", plans}};
+}
+
+std::string compare_text(const json& c) {
+  std::string out;
+  auto line = [&](const std::string& s) { out += s + "\n"; };
+  const json& plans = c["plans"];
+  line("turncal plan --compare: predicted sigmas, side by side (a trailing '-': not determined,");
+  line("the sigma is still 0.9 of its prior or more)");
+  line("");
+  std::string head = "  parameter  unit  ";
+  std::string dur = "  run s            ";
+  std::string turns = "  turns            ";
+  for (const auto& p : plans) {
+    head += pf(" %20s", p["profile"].value("name", std::string("?")).substr(0, 20).c_str());
+    dur += pf(" %20.0f", p["profile"].value("duration_s", 0.0));
+    turns += pf(" %20d", p["profile"].value("turns", 0));
+  }
+  line(head);
+  line(dur);
+  line(turns);
+  if (plans.empty()) return out;
+  for (const auto& [name, first] : plans[0]["predicted"].items()) {
+    (void)first;
+    const auto [unit, k] = display_unit(name);
+    std::string row = pf("  %-10s %-6s", name.c_str(), std::string(unit).c_str());
+    for (const auto& p : plans) {
+      const json& pred = p["predicted"];
+      if (!pred.contains(name)) {
+        row += pf(" %20s", "?");
+        continue;
+      }
+      const json& e = pred[name];
+      const bool not_determined = e["ratio"].get<double>() >= 0.9;
+      row += pf(" %19.4g%s", e["sigma"].get<double>() * k, not_determined ? "-" : " ");
+    }
+    line(row);
   }
   return out;
 }

@@ -13,6 +13,7 @@
 
 #include "turncal/earth.hpp"
 #include "turncal/estimation/estimator.hpp"
+#include "turncal/estimation/model.hpp"
 #include "turncal/plan.hpp"
 #include "turncal/profile.hpp"
 
@@ -86,6 +87,42 @@ int main() {
       sink += r->p(est::sx::kNu0, est::sx::kNu0);
     });
     std::printf("covariance_analysis_2h_epoch_%.1fs_s %.3f  (best of 3)\n", epoch, t_cov);
+  }
+  // one hold epoch of the filter: predict over a precomputed transition,
+  // update with a velocity sample
+  {
+    const est::EarthAt e = est::EarthAt::at(plan->site);
+    const est::Discrete d = est::discretize_hold(e, 0.3, 1.0, plan->noise());
+    const est::StateMat s0 = est::StateMat::Identity() * 1e-3;
+    const est::MeasMat h = est::velocity_measurement();
+    constexpr int kEpochs = 100000;
+    const double t = best_of(3, [&] {
+      est::SqrtFilter f(est::StateVec::Zero(), s0, s0.rowwise().norm());
+      for (int k = 0; k < kEpochs; ++k) {
+        f.predict(d.phi, d.sqrt_q);
+        (void)f.update(est::Meas(1e-4, -1e-4), h, plan->sigma_z);
+      }
+      sink += f.state()(0);
+    });
+    std::printf("filter_hold_epoch_us %.2f  (predict and update; best of 3; target <= 5 us)\n",
+                1e6 * t / kEpochs);
+  }
+  // the turn transition: the reference 180 deg turn (7 s) and 10
+  // revolutions (3600 deg at 30 deg/s, 120 s), encoder at 200 Hz
+  for (const double deg : {180.0, 3600.0}) {
+    Profile p = plan->profile;
+    p.turns.at(0).angle_rad = deg * earth::kDeg;
+    const TableTrajectory table(p);
+    std::vector<est::AngleSample> enc;
+    for (double t = table.turn_start(0); t <= table.turn_end(0) + 1e-9; t += 0.005)
+      enc.push_back({t, table.at(t).angle});
+    const est::EarthAt e = est::EarthAt::at(plan->site);
+    const double t = best_of(3, [&] {
+      const est::Discrete d = est::turn_transition(e, enc, plan->noise());
+      sink += d.phi(0, est::sx::kR);
+    });
+    std::printf("turn_transition_%.0fdeg_ms %.2f  (%zu encoder samples, %.2f us each; best of 3)\n",
+                deg, 1e3 * t, enc.size(), 1e6 * t / static_cast<double>(enc.size()));
   }
   std::printf("(checksum %.3e)\n", sink);
   return 0;

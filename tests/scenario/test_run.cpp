@@ -649,6 +649,36 @@ TEST_SUITE("run engine on the virtual stand") {
     }
   }
 
+  TEST_CASE("an INS silent as a whole is said by its velocity, whatever the latency floor") {
+    // Its status (10 Hz) and its velocity (100 Hz) stop together at 40 s.
+    // With a floor of 1 s (a virtual stand at 4x with 250 ms of real time)
+    // both are lost 1 s after their last frames, the status first; the
+    // reason is the velocity's all the same, as an observer of the log
+    // says it. An INS whose status alone stops is said by its status.
+    const Plan plan = short_plan();
+    for (const double floor_s : {0.0, 1.0}) {
+      CAPTURE(floor_s);
+      stand::StandSetup s = setup_of(plan, 3);
+      s.faults.ins_silent_at_s = 40;
+      run::SequencerSettings q = ClosedLoop::settings_of(plan, s);
+      q.stale_floor_s = floor_s;
+      ClosedLoop c(plan, s, q);
+      c.run_until(300);
+      CHECK(c.phase() == run::Phase::Failed);
+      CHECK_MESSAGE(c.course().reason.find("INS velocity lost during hold 1") == 0,
+                    c.course().reason);
+    }
+    const stand::StandSetup s = setup_of(plan, 3);
+    run::SequencerSettings q = ClosedLoop::settings_of(plan, s);
+    q.stale_floor_s = 1.0;
+    ClosedLoop c(plan, s, q);
+    const std::uint32_t status = reference_stand().db.find("INS_Status")->id;
+    c.lose = [&](const stand::StandFrame& f) { return f.frame.id == status && f.t_s > 40; };
+    c.run_until(300);
+    CHECK(c.phase() == run::Phase::Failed);
+    CHECK_MESSAGE(c.course().reason.find("INS status lost") == 0, c.course().reason);
+  }
+
   TEST_CASE("heartbeat lost during the turn: the table stops itself, the run fails saying so") {
     const Plan plan = short_plan();
     ClosedLoop c(plan, setup_of(plan, 4));

@@ -39,9 +39,12 @@ struct VelocityObs {
 struct EstimationInput {
   TimelineInput timeline;
   Priors priors;
-  double sigma_z = 1e-3;              ///< velocity output noise of one sample, m/s
-  bool mean_measurement = false;      ///< mean over the epoch instead of the nearest sample
-  double sample_rate_hz = 100;        ///< INS velocity rate (covariance analysis of the mean)
+  double sigma_z = 1e-3;          ///< velocity output noise of one sample, m/s
+  bool mean_measurement = false;  ///< mean around the epoch instead of the nearest sample
+  double sample_rate_hz = 100;    ///< INS velocity rate (the covariance analysis's samples)
+  /// Measurements at the turn boundaries besides the epochs (model.md, 5);
+  /// off only to compare with the grid alone.
+  bool boundary_measurements = true;
   std::vector<VelocityObs> velocity;  ///< ascending in time
   /// Report the combinations whose posterior sigma is at most this
   /// fraction of their prior sigma (model.md, 8).

@@ -4,6 +4,7 @@
 // (section 7), and the alignment ties x0 = T xi (section 6). Pure.
 #pragma once
 
+#include <cmath>
 #include <span>
 
 #include "turncal/estimation/state.hpp"
@@ -59,11 +60,15 @@ struct AngleSample {
 /// the first sample's time to the last's: bounded terms propagated in
 /// sub-steps at the sample times, the Theta_.3 tilt jump integrated over
 /// angle, and the proof-mass velocity jump from Jc, Js (model.md, 7). The
-/// table is still at the first and the last sample. `integrals`, when
-/// given, replaces Jc, Js from the samples (the constant-rate fallback).
+/// table is still at the first and the last sample. The proof-mass jump
+/// is applied step by step where the angle changes. `integrals`, when
+/// given, replaces Jc, Js from the samples (the constant-rate fallback):
+/// with its plateau rate the jump is spread over the samples as the closed
+/// form has it, without one it is applied at the end.
 struct TurnIntegrals {
   double jc;
   double js;
+  double plateau_rate = NAN;  ///< rad/s, signed; NaN: only the totals are known
 };
 Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
                          const ProcessNoise& noise, const TurnIntegrals* integrals = nullptr);

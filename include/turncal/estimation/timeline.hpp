@@ -1,7 +1,9 @@
 // The experiment as a sequence of filter steps: holds discretized once per
-// hold (model.md, 7), turns by the encoder samples, epochs at a fixed
-// interval from t0. Epochs that fall inside a turn carry no measurement
-// (model.md, 5) and are skipped: one step spans hold - turn - hold.
+// hold (model.md, 7), turns by the encoder samples, measurements on a grid
+// of epochs from t0 and at the turn boundaries (model.md, 5): the last INS
+// sample before each turn and the first after it. Epochs that fall inside
+// a turn carry no measurement and are skipped: a step spans whatever holds
+// and turns lie between two measurements.
 #pragma once
 
 #include <cmath>
@@ -21,6 +23,12 @@ struct TurnWindow {
   /// window: angle (model sense, signed) and plateau rate. NaN: unknown.
   double angle_rad = NAN;
   double plateau_rate_rps = NAN;
+  /// The boundary measurements (model.md, 5): the time of the last INS
+  /// sample at or before t_start_s and of the first at or after t_end_s.
+  /// NaN: none (no sample between this turn and the one before or after,
+  /// or a timeline without them).
+  double sample_before_s = NAN;
+  double sample_after_s = NAN;
 };
 
 struct TimelineInput {
@@ -42,8 +50,16 @@ struct TimelineInput {
 
 struct TimelineStep {
   double t_from;
-  double t_to;  ///< an epoch: a measurement may be taken here
+  double t_to;  ///< a measurement time: an epoch, or a turn boundary's sample
   const Discrete* d;
+  /// The measurement at t_to is the one INS sample at t_to (a turn's
+  /// boundary), not one taken from around an epoch.
+  bool boundary = false;
+  /// An epoch's measurement takes its samples from inside (still_from_s,
+  /// still_to_s): the still interval around t_to that no turn and no
+  /// boundary measurement has (open at both ends).
+  double still_from_s = -INFINITY;
+  double still_to_s = INFINITY;
 };
 
 /// A still interval between turns (or the start or end of the run).

@@ -34,6 +34,11 @@ est::EstimationInput planned_input(const Plan& plan, const PlanningSettings& s);
 /// every turn's angle set to `turn_angle_rad` (sign kept); NaN keeps it.
 Plan scaled_plan(const Plan& plan, double hold_factor, double turn_angle_rad);
 
+/// `plan` with its turns replaced by `n` turns of 180 deg, back and forth
+/// (+180, -180, ...), evenly spread over the run, each as fast as its
+/// first turn.
+Plan reversals_plan(const Plan& plan, int n);
+
 /// The covariance analysis as JSON: `predicted` keyed by model.md's names
 /// (and df_eff_1, df_eff_2), each {sigma, prior_sigma, ratio, estimable,
 /// unit} in SI; `combinations`; `sweep`.
@@ -41,5 +46,10 @@ Result<nlohmann::json> plan_json(const Plan& plan, const PlanningSettings& s);
 
 /// The same in display units, for people.
 std::string plan_text(const nlohmann::json& plan);
+
+/// Several plans' analyses (plan_json each) side by side: the JSON, and
+/// the table for people, a row per parameter and a column per plan.
+nlohmann::json compare_json(const std::vector<nlohmann::json>& plans);
+std::string compare_text(const nlohmann::json& compared);
 
 }  // namespace turncal::run

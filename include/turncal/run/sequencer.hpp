@@ -106,6 +106,9 @@ std::string check_plan(const SequencerSettings& s);
 struct Tick {
   double t_s;
   bool velocity_stale = false;  ///< INS velocity not seen for 10 periods
+  /// ... for 10 of its periods, without the host's latency floor: with its
+  /// status lost too, the INS is silent as a whole
+  bool velocity_quiet = false;
   bool ins_status_stale = false;
   bool encoder_stale = false;
   bool table_status_stale = false;
