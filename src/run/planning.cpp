@@ -25,8 +25,8 @@ constexpr std::array<const char*, 5> kBiases = {"nu0_1", "nu0_2", "nu0_3", "df_o
 
 /// What the reversal and revolution sweep shows: the biases, Theta_33
 /// (whole revolutions) and the proof-mass offset (every turn).
-constexpr std::array<const char*, 8> kTurnSweep = {"nu0_1", "nu0_2",    "nu0_3",    "theta_33",
-                                                   "r1",    "df_obs_1", "df_obs_2", "r2"};
+constexpr std::array<const char*, 8> kTurnSweep = {"nu0_1", "nu0_2", "nu0_3",    "theta_33",
+                                                   "r1",    "r2",    "df_obs_1", "df_obs_2"};
 
 double total_angle(const Plan& p) {
   double a = 0;

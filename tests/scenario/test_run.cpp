@@ -843,6 +843,64 @@ TEST_SUITE("run engine on the virtual stand") {
       }
   }
 
+  TEST_CASE("the recommended plans: what their comments predict, and what they add") {
+    // Each recommended plan's comment table (classic and recommended sigma
+    // of each parameter) is what the analysis gives now, to the four
+    // figures printed; the plan determines Theta_33 (whole revolutions)
+    // where the classic turn does not, and the reversals halve r and df_obs
+    // (four jumps, not one: 1/sqrt(4)).
+    run::PlanningSettings ps;
+    ps.sweep = false;
+    for (const std::string grade : {"tactical", "navigation-grade"}) {
+      CAPTURE(grade);
+      auto classic = run::plan_json(load(grade + ".toml"), ps);
+      auto rec = run::plan_json(load(grade + "-recommended.toml"), ps);
+      REQUIRE(classic.ok());
+      REQUIRE(rec.ok());
+      const nlohmann::json& c = (*classic)["predicted"];
+      const nlohmann::json& r = (*rec)["predicted"];
+      std::ifstream in(std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/" + grade +
+                       "-recommended.toml");
+      std::string line;
+      int rows = 0;
+      while (std::getline(in, line)) {
+        std::istringstream ls(line);
+        std::string hash, name, unit;
+        double vc = 0, vr = 0, prior = 0;
+        if (!(ls >> hash >> name >> unit >> vc >> vr >> prior) || hash != "#" || !r.contains(name))
+          continue;
+        CAPTURE(name);
+        const double k = display_unit(name).second;
+        CHECK(unit == std::string(display_unit(name).first));
+        CHECK(vc == doctest::Approx(c[name]["sigma"].get<double>() * k).epsilon(1e-3).scale(0));
+        CHECK(vr == doctest::Approx(r[name]["sigma"].get<double>() * k).epsilon(1e-3).scale(0));
+        ++rows;
+      }
+      CHECK(rows == 8);
+      CHECK(r["theta_33"]["ratio"].get<double>() < 0.5);
+      CHECK(c["theta_33"]["ratio"].get<double>() > 0.9);
+      for (const char* n : {"r1", "r2", "df_obs_1", "df_obs_2"}) {
+        CAPTURE(n);
+        const double gain = r[n]["sigma"].get<double>() / c[n]["sigma"].get<double>();
+        CHECK(gain == doctest::Approx(0.5).epsilon(0.1).scale(0));
+      }
+    }
+    // side by side: a column per plan, a row per parameter
+    auto a = run::plan_json(load("tactical.toml"), ps);
+    auto b = run::plan_json(load("tactical-recommended.toml"), ps);
+    REQUIRE(a.ok());
+    REQUIRE(b.ok());
+    const nlohmann::json both = run::compare_json({*a, *b});
+    CHECK(both["plans"].size() == 2);
+    const std::string text = run::compare_text(both);
+    CHECK(text.find("tactical-recommended") != std::string::npos);
+    const auto row = text.find("  theta_33   ppm");
+    REQUIRE(row != std::string::npos);
+    const std::string theta = text.substr(row, text.find('\n', row) - row);
+    CHECK(theta.find("987.5-") != std::string::npos);  // classic: not determined
+    CHECK(theta.find("293.2 ") != std::string::npos);  // recommended: determined
+  }
+
   TEST_CASE("replay of the log with the live run's report: the estimation bit for bit") {
     const LiveRun& l = LiveRun::get();
     TempDir dir;
