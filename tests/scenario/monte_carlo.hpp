@@ -17,6 +17,12 @@ struct MonteCarlo {
   std::array<double, est::sx::kParams> rms_z{};
   std::array<double, est::sx::kParams> mean_z{};
   std::array<double, 2> rms_z_df_eff{};
+  /// df_obs_i = df0_i + g G_i3 - g Theta_i3: what a turn about the vertical
+  /// determines of the accelerometer
+  std::array<double, 2> rms_z_df_obs{};
+  std::array<double, 2> mean_z_df_obs{};
+  /// posterior / prior sigma of each parameter, the mean over the runs
+  std::array<double, est::sx::kParams> ratio{};
   double nis_mean = 0;  ///< over every innovation of every run
   double nis_lo = 0, nis_hi = 0;
   int not_white = 0;     ///< runs failing the Ljung-Box test at 5% on either axis
@@ -28,6 +34,8 @@ struct MonteCarlo {
 struct RunZ {
   std::array<double, est::sx::kParams> z{};
   std::array<double, 2> z_df_eff{};
+  std::array<double, 2> z_df_obs{};
+  std::array<double, est::sx::kParams> ratio{};
   double nis_sum = 0;
   std::size_t nis_count = 0;
   bool white = true, consistent = true;
@@ -64,7 +72,12 @@ inline RunZ one_run(const Scenario& s, std::uint64_t seed) {
     const double truth = xi(est::sxi::kParams + (est::sx::kDf0 - est::sx::kNu0) + a) +
                          g * xi(est::sxi::kParams + (est::sx::kG - est::sx::kNu0) + a);
     out.z_df_eff[i] = (r->df_eff[i].value - truth) / r->df_eff[i].sigma;
+    const double obs =
+        truth - g * xi(est::sxi::kParams + (est::sx::theta(a + 1, 3) - est::sx::kNu0));
+    out.z_df_obs[i] = (r->df_obs[i].value - obs) / r->df_obs[i].sigma;
   }
+  for (std::size_t j = 0; j < out.ratio.size(); ++j)
+    out.ratio[j] = r->parameters[j].sigma / r->parameters[j].prior_sigma;
   const est::InnovationStats& st = r->innovation_stats;
   out.nis_sum = st.nis_mean * static_cast<double>(st.count);
   out.nis_count = st.count;
@@ -100,7 +113,12 @@ inline MonteCarlo monte_carlo(const Scenario& s, int runs, std::uint64_t first_s
       mc.rms_z[j] += r.z[j] * r.z[j];
       mc.mean_z[j] += r.z[j];
     }
-    for (std::size_t i = 0; i < 2; ++i) mc.rms_z_df_eff[i] += r.z_df_eff[i] * r.z_df_eff[i];
+    for (std::size_t i = 0; i < 2; ++i) {
+      mc.rms_z_df_eff[i] += r.z_df_eff[i] * r.z_df_eff[i];
+      mc.rms_z_df_obs[i] += r.z_df_obs[i] * r.z_df_obs[i];
+      mc.mean_z_df_obs[i] += r.z_df_obs[i];
+    }
+    for (std::size_t j = 0; j < r.ratio.size(); ++j) mc.ratio[j] += r.ratio[j];
     nis += r.nis_sum;
     count += r.nis_count;
     mc.not_white += r.white ? 0 : 1;
@@ -113,6 +131,9 @@ inline MonteCarlo monte_carlo(const Scenario& s, int runs, std::uint64_t first_s
     mc.mean_z[j] /= n;
   }
   for (double& v : mc.rms_z_df_eff) v = std::sqrt(v / n);
+  for (double& v : mc.rms_z_df_obs) v = std::sqrt(v / n);
+  for (double& v : mc.mean_z_df_obs) v /= n;
+  for (double& v : mc.ratio) v /= n;
   const double c = static_cast<double>(count);
   mc.nis_mean = nis / c;
   // 95% interval of the mean of chi^2(2) over `count` epochs (Wilson-Hilferty)

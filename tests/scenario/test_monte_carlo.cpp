@@ -2,11 +2,100 @@
 // reference scenario with fixed seeds (scripts/montecarlo runs more).
 #include <doctest/doctest.h>
 
+#include <cmath>
+#include <map>
+#include <string>
+
 #include "monte_carlo.hpp"
 
 using namespace scenario;
 
+namespace {
+
+/// What a run determines must be unbiased as well as calibrated: for each
+/// determined parameter (posterior below half the prior: a sigma that is
+/// its prior would pass any z test) and for the sharp combinations df_obs,
+/// |mean z| <= 3 / sqrt(N) (3 standard errors of the mean of N(0,1) over
+/// N runs: 0.42 for 50) besides the RMS band.
+void check_determined(const std::string& name, const MonteCarlo& mc) {
+  const double bound = 3 / std::sqrt(static_cast<double>(mc.runs));
+  for (std::size_t j = 0; j < mc.mean_z.size(); ++j) {
+    if (!(mc.ratio[j] < 0.5)) continue;
+    CAPTURE(est::kParamNames[j]);
+    CHECK(std::abs(mc.mean_z[j]) <= bound);
+  }
+  for (std::size_t i = 0; i < 2; ++i) {
+    CAPTURE(i);
+    MESSAGE(name << " df_obs_" << i + 1 << ": rms z " << mc.rms_z_df_obs[i] << ", mean z "
+                 << mc.mean_z_df_obs[i]);
+    CHECK(mc.rms_z_df_obs[i] >= 0.8);
+    CHECK(mc.rms_z_df_obs[i] <= 1.2);
+    CHECK(std::abs(mc.mean_z_df_obs[i]) <= bound);
+  }
+}
+
+/// The Monte Carlo of the recommended tactical plan with its priors scaled
+/// by `scale`, seeds 2000..2049, run once per scale for the tests below.
+const MonteCarlo& recommended(double scale) {
+  static std::map<double, MonteCarlo> done;
+  auto it = done.find(scale);
+  if (it == done.end()) {
+    Scenario s = from_plan("tactical-recommended.toml");
+    for (double& p : s.priors.params) p *= scale;
+    it = done.emplace(scale, monte_carlo(s, 50, 2000)).first;
+  }
+  return it->second;
+}
+
+}  // namespace
+
 TEST_SUITE("monte carlo") {
+  TEST_CASE("the recommended tactical plan at its full prior: Theta_33, r, the gyro biases") {
+    // four reversals and 10 revolutions (config/profiles/
+    // tactical-recommended.toml), 50 runs, seeds 2000..2049: Theta_33,
+    // which only the revolutions determine, r1, r2 and the horizontal gyro
+    // biases, each determined, in the RMS band and unbiased
+    const MonteCarlo& mc = recommended(1.0);
+    REQUIRE(mc.errors.empty());
+    CHECK(mc.degraded == 0);
+    const double bound = 3 / std::sqrt(static_cast<double>(mc.runs));
+    for (const int p :
+         {est::sx::theta(3, 3), est::sx::kR, est::sx::kR + 1, est::sx::kNu0, est::sx::kNu0 + 1}) {
+      const auto j = static_cast<std::size_t>(p - est::sx::kNu0);
+      CAPTURE(est::kParamNames[j]);
+      MESSAGE("recommended " << est::kParamNames[j] << ": rms z " << mc.rms_z[j] << ", mean z "
+                             << mc.mean_z[j] << ", sigma/prior " << mc.ratio[j]);
+      CHECK(mc.ratio[j] < 0.5);  // determined: the z test means something
+      CHECK(mc.rms_z[j] >= 0.8);
+      CHECK(mc.rms_z[j] <= 1.2);
+      CHECK(std::abs(mc.mean_z[j]) <= bound);
+    }
+  }
+
+  TEST_CASE("the recommended plan's df_obs at the full tactical prior: overconfident, linearised" *
+            doctest::should_fail()) {
+    // Known, and what the nonlinear second pass is for: at the full
+    // tactical prior the velocities reach 100 m/s and the linear model's
+    // misses (up to 3%) enter df_obs, whose sigma after four reversals is
+    // small (14 ug): the RMS z was 1.49 and 1.57 on these seeds. At a tenth
+    // of the prior (the next test) it is 1.01. This test fails until then;
+    // as should_fail, it passes while it fails and is flagged when it no
+    // longer does.
+    const MonteCarlo& mc = recommended(1.0);
+    for (std::size_t i = 0; i < 2; ++i) {
+      MESSAGE("recommended, full prior: df_obs_" << i + 1 << " rms z " << mc.rms_z_df_obs[i]);
+      CHECK(mc.rms_z_df_obs[i] <= 1.2);
+    }
+  }
+
+  TEST_CASE("the recommended plan at a tenth of the tactical prior: df_obs calibrated") {
+    // the errors drawn from, and the filter's prior, a tenth of the tactical
+    // one: the linear regime, where the sharp combinations must be right
+    const MonteCarlo& mc = recommended(0.1);
+    REQUIRE(mc.errors.empty());
+    check_determined("recommended, prior x 0.1", mc);
+  }
+
   TEST_CASE("RMS of (estimate - truth)/sigma in [0.8, 1.2] over 50 runs; innovations white") {
     // Given errors drawn from the prior, sensor noise on and a random start
     // orientation, 50 runs (seeds 1000..1049) per scenario: for each
@@ -36,6 +125,7 @@ TEST_SUITE("monte carlo") {
         CHECK(v >= 0.8);
         CHECK(v <= 1.2);
       }
+      check_determined(name, mc);
       MESSAGE(name << ": NIS mean " << mc.nis_mean << " in [" << mc.nis_lo << ", " << mc.nis_hi
                    << "]; not white " << mc.not_white << " of 50");
       CHECK(mc.nis_mean >= mc.nis_lo);
