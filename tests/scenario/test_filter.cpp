@@ -39,12 +39,14 @@ TEST_SUITE("filter") {
     }
   }
 
-  TEST_CASE("navigation grade: one simulated run, every parameter within 4 sigma of the truth") {
+  TEST_CASE("navigation grade: one simulated run, every determined parameter within 4 sigma") {
     // Given the navigation-grade scenario with errors drawn from the prior
     // (fixed seed) and the sensor noise on, when the single-loop filter
-    // runs over the record, then each of the 18 estimates lies within 4
-    // sigma of the injected value (4 sigma: a false alarm rate of 6e-5 per
-    // parameter, about 1e-3 for the run).
+    // runs over the record, then each estimate the run determines
+    // (posterior below half the prior: for the others the check would hold
+    // of the prior alone) lies within 4 sigma of the injected value (4
+    // sigma: a false alarm rate of 6e-5 per parameter, about 1e-3 for the
+    // run).
     const Scenario s = navigation_grade();
     std::mt19937_64 rng(20261123);
     const est::XiVec xi = draw(s, rng);
@@ -61,6 +63,7 @@ TEST_SUITE("filter") {
     REQUIRE(got.ok());
     const est::EstimationResult& r = *got;
     CHECK(r.degraded_updates == 0);
+    int determined = 0;
     for (int p = 0; p < est::sx::kParams; ++p) {
       const int i = est::sx::kNu0 + p;
       const double truth = xi(est::sxi::kParams + p);
@@ -70,7 +73,10 @@ TEST_SUITE("filter") {
       MESSAGE(est::kParamNames[static_cast<std::size_t>(p)]
               << ": truth " << truth << " estimate " << r.x(i) << " sigma " << sigma << " prior "
               << s.priors.params[static_cast<std::size_t>(p)] << " z " << z);
+      if (!(sigma < 0.5 * s.priors.params[static_cast<std::size_t>(p)])) continue;
+      ++determined;
       CHECK(std::fabs(z) < 4.0);
     }
+    CHECK(determined >= 4);  // nu0_1, nu0_2, r1, r2: the check means something
   }
 }

@@ -328,10 +328,12 @@ TEST_SUITE("run engine on the virtual stand") {
       REQUIRE(c.input->turns.size() == 1);
       CHECK(c.input->turns[0].angle_rad == doctest::Approx(std::numbers::pi).epsilon(1e-6));
       CHECK(c.input->turns[0].peak_rate_rps == doctest::Approx(30 * kDeg).epsilon(0.01));
-      // no estimate beyond 4 sigma (a consistent filter exceeds it with
-      // probability 6e-5 per parameter: 18 x 5 draws stay clear)
+      // no determined estimate beyond 4 sigma (a consistent filter exceeds
+      // it with probability 6e-5 per parameter: 18 x 5 draws stay clear;
+      // one whose sigma is still near its prior would pass on the prior)
       for (int i = 0; i < est::sx::kParams; ++i) {
         const auto& p = r.parameters[static_cast<std::size_t>(i)];
+        if (!(p.sigma < 0.5 * p.prior_sigma)) continue;
         CAPTURE(p.name);
         CHECK(std::abs(p.value - truth[static_cast<std::size_t>(i)]) <= 4 * p.sigma);
       }
@@ -483,11 +485,15 @@ TEST_SUITE("run engine on the virtual stand") {
     REQUIRE(c.input->turns.size() == 1);
     CHECK(c.input->turns[0].t_start_s == doctest::Approx(60).epsilon(0.01));
     const auto truth = truth_of(c.setup.ins.sim);
+    int determined = 0;
     for (std::size_t i = 0; i < truth.size(); ++i) {
       const auto& p = c.result->parameters[i];
+      if (!(p.sigma < 0.5 * p.prior_sigma)) continue;  // else it holds of the prior
+      ++determined;
       CAPTURE(p.name);
       CHECK(std::abs(p.value - truth[i]) <= 4 * p.sigma);
     }
+    CHECK(determined >= 4);
   }
 
   TEST_CASE("replay of runs aborted at any moment of the turn: estimates of what there is") {
@@ -935,7 +941,8 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK_FALSE(j.contains("two_stage"));
     CHECK(j["profile"]["overrides"].size() == 5);  // the plan's three, then the two
     const double deg_h = std::numbers::pi / 180 / 3600;
-    CHECK(j["estimates"]["nu0_3"]["prior_sigma"].get<double>() == doctest::Approx(0.1 * deg_h));
+    CHECK(j["estimates"]["nu0_3"]["prior_sigma"].get<double>() ==
+          doctest::Approx(0.1 * deg_h).epsilon(1e-9).scale(0));
     CHECK(j["estimates"]["nu0_1"]["sigma"].get<double>() <
           l.live.written["estimates"]["nu0_1"]["sigma"].get<double>());
     // half as many epochs: half as many innovations
@@ -1187,7 +1194,8 @@ TEST_SUITE("run engine on the virtual stand") {
         CAPTURE(name);
         const auto& e = j["estimates"][name];
         const double z = (e["value"].get<double>() - truth[i]) / e["sigma"].get<double>();
-        CHECK(std::abs(z) <= 4);
+        // judged where the run determines it (else it would hold of the prior)
+        if (e["determined"] == "determined") CHECK(std::abs(z) <= 4);
         for (std::size_t k = 0; k < key.size(); ++k)
           if (name == key[k]) ss[k] += z * z;
       }
