@@ -21,19 +21,21 @@ std::pair<const VelocityObs*, const VelocityObs*> samples_in(const std::vector<V
   return {v.data() + (first - v.begin()), v.data() + (last - v.begin())};
 }
 
-/// Where an epoch's measurement takes its samples from: within half an
-/// epoch of t and inside the still interval; the mean over a window
-/// centred on t (so the mean is where the model evaluates it), shrunk to
-/// stay in the still interval.
+/// Where an epoch's measurement takes its samples from, an open interval:
+/// within half an epoch of t (the sample on the far end belongs to the
+/// epoch before, so adjacent windows share none) and inside the still
+/// interval (whose ends are a turn or a boundary sample, used at its own
+/// measurement); the mean's window centred on t (so the mean is where the
+/// model evaluates it), shrunk to stay in the still interval. Empty when t
+/// itself is not in the still interval.
 std::pair<double, double> epoch_window(const EstimationInput& in, const TimelineStep& step) {
-  constexpr double kClosed = 1e-6;  // s: an end a sample on it is inside (samples are ms apart)
+  constexpr double kShift =
+      1e-6;  // s: a sample on an end is the earlier epoch's (samples are ms apart)
   const double t = step.t_to, half = 0.5 * in.timeline.epoch_s;
-  if (!in.mean_measurement)
-    return {std::max(t - half - kClosed, step.still_from_s),
-            std::min(t + half + kClosed, step.still_to_s)};
-  const double h = std::min({half, t - step.still_from_s, step.still_to_s - t});
-  // (t - h, t + h], the upper end open where it is the still interval's
-  return {t - h, h < half ? t + h : t + h + kClosed};
+  if (!(t > step.still_from_s && t < step.still_to_s)) return {t, t};
+  const double h =
+      in.mean_measurement ? std::min({half, t - step.still_from_s, step.still_to_s - t}) : half;
+  return {std::max(t - h + kShift, step.still_from_s), std::min(t + h + kShift, step.still_to_s)};
 }
 
 /// The measurement at the step's end: at a turn boundary the sample at
@@ -114,9 +116,11 @@ void boundary_samples(const EstimationInput& in, TimelineInput& tl, bool data) {
 }
 
 /// The filter over `tl` from the alignment prior at tl.psi_start_rad; with
-/// data from in.velocity, or (covariance analysis) a measurement at every
-/// epoch and no data.
+/// data from in.velocity, or (covariance analysis) no data and the
+/// measurements the INS rate's grid of samples gives.
 Result<EstimationResult> run(const EstimationInput& in, const TimelineInput& given, bool data) {
+  if (!data && !(in.sample_rate_hz > 0))
+    return make_error("the INS velocity rate must be positive for a covariance analysis");
   TimelineInput tl = given;
   boundary_samples(in, tl, data);
   if (!(in.sigma_z > 0)) return make_error("the velocity noise sigma must be positive");

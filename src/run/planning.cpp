@@ -1,5 +1,6 @@
 #include "turncal/run/planning.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <numbers>
@@ -166,8 +167,13 @@ Result<json> plan_json(const Plan& plan, const PlanningSettings& s) {
       return Status{Ok{}};
     };
     for (const int n : {1, 2, 4, 8}) TURNCAL_TRY(row("reversals", n, reversals_plan(plan, n)));
-    for (const double a : {360.0, 1800.0, 3600.0})
-      TURNCAL_TRY(row("revolutions", 1, scaled_plan(plan, 1.0, a * kDeg)));
+    for (const double a : {360.0, 1800.0, 3600.0}) {
+      // one turn, the first's timing, by whole revolutions
+      Plan q = plan;
+      q.profile.turns.resize(1);
+      q.profile.turns[0].angle_rad = a * kDeg;
+      TURNCAL_TRY(row("revolutions", 1, q));
+    }
     j["sweep_turns"] = more;
   }
   return j;
@@ -262,16 +268,19 @@ std::string compare_text(const json& c) {
   std::string out;
   auto line = [&](const std::string& s) { out += s + "\n"; };
   const json& plans = c["plans"];
-  line("turncal plan --compare: predicted sigmas, side by side (a trailing '-': not determined,");
-  line("the sigma is still 0.9 of its prior or more)");
+  line("turncal plan --compare: predicted sigmas, side by side. Marks: '~' partly determined");
+  line("(sigma 0.5 to 0.9 of its prior), '-' not determined (0.9 or more); none: determined.");
   line("");
   std::string head = "  parameter  unit  ";
   std::string dur = "  run s            ";
   std::string turns = "  turns            ";
+  int width = 12;
+  for (const auto& p : plans)
+    width = std::max(width, static_cast<int>(p["profile"].value("name", std::string("?")).size()));
   for (const auto& p : plans) {
-    head += pf(" %20s", p["profile"].value("name", std::string("?")).substr(0, 20).c_str());
-    dur += pf(" %20.0f", p["profile"].value("duration_s", 0.0));
-    turns += pf(" %20d", p["profile"].value("turns", 0));
+    head += pf(" %*s ", width, p["profile"].value("name", std::string("?")).c_str());
+    dur += pf(" %*.0f ", width, p["profile"].value("duration_s", 0.0));
+    turns += pf(" %*d ", width, p["profile"].value("turns", 0));
   }
   line(head);
   line(dur);
@@ -284,12 +293,15 @@ std::string compare_text(const json& c) {
     for (const auto& p : plans) {
       const json& pred = p["predicted"];
       if (!pred.contains(name)) {
-        row += pf(" %20s", "?");
+        row += pf(" %*s ", width, "?");
         continue;
       }
       const json& e = pred[name];
-      const bool not_determined = e["ratio"].get<double>() >= 0.9;
-      row += pf(" %19.4g%s", e["sigma"].get<double>() * k, not_determined ? "-" : " ");
+      const double ratio = e["ratio"].get<double>();
+      row += pf(" %*.4g%s", width, e["sigma"].get<double>() * k,
+                ratio >= 0.9   ? "-"
+                : ratio >= 0.5 ? "~"
+                               : " ");
     }
     line(row);
   }

@@ -137,6 +137,7 @@ void Sequencer::enter(Phase p, double t, int index) {
 void Sequencer::table(TableCode code, double t, std::vector<Command>& out, double target,
                       double rate) {
   ++seq_;
+  commanded_ = true;
   out.emplace_back(TableCommand{code, seq_, target, rate});
   awaiting_ack_ = seq_;
   // the table's own time to answer, and the host's latency (in stand time)
@@ -148,9 +149,11 @@ void Sequencer::fail(double t, const std::string& why, std::vector<Command>& out
   if (finished(phase_) || stopping_) return;
   course_.reason = why;
   const Phase then = aborted ? Phase::Aborted : Phase::Failed;
-  // Command mode: the table has been sent something, so it may move or be
-  // about to: stop it now and finish when it says so.
-  const bool table_touched = !s_.observe && phase_ != Phase::Idle;
+  // Command mode: the table has been heard (so a command may have gone or
+  // be about to), or sent something: stop it now and finish when it says
+  // so. A table never heard and never commanded is told to stop once, and
+  // the run ends: there is nothing of ours for it to stop.
+  const bool table_touched = !s_.observe && phase_ != Phase::Idle && (table_heard_ || commanded_);
   if (table_touched) {
     awaiting_what_ = "quick stop";
     table(TableCode::QuickStop, t, out);
@@ -162,6 +165,11 @@ void Sequencer::fail(double t, const std::string& why, std::vector<Command>& out
     stop_deadline_ = t + s_.quick_stop_give_up_s;
     stop_repeat_at_ = t + s_.quick_stop_repeat_s;
     return;
+  }
+  if (!s_.observe && phase_ != Phase::Idle) {
+    table(TableCode::QuickStop, t, out);
+    course_.quick_stop_sent = true;
+    course_.quick_stops_sent = 1;
   }
   may_move_ = false;
   enter(then, t);
@@ -283,7 +291,8 @@ void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
   }
   // losing a device: the table's side at any time of a run, the INS once
   // it has been commanded
-  const bool heard_time = t - run_start_ > s_.grace_s;
+  // (never sooner than the host's latency floor: a stream not yet heard)
+  const bool heard_time = t - run_start_ > std::max(s_.grace_s, s_.stale_floor_s);
   if (!s_.observe && heard_time) {
     if (e.table_status_stale)
       return fail(t,
@@ -385,6 +394,12 @@ void Sequencer::on_table(const TableStatusEvent& e, std::vector<Command>& out) {
   if (s_.observe || finished(phase_) || phase_ == Phase::Idle) return;
   table_heard_ = true;
   if (enable_pending_) {
+    // the table as it is before we command it: a drive in fault or moving
+    // is not enabled (a quick-stopped one is: enable clears it)
+    if (e.state == kFault)
+      return fail(t, "table fault: " + (e.fault_name.empty() ? "unknown" : e.fault_name), out);
+    if (e.state == kMoving)
+      return fail(t, "the table is moving before the run commanded it: stop it at the stand", out);
     enable_pending_ = false;
     awaiting_what_ = "enable";
     table(TableCode::Enable, t, out);

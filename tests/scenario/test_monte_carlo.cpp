@@ -72,19 +72,20 @@ TEST_SUITE("monte carlo") {
     }
   }
 
-  TEST_CASE("the recommended plan's df_obs at the full tactical prior: overconfident, linearised" *
-            doctest::should_fail()) {
-    // Known, and what the nonlinear second pass is for: at the full
-    // tactical prior the velocities reach 100 m/s and the linear model's
-    // misses (up to 3%) enter df_obs, whose sigma after four reversals is
-    // small (14 ug): the RMS z was 1.49 and 1.57 on these seeds. At a tenth
-    // of the prior (the next test) it is 1.01. This test fails until then;
-    // as should_fail, it passes while it fails and is flagged when it no
-    // longer does.
+  TEST_CASE("the recommended plan's df_obs at the full tactical prior: overconfident, linearised") {
+    // Known, and what the nonlinear second pass (not yet built) is for: at
+    // the full tactical prior the velocities reach 100 m/s and the linear
+    // model's misses (up to 3%) enter df_obs, whose sigma after four
+    // reversals is small (14 ug): its RMS z is 1.49 and 1.57 on these seeds
+    // (at a tenth of the prior, the next test, 1.01). The band [1.3, 1.8]
+    // holds that state: anything else (a second pass that works, or worse)
+    // fails here and asks for this test to change with it.
     const MonteCarlo& mc = recommended(1.0);
+    REQUIRE(mc.errors.empty());
     for (std::size_t i = 0; i < 2; ++i) {
       MESSAGE("recommended, full prior: df_obs_" << i + 1 << " rms z " << mc.rms_z_df_obs[i]);
-      CHECK(mc.rms_z_df_obs[i] <= 1.2);
+      CHECK(mc.rms_z_df_obs[i] > 1.3);
+      CHECK(mc.rms_z_df_obs[i] < 1.8);
     }
   }
 

@@ -333,9 +333,32 @@ TEST_SUITE("sequencer") {
     quiet.t_s = 2.1;
     q.step(quiet, out);
     CHECK(q.course().reason == "the table not heard: no TBL_Status since the start of the run");
-    // the table may be there and deaf to us: it is told to stop all the same
+    // the table may be there and deaf to us: it is told to stop all the
+    // same, once; it was sent nothing else, so the run ends there (no
+    // quick stop to wait for, nothing that would hold the next start)
     REQUIRE(out.size() == 1);
     CHECK(std::get<TableCommand>(out[0]).code == TableCode::QuickStop);
+    CHECK(q.phase() == Phase::Failed);
+    CHECK(q.host_state() == 0);
+    CHECK_FALSE(q.course().quick_stop_gave_up);
+  }
+
+  TEST_CASE("the table's first status in fault or moving: no enable, the run fails") {
+    for (const int state : {4, 2}) {
+      CAPTURE(state);
+      SequencerSettings s;
+      s.profile = classic_profile(600, 300, std::numbers::pi, 0.5, 0.5);
+      Sequencer q(s);
+      std::vector<Command> out;
+      q.step(StartRequest{1}, out);
+      q.step(TableStatusEvent{1.05, state, 0, state == 4 ? 2 : 0, state == 4 ? "stall" : "", 0.0},
+             out);
+      REQUIRE(out.size() == 1);  // a quick stop, never an enable
+      CHECK(std::get<TableCommand>(out[0]).code == TableCode::QuickStop);
+      CHECK(q.course().reason ==
+            (state == 4 ? "table fault: stall"
+                        : "the table is moving before the run commanded it: stop it at the stand"));
+    }
   }
 
   TEST_CASE("idle: a signal or an abort changes nothing; a start enables the table") {

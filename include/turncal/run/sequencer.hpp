@@ -274,6 +274,7 @@ class Sequencer {
   /// yet; enable goes out with its first status, never blind.
   bool enable_pending_ = false;
   bool table_heard_ = false;
+  bool commanded_ = false;  ///< a table command has gone out this run
   bool prepare_moving_ = false;
   bool seen_aligning_ = false;
   bool stopping_ = false;  ///< a quick stop is out; finish when it is acknowledged
