@@ -305,17 +305,19 @@ void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
   // the velocity first: what the estimate needs, and what an observer of
   // the log judges too. An INS silent as a whole is said so by its
   // velocity: its status (10 Hz) can be lost first, or with the latency
-  // floor at once.
+  // floor at once; while the velocity too is quiet, the status's loss waits
+  // (at most the floor) for the velocity's, which an observer of the log
+  // then sees as well.
   const bool in_run = phase_ == Phase::Hold || phase_ == Phase::Turn;
   const bool nav_time = t - course_.t0_s > s_.grace_s;
-  const bool ins_silent = e.ins_status_stale && e.velocity_quiet && !s_.observe;
-  if (in_run && nav_time && (e.velocity_stale || ins_silent))
+  const bool ins_silent = in_run && nav_time && e.velocity_quiet;
+  if (in_run && nav_time && e.velocity_stale)
     return fail(t,
                 std::string("INS velocity lost during ") + to_string(phase_) + " " +
                     std::to_string(index_) + " (no velocity frame for 10 periods)",
                 out);
   if (phase_ == Phase::Align || in_run) {
-    if (e.ins_status_stale && !s_.observe && heard_time)
+    if (e.ins_status_stale && !s_.observe && heard_time && !ins_silent)
       return fail(t, "INS status lost (no status frame for 10 periods)", out);
   }
   if (in_run && nav_time && s_.observe && e.encoder_stale)
