@@ -53,6 +53,7 @@
 #include "syncer.hpp"
 #include "turncal/can/candump.hpp"
 #include "turncal/config.hpp"
+#include "turncal/drivers/reference.hpp"
 #include "turncal/drivers/socketcan.hpp"
 #include "turncal/plan.hpp"
 #include "turncal/run/engine.hpp"
@@ -162,6 +163,8 @@ class Daemon {
   Config cfg;
   can::Database db;
   RoleMap roles;
+  /// The table's driver between runs (the host heartbeat goes out then too).
+  std::unique_ptr<TableDriver> idle_table;
   /// Every time of the daemon's: realtime at the run's start plus monotonic
   /// time since (the sockets' receive stamps too), so a step of the wall
   /// clock moves no deadline and no log time.
@@ -1072,8 +1075,11 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
     const bool observing = d->running() && d->engine->sequencer().settings().observe;
     const bool gave_up = d->engine && d->engine->sequencer().course().quick_stop_gave_up;
     if (!d->cfg.daemon.observe && !observing && !gave_up)
-      d->out.push_back(run::heartbeat_frame(d->roles, d->heartbeat_counter++,
-                                            d->engine ? d->engine->sequencer().host_state() : 0));
+      for (const can::Frame& f : d->engine ? d->engine->ingest().table().heartbeat(
+                                                 d->heartbeat_counter++,
+                                                 d->engine->sequencer().host_state())
+                                           : d->idle_table->heartbeat(d->heartbeat_counter++, 0))
+        d->out.push_back({false, f});
     d->after_engine();
     if (d->stopping && !d->running() && !d->worker_busy) sd_event_exit(d->ev, 0);
     if (++d->timer_ticks % 5 == 0) d->broadcast_watch();
@@ -1125,6 +1131,7 @@ Status Daemon::setup() {
   db = std::move(d);
   TURNCAL_ASSIGN(r, resolve_roles(cfg.can, db));
   roles = r;
+  idle_table = drivers::make_reference_table(roles, run::plausibility_of(cfg));
   state.emplace(cfg.daemon.state_directory);
   TURNCAL_TRY(state->create());
   state->release_stale();

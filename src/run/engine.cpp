@@ -5,36 +5,28 @@
 #include <limits>
 #include <numbers>
 
+#include "turncal/drivers/reference.hpp"
 #include "turncal/icd.hpp"
 
 namespace turncal::run {
 
 namespace {
-constexpr double kDeg = std::numbers::pi / 180;
 
-/// The range of a role's signal, its DBC value times `to_si`.
-SignalSpan span_of(const RoleMap& roles, Role r, double to_si) {
-  const ResolvedRole& rr = roles[r];
-  const can::PhysicalRange p = can::physical_range(*rr.signal);
-  return {rr.message->name + "." + rr.signal->name, p.lo * to_si, p.hi * to_si,
-          can::describe_range(*rr.signal)};
-}
-
-SequencerSettings with_commands(SequencerSettings s, const RoleMap& roles) {
-  s.commands = command_signals(roles);
+SequencerSettings with_commands(SequencerSettings s, const Ingest& in) {
+  s.commands = command_signals(in.ins(), in.table());
   return s;
-}
-
-bool is_move(TableCode c) {
-  return c == TableCode::MoveAbsolute || c == TableCode::MoveRelative;
 }
 
 }  // namespace
 
+CommandSignals command_signals(const InsDriver& ins, const TableDriver& table) {
+  return {table.target(), table.rate_limit(), ins.align_duration()};
+}
+
 CommandSignals command_signals(const RoleMap& roles) {
-  return {span_of(roles, Role::TableCommandTarget, kDeg),
-          span_of(roles, Role::TableCommandRateLimit, kDeg),
-          span_of(roles, Role::InsCommandAlignDuration, 1)};
+  const auto ins = drivers::make_reference_ins(roles, {});
+  const auto table = drivers::make_reference_table(roles, {});
+  return command_signals(*ins, *table);
 }
 
 Plausibility plausibility_of(const Config& cfg) {
@@ -49,12 +41,18 @@ Plausibility plausibility_of(const Config& cfg) {
 
 Engine::Engine(const can::Database& db, const RoleMap& roles, Plan plan, SequencerSettings seq,
                BuildSettings build, TimeBase time, Plausibility plausibility)
-    : roles_(roles),
-      plan_(std::move(plan)),
+    : Engine(db, drivers::make_reference_ins(roles, plausibility),
+             drivers::make_reference_table(roles, plausibility), std::move(plan), std::move(seq),
+             build, time, plausibility) {}
+
+Engine::Engine(const can::Database& db, std::unique_ptr<InsDriver> ins,
+               std::unique_ptr<TableDriver> table, Plan plan, SequencerSettings seq,
+               BuildSettings build, TimeBase time, Plausibility plausibility)
+    : plan_(std::move(plan)),
       build_(build),
       time_(time),
-      ingest_(db, roles, plausibility),
-      seq_(with_commands(std::move(seq), roles)),
+      ingest_(db, std::move(ins), std::move(table), plausibility),
+      seq_(with_commands(std::move(seq), ingest_)),
       plausible_(plausibility) {
   // the record runs from t0 (the first velocity sample) to t0 + duration + 1 s
   record_.expect_span(plan_.profile.duration_s + 1.0);
@@ -70,32 +68,20 @@ void Engine::feed(const Event& e, std::vector<OutFrame>& out) {
   std::string unsent;
   for (const Command& c : cmds_) {
     if (const auto* t = std::get_if<TableCommand>(&c)) {
-      auto f = is_move(t->code)
-                   ? roles_.encode_checked(Role::TableCommand,
-                                           {{Role::TableCommand, static_cast<double>(t->code)},
-                                            {Role::TableCommandSeq, t->seq},
-                                            {Role::TableCommandTarget, t->target_rad / kDeg},
-                                            {Role::TableCommandRateLimit, t->rate_rps / kDeg}})
-                   : roles_.encode_checked(Role::TableCommand,
-                                           {{Role::TableCommand, static_cast<double>(t->code)},
-                                            {Role::TableCommandSeq, t->seq}});
-      if (!f) {
-        unsent = "table command not sent: " + f.error().message;
+      auto frames = ingest_.table().command(*t);
+      if (!frames) {
+        unsent = "table command not sent: " + frames.error().message;
         break;
       }
-      out.push_back({false, *f, t->code == TableCode::QuickStop});
+      for (const can::Frame& f : *frames) out.push_back({false, f, t->code == TableCode::QuickStop});
       ++commands_sent_;
     } else if (const auto* i = std::get_if<InsCommand>(&c)) {
-      auto f =
-          roles_.encode_checked(Role::InsCommand, {{Role::InsCommand, static_cast<double>(i->code)},
-                                                   {Role::InsCommandAlignDuration, i->align_s},
-                                                   {Role::InsCommandHeading, i->heading_rad / kDeg},
-                                                   {Role::InsCommandSeq, i->seq}});
-      if (!f) {
-        unsent = "INS command not sent: " + f.error().message;
+      auto frames = ingest_.ins().command(*i);
+      if (!frames) {
+        unsent = "INS command not sent: " + frames.error().message;
         break;
       }
-      out.push_back({true, *f});
+      for (const can::Frame& f : *frames) out.push_back({true, f});
       ++commands_sent_;
     } else if (std::holds_alternative<RunEstimation>(c)) {
       estimation_due_ = true;
@@ -226,9 +212,11 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out) {
   feed(k, out);
 }
 
-OutFrame heartbeat_frame(const RoleMap& roles, std::uint8_t counter, int host_state) {
-  return {false, roles.encode(Role::HeartbeatCounter, {{Role::HeartbeatCounter, counter},
-                                                       {Role::HeartbeatState, host_state}})};
+std::vector<OutFrame> Engine::heartbeat() {
+  std::vector<OutFrame> out;
+  for (const can::Frame& f : ingest_.table().heartbeat(heartbeat_counter_++, seq_.host_state()))
+    out.push_back({false, f});
+  return out;
 }
 
 Result<BuiltInput> Engine::take_estimation_input() {

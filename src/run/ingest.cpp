@@ -4,26 +4,9 @@
 #include <cstdio>
 #include <numbers>
 
+#include "turncal/drivers/reference.hpp"
+
 namespace turncal::run {
-
-double TagUnwrap::operator()(double tag_us) {
-  if (have_ && tag_us < last_ - range_ / 2) wraps_ += range_;
-  if (have_ && tag_us > last_ + range_ / 2) wraps_ -= range_;  // a late frame from before a wrap
-  have_ = true;
-  last_ = tag_us;
-  return (tag_us + wraps_) * 1e-6;
-}
-
-double AngleUnwrap::operator()(double angle_rad) {
-  constexpr double kTwoPi = 2 * std::numbers::pi;
-  if (have_) {
-    const double step = angle_rad - last_;
-    turns_ -= kTwoPi * std::round(step / kTwoPi);
-  }
-  have_ = true;
-  last_ = angle_rad;
-  return angle_rad + turns_;
-}
 
 namespace {
 constexpr double kBucketS = 1.0;   ///< device seconds per envelope sample
@@ -243,13 +226,21 @@ double StreamHealth::rate_hz() const {
 /// of the angle signal's resolution.
 bool Ingest::plausible_step(double from_host, double from_angle, double host, double angle) const {
   const double dt = std::max(0.0, host - from_host) + plausible_.step_slack_s;
-  const double resolution =
-      2 * std::abs(roles_[Role::EncoderAngle].signal->factor) * std::numbers::pi / 180;
+  const double resolution = 2 * table_->angle_resolution_rad();
   return std::abs(angle - from_angle) <= plausible_.max_table_rate_rps * dt + resolution;
 }
 
 Ingest::Ingest(const can::Database& db, const RoleMap& roles, Plausibility plausibility)
-    : plausible_(plausibility), roles_(roles), codec_(db), values_(64) {
+    : Ingest(db, drivers::make_reference_ins(roles, plausibility),
+             drivers::make_reference_table(roles, plausibility), plausibility) {}
+
+Ingest::Ingest(const can::Database& db, std::unique_ptr<InsDriver> ins,
+               std::unique_ptr<TableDriver> table, Plausibility plausibility)
+    : plausible_(plausibility),
+      ins_(std::move(ins)),
+      table_(std::move(table)),
+      codec_(db),
+      values_(64) {
   health_[kVelocity].name = "ins-velocity";
   health_[kInsStatus].name = "ins-status";
   health_[kEncoder].name = "table-encoder";
@@ -289,25 +280,6 @@ Sample Ingest::implausible(Stream s) {
   return {};
 }
 
-Plausibility Plausibility::none() {
-  Plausibility p;
-  p.max_velocity_mps = std::numeric_limits<double>::infinity();
-  p.max_table_rate_rps = std::numeric_limits<double>::infinity();
-  p.max_fraction = 1;
-  p.dbc_ranges = false;
-  return p;
-}
-
-bool Ingest::in_range(Role r, double value) const {
-  if (!plausible_.dbc_ranges) return true;
-  const can::Signal& sig = *roles_[r].signal;
-  if (sig.minimum == 0 && sig.maximum == 0) return true;  // as vendor files write "none"
-  // the DBC's range is in its decimal text: a value at its end may differ
-  // from it in the last bits
-  const double slack = 1e-9 * std::max(std::abs(sig.minimum), std::abs(sig.maximum));
-  return value >= sig.minimum - slack && value <= sig.maximum + slack;
-}
-
 void Ingest::clock_sample(ClockFit& fit, double device_s, double host_s) {
   // a time tag far off the line so far is a clock jump or a stuck frame:
   // counted, kept out of the fit
@@ -319,118 +291,77 @@ Sample Ingest::on_frame(const can::TimedFrame& f) {
   const double host = host_seconds(f.time_ns);
   const can::Message* m = nullptr;
   const can::DecodeStatus st = codec_.decode(f.frame, values_, &m);
-  if (st == can::DecodeStatus::UnknownId) {
+  const FrameView view{f, host, m, st, values_};
+  // the INS's frames, then the table's: each driver says whether a frame
+  // is its device's
+  Decoded d = ins_->decode(view);
+  counters_.half_pairs = ins_->half_pairs();
+  if (d.verdict == Decoded::Verdict::NotMine) d = table_->decode(view);
+  switch (d.verdict) {
+    case Decoded::Verdict::NotMine:
+      break;
+    case Decoded::Verdict::Malformed:
+      ++counters_.malformed;
+      return {};
+    case Decoded::Verdict::Implausible:
+      return implausible(d.stream);
+    case Decoded::Verdict::Pending:
+      return {};
+    case Decoded::Verdict::Taken:
+      return take(std::move(d), host);
+  }
+  if (st == can::DecodeStatus::UnknownId)
     ++counters_.unknown_id;
-    return {};
-  }
-  if (st != can::DecodeStatus::Ok) {
+  else if (st != can::DecodeStatus::Ok)
     ++counters_.malformed;
-    return {};
-  }
-  auto is = [&](Role r) { return m == roles_[r].message; };
-  auto v = [&](Role r) { return values_[roles_[r].signal_index]; };
-  const bool east = is(Role::InsVelEast), north = is(Role::InsVelNorth);
-  if (east || north) {
-    const double value = v(east ? Role::InsVelEast : Role::InsVelNorth);
-    const double tag = v(east ? Role::InsVelEastTimeTag : Role::InsVelNorthTimeTag);
-    if (!std::isfinite(value) || !std::isfinite(tag)) {
-      ++counters_.malformed;
-      return {};
-    }
-    if (!in_range(east ? Role::InsVelEast : Role::InsVelNorth, value) ||
-        !(std::abs(value) <= plausible_.max_velocity_mps))
-      return implausible(kVelocity);
-    if (half_pending_ && half_tag_ == tag && half_is_east_ != east) {
-      half_pending_ = false;
-      const double t = vel_tag_(tag);
-      saw(kVelocity, host, t);
-      clock_sample(ins_clock_, t, host);
-      return VelocitySample{t, host, east ? value : half_value_, east ? half_value_ : value};
-    }
-    // a half pair left waiting: its sample is lost (the tag gap counts it as dropped)
-    if (half_pending_) ++counters_.half_pairs;
-    half_pending_ = true;
-    half_is_east_ = east;
-    half_tag_ = tag;
-    half_value_ = value;
-    return {};
-  }
-  if (is(Role::InsMode)) {
-    const double tag = v(Role::InsStatusTimeTag);
-    if (!std::isfinite(tag)) {
-      ++counters_.malformed;
-      return {};
-    }
-    if (!in_range(Role::InsMode, v(Role::InsMode))) return implausible(kInsStatus);
-    const double t = status_tag_(tag);
-    saw(kInsStatus, host, t);
-    clock_sample(ins_clock_, t, host);
-    return InsStatusSample{t, host, static_cast<int>(v(Role::InsMode)), v(Role::InsAlignRemaining)};
-  }
-  if (is(Role::EncoderAngle)) {
-    const double tag = v(Role::EncoderTimeTag);
-    const double angle = v(Role::EncoderAngle);
-    if (!std::isfinite(tag) || !std::isfinite(angle)) {
-      ++counters_.malformed;
-      return {};
-    }
-    if (!in_range(Role::EncoderAngle, angle)) return implausible(kEncoder);
-    // the step from the last encoder sample, at most the table's rate
-    // (twice the stand's limit): a garbled angle must not become a turn
-    TagUnwrap tags = enc_tag_;
-    AngleUnwrap unwrap = angle_;
-    const double t = tags(tag);
-    const double a = unwrap(angle * std::numbers::pi / 180);
-    if (!std::isnan(last_encoder_host_) &&
-        !plausible_step(last_encoder_host_, last_encoder_angle_, host, a)) {
-      // refused; but refused samples that agree with each other, several in
-      // a row, say the reference was the garbled one
-      refused_run_ = refused_run_ > 0 && plausible_step(refused_host_, refused_angle_, host, a)
-                         ? refused_run_ + 1
-                         : 1;
-      refused_host_ = host;
-      refused_angle_ = a;
-      // only a reference with almost nothing after it (the stream's first
-      // samples) can be the garbled one; later, a run of agreeing samples
-      // off it is a fault of the encoder, refused until the run fails
-      if (refused_run_ < kReanchor || accepted_encoder_ > kReanchor) return implausible(kEncoder);
-      ++counters_.encoder_reanchored;
-      accepted_encoder_ = 0;
-    }
-    refused_run_ = 0;
-    ++accepted_encoder_;
-    enc_tag_ = tags;
-    angle_ = unwrap;
-    last_encoder_host_ = host;
-    last_encoder_angle_ = a;
-    saw(kEncoder, host, t);
-    clock_sample(table_clock_, t, host);
-    return EncoderSample{t, host, a};
-  }
-  if (is(Role::TableState)) {
-    if (!in_range(Role::TableState, v(Role::TableState)) ||
-        !in_range(Role::TableRate, v(Role::TableRate)))
-      return implausible(kTableStatus);
-    saw(kTableStatus, host, NAN);
-    const int fault = static_cast<int>(v(Role::TableFault));
-    std::string name = "fault " + std::to_string(fault);
-    const auto& table = roles_[Role::TableFault].signal->values;
-    if (auto it = table.find(fault); it != table.end()) name = it->second;
-    return TableStatusSample{host,
-                             static_cast<int>(v(Role::TableState)),
-                             static_cast<int>(v(Role::TableAck)),
-                             fault,
-                             name,
-                             v(Role::TableRate) * std::numbers::pi / 180};
-  }
-  for (Role r : {Role::InsCommand, Role::TableCommand, Role::HeartbeatCounter})
-    if (is(r)) {
-      const std::size_t n = m->signals.size();
-      return HostCommandSample{
-          host, r, std::vector<double>(values_.begin(), values_.begin() + static_cast<long>(n))};
-    }
-  ++counters_.ignored;
+  else
+    ++counters_.ignored;
   return {};
+}
+
+Sample Ingest::take(Decoded d, double host) {
+  switch (d.stream) {
+    case kVelocity:
+    case kInsStatus:
+      saw(d.stream, host, d.device_s);
+      clock_sample(ins_clock_, d.device_s, host);
+      break;
+    case kEncoder: {
+      const double a = std::get<EncoderSample>(d.sample).angle_rad;
+      // the step from the last encoder sample, at most the table's rate
+      // (twice the stand's limit): a garbled angle must not become a turn
+      if (!std::isnan(last_encoder_host_) &&
+          !plausible_step(last_encoder_host_, last_encoder_angle_, host, a)) {
+        // refused; but refused samples that agree with each other, several in
+        // a row, say the reference was the garbled one
+        refused_run_ = refused_run_ > 0 && plausible_step(refused_host_, refused_angle_, host, a)
+                           ? refused_run_ + 1
+                           : 1;
+        refused_host_ = host;
+        refused_angle_ = a;
+        // only a reference with almost nothing after it (the stream's first
+        // samples) can be the garbled one; later, a run of agreeing samples
+        // off it is a fault of the encoder, refused until the run fails
+        if (refused_run_ < kReanchor || accepted_encoder_ > kReanchor) return implausible(kEncoder);
+        ++counters_.encoder_reanchored;
+        accepted_encoder_ = 0;
+      }
+      refused_run_ = 0;
+      ++accepted_encoder_;
+      table_->accept_encoder();
+      last_encoder_host_ = host;
+      last_encoder_angle_ = a;
+      saw(kEncoder, host, d.device_s);
+      clock_sample(table_clock_, d.device_s, host);
+      break;
+    }
+    case kTableStatus:
+      saw(kTableStatus, host, d.device_s);
+      break;
+    case kStreams:
+      break;
+  }
+  return std::move(d.sample);
 }
 
 }  // namespace turncal::run

@@ -169,7 +169,8 @@ struct ClosedLoop {
         engine->on_frame(tf, out);
       }
       if (k % 10 == 0) engine->tick(ns(t), out);
-      if (k % 100 == 0 && heartbeat) out.push_back(engine->heartbeat());
+      if (k % 100 == 0 && heartbeat)
+        for (const run::OutFrame& h : engine->heartbeat()) out.push_back(h);
       if (engine->estimation_due()) {
         if (before_estimate) before_estimate(t, out);
         estimate(t, out);

@@ -14,6 +14,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -54,13 +55,10 @@ struct Live {
   int table_state = -1;
 };
 
-/// A host heartbeat frame (can-icd.md: HOST_Heartbeat). The host sends it
-/// from its main loop whenever it commands a stand, idle too (host state 0):
-/// a table refuses to start a move without a recent heartbeat.
-OutFrame heartbeat_frame(const RoleMap& roles, std::uint8_t counter, int host_state);
-
-/// The ranges of the table's and the INS's command signals as the roles
-/// resolve them (DBC units: deg, deg/s, s), in SI units for the plan check.
+/// The ranges of the table's and the INS's command signals as the drivers
+/// encode them, in SI units for the plan check.
+CommandSignals command_signals(const InsDriver& ins, const TableDriver& table);
+/// ... of the reference stand's devices through `roles`.
 CommandSignals command_signals(const RoleMap& roles);
 
 /// What the configuration says a frame's values can be: the INS velocity
@@ -70,10 +68,15 @@ Plausibility plausibility_of(const Config& cfg);
 
 class Engine {
  public:
-  /// `db` and `roles` must outlive it. The plan is checked against the
-  /// command signals of `roles` at the start (`seq.commands` is set from
-  /// them); a command that does not fit at run time fails the run.
+  /// The reference stand's devices through `roles`; `db` and `roles` must
+  /// outlive it. The plan is checked against the drivers' command signals
+  /// at the start (`seq.commands` is set from them); a command that does
+  /// not fit at run time fails the run.
   Engine(const can::Database& db, const RoleMap& roles, Plan plan, SequencerSettings seq,
+         BuildSettings build, TimeBase time, Plausibility plausibility = {});
+  /// The stand's own devices; `db` must outlive it.
+  Engine(const can::Database& db, std::unique_ptr<InsDriver> ins,
+         std::unique_ptr<TableDriver> table, Plan plan, SequencerSettings seq,
          BuildSettings build, TimeBase time, Plausibility plausibility = {});
 
   void start(std::int64_t now_ns, std::vector<OutFrame>& out);
@@ -86,8 +89,8 @@ class Engine {
   void on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out);
   /// Deadlines and lost streams; call often (10 Hz or more).
   void tick(std::int64_t now_ns, std::vector<OutFrame>& out);
-  /// The host heartbeat (can-icd.md), rolling counter and host state.
-  OutFrame heartbeat() { return heartbeat_frame(roles_, heartbeat_counter_++, seq_.host_state()); }
+  /// The host heartbeat's frames, rolling counter and host state.
+  std::vector<OutFrame> heartbeat();
 
   /// The record is complete and estimation is due: the input, once. The
   /// record holds every sample received from the start up to t0 +
@@ -116,7 +119,6 @@ class Engine {
 
  private:
   void feed(const Event& e, std::vector<OutFrame>& out);
-  const RoleMap& roles_;
   Plan plan_;
   BuildSettings build_;
   TimeBase time_;

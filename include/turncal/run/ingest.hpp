@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <memory>
 #include <string>
 #include <variant>
 #include <vector>
@@ -18,35 +19,10 @@
 #include "turncal/can/dbc.hpp"
 #include "turncal/can/frame.hpp"
 #include "turncal/config.hpp"
+#include "turncal/device.hpp"
+#include "turncal/unwrap.hpp"
 
 namespace turncal::run {
-
-/// A wrapping unsigned microsecond time tag (u32 in the ICD) into
-/// seconds on a continuous device clock. A step back of more than half the
-/// range is a wrap; a smaller step back is taken as it is (out of order).
-class TagUnwrap {
- public:
-  explicit TagUnwrap(double range_us = 4294967296.0) : range_(range_us) {}
-  double operator()(double tag_us);
-
- private:
-  double range_;
-  bool have_ = false;
-  double last_ = 0;
-  double wraps_ = 0;
-};
-
-/// A wrapping angle (rad) into a continuous multi-turn angle: each step
-/// taken as the shortest way round.
-class AngleUnwrap {
- public:
-  double operator()(double angle_rad);
-
- private:
-  bool have_ = false;
-  double last_ = 0;
-  double turns_ = 0;
-};
 
 /// The line host = a + b device of one device clock against the host's
 /// receive times. A frame reaches the host some latency after the device
@@ -165,39 +141,21 @@ class TagCheck {
   std::uint64_t fault_n_ = 0;
 };
 
-/// A velocity sample: the pair INS_VelE and INS_VelN of one time tag.
-struct VelocitySample {
-  double t_ins_s;  ///< INS clock, unwrapped
-  double host_s;   ///< receive time of the later frame of the pair
-  double ve, vn;   ///< m/s
-};
-struct InsStatusSample {
-  double t_ins_s;
-  double host_s;
-  int mode;  ///< 0 idle, 1 aligning, 2 navigating, 3 fault
-  double align_remaining_s;
-};
-struct EncoderSample {
-  double t_table_s;  ///< table clock, unwrapped
-  double host_s;
-  double angle_rad;  ///< multi-turn, counter-clockwise seen from above
-};
-struct TableStatusSample {
-  double host_s;
-  int state;  ///< 0 disabled .. 5 quick-stopped (can-icd.md)
-  int ack;
-  int fault;
-  std::string fault_name;  ///< from the DBC's value table, or "fault N"
-  double rate_rps;
-};
-/// A host frame seen on the bus (ours in a recording, or another host's).
-struct HostCommandSample {
-  double host_s;
-  Role role;  ///< InsCommand, TableCommand or HeartbeatCounter
-  std::vector<double> values;
-};
-using Sample = std::variant<std::monostate, VelocitySample, InsStatusSample, EncoderSample,
-                            TableStatusSample, HostCommandSample>;
+using turncal::AngleUnwrap;
+using turncal::EncoderSample;
+using turncal::HostCommandSample;
+using turncal::InsStatusSample;
+using turncal::Plausibility;
+using turncal::Sample;
+using turncal::Stream;
+using turncal::TableStatusSample;
+using turncal::TagUnwrap;
+using turncal::VelocitySample;
+using turncal::kEncoder;
+using turncal::kInsStatus;
+using turncal::kStreams;
+using turncal::kTableStatus;
+using turncal::kVelocity;
 
 /// What the host hears of one kind of frame.
 struct StreamHealth {
@@ -220,8 +178,6 @@ struct StreamHealth {
   [[nodiscard]] double rate_hz() const;
 };
 
-enum Stream : std::uint8_t { kVelocity, kInsStatus, kEncoder, kTableStatus, kStreams };
-
 struct IngestCounters {
   std::uint64_t frames = 0;
   std::uint64_t unknown_id = 0;      ///< no message in the DBC
@@ -234,37 +190,24 @@ struct IngestCounters {
   std::uint64_t encoder_reanchored = 0;
 };
 
-/// What a frame's values can be; beyond it a frame is garbled, not data.
-struct Plausibility {
-  double max_velocity_mps = 1000;  ///< either INS velocity component, |v|
-  double max_table_rate_rps = std::numeric_limits<double>::infinity();  ///< encoder steps
-  /// An encoder step is judged on host receive times (a garbled device tag
-  /// cannot stretch it) with this much more time allowed, host s: frames
-  /// that queued and arrive together are steps of their device period
-  /// with almost no host time between them.
-  double step_slack_s = 0.05;
-  /// Values outside their DBC signal's [min|max] are implausible.
-  bool dbc_ranges = true;
-  /// No check at all: what a run recorded before turncal checked frames
-  /// did, for its replay.
-  static Plausibility none();
-  /// A stream with more than this fraction of its frames implausible (once
-  /// it has 100), or 5 on end (before it is called lost for them), fails
-  /// the run: the engine's check.
-  double max_fraction = 0.01;
-  static constexpr std::uint64_t kMaxRun = 5;
-};
-
 class Ingest {
  public:
-  /// `db` and `roles` must outlive it.
+  /// The reference stand's devices (can-icd.md) through `roles`; `db` and
+  /// `roles` must outlive it.
   Ingest(const can::Database& db, const RoleMap& roles, Plausibility plausibility = {});
+  /// The stand's own devices; `db` must outlive it.
+  Ingest(const can::Database& db, std::unique_ptr<InsDriver> ins,
+         std::unique_ptr<TableDriver> table, Plausibility plausibility = {});
   /// One received frame; host time from its receive timestamp, truncated
   /// to microseconds as a candump log keeps it, so that a replay of the
   /// log sees exactly what the live run saw.
   Sample on_frame(const can::TimedFrame& f);
   [[nodiscard]] const StreamHealth& health(Stream s) const { return health_[s]; }
   [[nodiscard]] const IngestCounters& counters() const { return counters_; }
+  [[nodiscard]] InsDriver& ins() { return *ins_; }
+  [[nodiscard]] TableDriver& table() { return *table_; }
+  [[nodiscard]] const InsDriver& ins() const { return *ins_; }
+  [[nodiscard]] const TableDriver& table() const { return *table_; }
   [[nodiscard]] const ClockFit& ins_clock() const { return ins_clock_; }
   [[nodiscard]] const ClockFit& table_clock() const { return table_clock_; }
   /// INS clock time of a table clock time, through the host's timeline.
@@ -280,8 +223,6 @@ class Ingest {
   void saw(Stream s, double host_s, double device_s);
   /// A frame of `s` that cannot be: counted, and nothing more.
   Sample implausible(Stream s);
-  /// Within the DBC's [min|max] of the role's signal ([0|0]: no range).
-  [[nodiscard]] bool in_range(Role r, double value) const;
   Plausibility plausible_;
   double last_encoder_host_ = NAN, last_encoder_angle_ = NAN;
   /// Encoder samples refused in a row that agree with each other: when
@@ -295,16 +236,13 @@ class Ingest {
   [[nodiscard]] bool plausible_step(double from_host, double from_angle, double host,
                                     double angle) const;
   void clock_sample(ClockFit& fit, double device_s, double host_s);
-  const RoleMap& roles_;
+  /// A driver's sample: its stream's health, its clock, the encoder's step.
+  Sample take(Decoded d, double host_s);
+  std::unique_ptr<InsDriver> ins_;
+  std::unique_ptr<TableDriver> table_;
   can::FrameCodec codec_;
   std::vector<double> values_;
-  TagUnwrap vel_tag_, status_tag_, enc_tag_;
-  AngleUnwrap angle_;
   ClockFit ins_clock_, table_clock_;
-  // the half of a velocity pair waiting for its other half
-  bool half_pending_ = false;
-  bool half_is_east_ = false;
-  double half_tag_ = 0, half_value_ = 0;
   std::array<StreamHealth, kStreams> health_;
   std::array<double, kStreams> last_device_s_{NAN, NAN, NAN, NAN};
   IngestCounters counters_;

@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "turncal/config.hpp"
+#include "turncal/device.hpp"
 #include "turncal/icd.hpp"
 #include "turncal/profile.hpp"
 
@@ -42,14 +43,7 @@ const char* to_string(Phase p);
   return p == Phase::Done || p == Phase::Aborted || p == Phase::Failed;
 }
 
-/// What one command signal carries, in SI units, as its DBC gives it.
-struct SignalSpan {
-  std::string name;  ///< "TBL_Command.Target"; empty: not checked
-  double lo = -INFINITY;
-  double hi = INFINITY;
-  std::string range;  ///< the DBC's, for people: "-21474.83648 to 21474.83647 deg"
-  [[nodiscard]] bool holds(double v) const { return name.empty() || (v >= lo && v <= hi); }
-};
+using turncal::SignalSpan;
 
 /// The stand's command signals a plan's values go into.
 struct CommandSignals {
@@ -171,18 +165,8 @@ using Event =
 
 // ---- commands ----
 using TableCode = TableCommandCode;
-struct TableCommand {
-  TableCode code;
-  std::uint8_t seq;
-  double target_rad = 0;
-  double rate_rps = 0;
-};
-struct InsCommand {
-  InsCommandCode code;
-  std::uint8_t seq;
-  double align_s = 0;
-  double heading_rad = 0;  ///< of axis z2, clockwise from North, in [0, 2 pi)
-};
+using turncal::InsCommand;
+using turncal::TableCommand;
 struct RunEstimation {};
 struct WriteReport {};
 using Command = std::variant<TableCommand, InsCommand, RunEstimation, WriteReport>;

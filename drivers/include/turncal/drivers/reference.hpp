@@ -1,0 +1,18 @@
+// The reference stand's devices (can-icd.md), one driver each: the INS that
+// sends its East and North velocity in two frames, each with its own time
+// tag, and the table that speaks TBL_Command / TBL_Status / TBL_Encoder.
+// Both read their frames through the configuration's roles and the DBC.
+#pragma once
+
+#include <memory>
+
+#include "turncal/config.hpp"
+#include "turncal/device.hpp"
+
+namespace turncal::drivers {
+
+/// `roles` (and the database it points into) must outlive the driver.
+std::unique_ptr<InsDriver> make_reference_ins(const RoleMap& roles, Plausibility plausibility);
+std::unique_ptr<TableDriver> make_reference_table(const RoleMap& roles, Plausibility plausibility);
+
+}  // namespace turncal::drivers
