@@ -54,9 +54,8 @@ SignalSpan span_of(const RoleMap& roles, Role r, double to_si) {
 
 HostCommandSample host_command(const FrameView& f, Role r) {
   const std::size_t n = f.msg->signals.size();
-  return HostCommandSample{f.host_s, r,
-                           std::vector<double>(f.values.begin(),
-                                               f.values.begin() + static_cast<long>(n))};
+  return HostCommandSample{
+      f.host_s, r, std::vector<double>(f.values.begin(), f.values.begin() + static_cast<long>(n))};
 }
 
 }  // namespace drivers

@@ -1,6 +1,7 @@
 #include "turncal/drivers/virtual_stand.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <limits>
 
 namespace turncal::stand {
@@ -27,6 +28,13 @@ std::uint32_t DeviceClock::tag(double t) const {
   return static_cast<std::uint32_t>(wrapped);
 }
 
+double DeviceClock::tag_value(double t, const TimeScale& scale, double factor) const {
+  const double us = std::floor(read(t) * 1e6);
+  const double wrapped =
+      std::isfinite(scale.range_us) ? us - scale.range_us * std::floor(us / scale.range_us) : us;
+  return std::floor(wrapped / scale.to_us / factor) * factor;
+}
+
 VirtualStand::VirtualStand(const StandSetup& setup, const can::Database& db, const RoleMap& roles)
     : setup_(setup),
       db_(db),
@@ -46,7 +54,8 @@ can::Frame VirtualStand::encode(Role any_role_of_message,
   scratch_.assign(m.signals.size(), 0.0);
   for (std::size_t i = 0; i < m.signals.size(); ++i)
     if (m.signals[i].name == "Counter") scratch_[i] = ins_counter_;  // rolling, not a role
-  for (const auto& [role, v] : values) scratch_[roles_[role].signal_index] = v;
+  for (const auto& [role, v] : values)
+    if (roles_.has(role)) scratch_[roles_[role].signal_index] = v;
   return can::FrameCodec::encode(m, scratch_);
 }
 
@@ -54,6 +63,12 @@ bool VirtualStand::ins_quiet(double t) const {
   const StandFaults& f = setup_.faults;
   if (t >= f.ins_silent_at_s) return true;
   return t >= f.ins_burst_at_s && t < f.ins_burst_at_s + f.ins_burst_s;
+}
+
+double VirtualStand::ins_tag(Role r, double t) const {
+  if (!roles_.has(r)) return 0;
+  return setup_.ins_clock.tag_value(t, time_unit(*roles_[r].signal).value(),
+                                    roles_[r].signal->factor);
 }
 
 void VirtualStand::emit_ins_status(double t, std::vector<StandFrame>& out) {
@@ -64,28 +79,47 @@ void VirtualStand::emit_ins_status(double t, std::vector<StandFrame>& out) {
   const std::pair<Role, double> v[] = {
       {Role::InsMode, static_cast<double>(ins_.mode())},
       {Role::InsAlignRemaining, std::ceil(ins_.align_remaining(t))},
-      {Role::InsStatusTimeTag, static_cast<double>(setup_.ins_clock.tag(t))}};
+      {Role::InsStatusTimeTag, ins_tag(Role::InsStatusTimeTag, t)}};
   out.push_back({t, true, encode(Role::InsMode, v)});
   ++ins_counter_;
 }
 
 void VirtualStand::emit_velocity(const InsVelocity& s, std::vector<StandFrame>& out) {
-  const double tag = static_cast<double>(setup_.ins_clock.tag(s.t_s));
+  const InsLayout& layout = setup_.ins_layout;
+  const bool tagged = layout.time == InsTimeSource::Tag;
+  const double tag = tagged ? ins_tag(Role::InsVelEastTimeTag, s.t_s) : 0;
   // a garbled velocity: no INS on a still table moves at 2000 m/s
   std::bernoulli_distribution spike(std::clamp(setup_.faults.ins_spike_rate, 0.0, 1.0));
   const double ve = setup_.faults.ins_spike_rate > 0 && spike(rng_) ? 2000.0 : s.ve;
-  const std::pair<Role, double> east[] = {{Role::InsVelEast, ve}, {Role::InsVelEastTimeTag, tag}};
-  const std::pair<Role, double> north[] = {{Role::InsVelNorth, s.vn},
-                                           {Role::InsVelNorthTimeTag, tag}};
+  // in the DBC's unit and the layout's sign
+  const double east =
+      ve * layout.east_sign / velocity_unit(*roles_[Role::InsVelEast].signal).value();
+  const double north =
+      s.vn * layout.north_sign / velocity_unit(*roles_[Role::InsVelNorth].signal).value();
   std::bernoulli_distribution drop(std::clamp(setup_.faults.ins_drop_rate, 0.0, 1.0));
-  for (const auto& vals : {std::span<const std::pair<Role, double>>(east),
-                           std::span<const std::pair<Role, double>>(north)}) {
-    if (ins_quiet(s.t_s) || (setup_.faults.ins_drop_rate > 0 && drop(rng_))) {
-      ++counts_.dropped;
-      continue;
-    }
-    out.push_back({s.t_s, true, encode(vals[0].first, vals)});
+  auto dropped = [&] {
+    if (!ins_quiet(s.t_s) && !(setup_.faults.ins_drop_rate > 0 && drop(rng_))) return false;
+    ++counts_.dropped;
+    return true;
+  };
+  if (layout.time == InsTimeSource::TimeFrame && !ins_quiet(s.t_s)) {
+    // the device time frame goes just before the velocity it stamps
+    const std::pair<Role, double> time[] = {{Role::InsTime, ins_tag(Role::InsTime, s.t_s)}};
+    out.push_back({s.t_s, true, encode(Role::InsTime, time)});
   }
+  if (roles_[Role::InsVelEast].message == roles_[Role::InsVelNorth].message) {
+    const std::pair<Role, double> both[] = {
+        {Role::InsVelEast, east}, {Role::InsVelNorth, north}, {Role::InsVelEastTimeTag, tag}};
+    if (!dropped()) out.push_back({s.t_s, true, encode(Role::InsVelEast, both)});
+    return;
+  }
+  const double north_tag = tagged ? ins_tag(Role::InsVelNorthTimeTag, s.t_s) : 0;
+  const std::pair<Role, double> e[] = {{Role::InsVelEast, east}, {Role::InsVelEastTimeTag, tag}};
+  const std::pair<Role, double> n[] = {{Role::InsVelNorth, north},
+                                       {Role::InsVelNorthTimeTag, north_tag}};
+  for (const auto& vals :
+       {std::span<const std::pair<Role, double>>(e), std::span<const std::pair<Role, double>>(n)})
+    if (!dropped()) out.push_back({s.t_s, true, encode(vals[0].first, vals)});
 }
 
 void VirtualStand::emit_encoder(double t, std::vector<StandFrame>& out) {

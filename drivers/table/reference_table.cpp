@@ -46,9 +46,9 @@ class ReferenceTable final : public TableDriver {
       const auto& table = roles_[Role::TableFault].signal->values;
       if (auto it = table.find(fault); it != table.end()) name = it->second;
       return Decoded::taken(kTableStatus, NAN,
-              TableStatusSample{f.host_s, static_cast<int>(v(Role::TableState)),
-                                static_cast<int>(v(Role::TableAck)), fault, name,
-                                v(Role::TableRate) * std::numbers::pi / 180});
+                            TableStatusSample{f.host_s, static_cast<int>(v(Role::TableState)),
+                                              static_cast<int>(v(Role::TableAck)), fault, name,
+                                              v(Role::TableRate) * std::numbers::pi / 180});
     }
     for (Role r : {Role::TableCommand, Role::HeartbeatCounter})
       if (is(r)) return Decoded::taken(kStreams, NAN, host_command(f, r));
@@ -102,6 +102,13 @@ class ReferenceTable final : public TableDriver {
 };
 
 }  // namespace
+
+Devices make_devices(const CanConfig& can, const RoleMap& roles, Plausibility plausibility,
+                     double time_scale) {
+  // [table] protocol: "reference" is the one there is
+  return {make_ins(can.ins, roles, plausibility, time_scale),
+          make_reference_table(roles, plausibility)};
+}
 
 std::unique_ptr<TableDriver> make_reference_table(const RoleMap& roles, Plausibility plausibility) {
   return std::make_unique<ReferenceTable>(roles, plausibility);

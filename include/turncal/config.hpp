@@ -20,14 +20,15 @@ namespace turncal {
 /// What a CAN signal means to turncal. Each role names one signal of one
 /// message of the DBC ("Message.Signal").
 enum class Role : std::uint8_t {
-  InsVelEast,               ///< INS velocity East, m/s
-  InsVelEastTimeTag,        ///< INS time tag of the East sample
-  InsVelNorth,              ///< INS velocity North, m/s
-  InsVelNorthTimeTag,       ///< INS time tag of the North sample
-  InsMode,                  ///< INS mode (idle, aligning, navigating, fault)
-  InsStatusTimeTag,         ///< INS time tag of the status frame
-  InsAlignRemaining,        ///< alignment time left, s
-  InsCommand,               ///< command to the INS
+  InsVelEast,          ///< INS velocity East, m/s
+  InsVelEastTimeTag,   ///< INS time tag of the East sample
+  InsVelNorth,         ///< INS velocity North, m/s
+  InsVelNorthTimeTag,  ///< INS time tag of the North sample
+  InsMode,             ///< INS mode (idle, aligning, navigating, fault)
+  InsStatusTimeTag,    ///< INS time tag of the status frame
+  InsAlignRemaining,   ///< alignment time left, s
+  InsTime,             ///< INS device time of a separate time frame ([ins] time = "time-frame")
+  InsCommand,          ///< command to the INS
   InsCommandAlignDuration,  ///< alignment duration, s
   InsCommandHeading,        ///< initial heading of axis z2, deg clockwise from North
   InsCommandSeq,            ///< sequence number of the INS command
@@ -57,6 +58,32 @@ struct SignalRef {
   std::string message;
   std::string signal;
   SourcePos where;  ///< the key in the configuration, for errors found later
+  [[nodiscard]] bool empty() const { return message.empty(); }
+};
+
+/// Where an INS velocity sample's device time comes from ([ins] time).
+enum class InsTimeSource : std::uint8_t {
+  Tag,        ///< a time tag in each velocity frame (the reference INS)
+  TimeFrame,  ///< a separate device time frame (role ins_time) just before the velocity
+  Receive,    ///< none: the kernel receive time, on a clock of the nominal rate fitted to it
+};
+
+/// The INS's output layout ([ins]): velocity in navigation axes, each
+/// component a role (in one frame or two), its sign and its time.
+struct InsLayout {
+  InsTimeSource time = InsTimeSource::Tag;
+  /// +1, or -1 for an INS whose signal counts the other way (West, South).
+  double east_sign = 1;
+  double north_sign = 1;
+  /// Nominal velocity rate, Hz (time = "receive": the clock's period); 0: none.
+  double velocity_rate_hz = 0;
+  /// A time frame stamps the velocity that follows it within this, real s.
+  double time_frame_max_age_s = 0.005;
+};
+
+/// The turntable's protocol ([table]).
+struct TableProtocol {
+  std::string name = "reference";  ///< can-icd.md's TBL_* frames
 };
 
 struct CanConfig {
@@ -72,7 +99,11 @@ struct CanConfig {
   /// A stream with more than this fraction of its frames implausible fails
   /// the run.
   double implausible_fraction = 0.01;
+  /// A role given as "" is none; the roles the INS layout and the table
+  /// protocol do not use are not resolved.
   std::array<SignalRef, kRoleCount> roles;
+  InsLayout ins;
+  TableProtocol table;
 };
 
 /// The table's limits on the stand; every table command is checked
@@ -161,7 +192,22 @@ Result<Config> parse_config(std::string_view text, const std::string& file);
 /// Reads and parses a configuration file.
 Result<Config> load_config(const std::string& path);
 
-/// A role resolved against a DBC database.
+/// The factor from a velocity signal's DBC unit to m/s ("m/s", "cm/s",
+/// "mm/s", "km/h", "ft/s", "kn"; none: m/s), or an error naming the unit.
+Result<double> velocity_unit(const can::Signal& sig);
+/// A time signal's unit and its wrap: tag * to_us is microseconds, and an
+/// unsigned integer tag wraps every range_us.
+struct TimeScale {
+  double to_us = 1;
+  double range_us = 4294967296.0;
+};
+/// ... from its DBC unit ("us", "ms", "s"; none: us), or an error.
+Result<TimeScale> time_unit(const can::Signal& sig);
+
+/// Whether the INS layout and the table protocol of `cfg` use the role.
+bool role_used(const CanConfig& cfg, Role role);
+
+/// A role resolved against a DBC database (null members: not used).
 struct ResolvedRole {
   const can::Message* message = nullptr;
   const can::Signal* signal = nullptr;
@@ -174,6 +220,7 @@ struct RoleMap {
   [[nodiscard]] const ResolvedRole& operator[](Role r) const {
     return roles[static_cast<std::size_t>(r)];
   }
+  [[nodiscard]] bool has(Role r) const { return (*this)[r].signal != nullptr; }
   /// IDs (with the extended flag) of the messages turncal receives on the
   /// INS interface (ins = true) or the table interface.
   [[nodiscard]] std::vector<std::pair<std::uint32_t, bool>> receive_ids(bool ins) const;
@@ -192,8 +239,9 @@ struct RoleMap {
 /// Merges the DBC files of a configuration into one database; a message
 /// defined in two files is an error naming both.
 Result<can::Database> load_databases(const CanConfig& cfg);
-/// Checks every role against the database: the message exists, the signal is
-/// in it. Errors cite the configuration key.
+/// Checks every role the configuration uses against the database: the
+/// message exists, the signal is in it, a role the layout needs is given.
+/// Errors cite the configuration key.
 Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db);
 
 }  // namespace turncal

@@ -172,6 +172,8 @@ class InsDriver {
   [[nodiscard]] virtual std::vector<std::pair<std::uint32_t, bool>> receive_ids() const = 0;
   /// Velocity frames whose other half never came.
   [[nodiscard]] virtual std::uint64_t half_pairs() const { return 0; }
+  /// Velocity frames left out for want of a time (no time frame before them).
+  [[nodiscard]] virtual std::uint64_t untimed() const { return 0; }
 };
 
 /// A turntable protocol: frames into encoder and status samples; the

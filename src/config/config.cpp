@@ -21,6 +21,7 @@ constexpr std::array<std::string_view, kRoleCount> kRoleKeys = {"ins_vel_east",
                                                                 "ins_mode",
                                                                 "ins_status_time_tag",
                                                                 "ins_align_remaining",
+                                                                "ins_time",
                                                                 "ins_command",
                                                                 "ins_command_align_duration",
                                                                 "ins_command_heading",
@@ -45,6 +46,7 @@ constexpr std::array<std::string_view, kRoleCount> kReferenceRoles = {"INS_VelE.
                                                                       "INS_Status.Mode",
                                                                       "INS_Status.TimeTag",
                                                                       "INS_Status.AlignRemaining",
+                                                                      "",
                                                                       "INS_Command.Command",
                                                                       "INS_Command.AlignDuration",
                                                                       "INS_Command.HeadingInit",
@@ -88,6 +90,10 @@ Status read_roles(const toml::table& t, const std::string& file, CanConfig& can)
       return make_error("key 'can.roles." + std::string(k.str()) + "': expected \"Message.Signal\"",
                         where);
     const std::string& s = v.as_string()->get();
+    if (s.empty()) {  // none
+      can.roles[idx] = SignalRef{"", "", where};
+      continue;
+    }
     const auto dot = s.find('.');
     if (dot == std::string::npos || dot == 0 || dot + 1 == s.size() ||
         s.find('.', dot + 1) != std::string::npos)
@@ -169,6 +175,7 @@ std::array<SignalRef, kRoleCount> reference_roles() {
   for (std::size_t i = 0; i < kRoleCount; ++i) {
     const std::string_view s = kReferenceRoles[i];
     const auto dot = s.find('.');
+    if (dot == std::string_view::npos) continue;  // none by default
     out[i] = SignalRef{std::string(s.substr(0, dot)), std::string(s.substr(dot + 1)), {}};
   }
   return out;
@@ -187,6 +194,55 @@ const toml::table* section(const toml::table& root, std::string_view key, Status
     return nullptr;
   }
   return n->as_table();
+}
+
+/// One of `choices` for `key`, or an error listing them.
+Status choice(const Reader& r, std::string_view key,
+              std::initializer_list<std::string_view> choices, std::string& out) {
+  TURNCAL_TRY(r.string(key, out));
+  for (std::string_view c : choices)
+    if (out == c) return Status{Ok{}};
+  std::string list;
+  for (std::string_view c : choices) list += (list.empty() ? "\"" : ", \"") + std::string(c) + "\"";
+  return r.error_at(*r.table().get(key), key, "'" + out + "' is none of " + list);
+}
+
+Status read_ins(const toml::table& t, const std::string& file, InsLayout& ins) {
+  Reader r(t, file, "ins.");
+  TURNCAL_TRY(r.no_unknown_keys({"time", "velocity_axes", "east_sign", "north_sign",
+                                 "velocity_rate_hz", "time_frame_max_age_ms"}));
+  std::string time = "tag";
+  TURNCAL_TRY(choice(r, "time", {"tag", "time-frame", "receive"}, time));
+  ins.time = time == "tag"          ? InsTimeSource::Tag
+             : time == "time-frame" ? InsTimeSource::TimeFrame
+                                    : InsTimeSource::Receive;
+  std::string axes = "navigation";
+  TURNCAL_TRY(choice(r, "velocity_axes", {"navigation", "body"}, axes));
+  if (axes == "body")
+    return r.error_at(*t.get("velocity_axes"), "velocity_axes",
+                      "velocity in body axes needs the INS's attitude to rotate it into "
+                      "navigation axes, which turncal does not read; set the INS to send its "
+                      "velocity in navigation axes (NED or ENU)");
+  for (auto [key, out] :
+       {std::pair{"east_sign", &ins.east_sign}, {"north_sign", &ins.north_sign}}) {
+    TURNCAL_TRY(r.number(key, *out, -1, 1));
+    if (*out != 1 && *out != -1) return r.error_at(*t.get(key), key, "must be 1 or -1");
+  }
+  TURNCAL_TRY(r.number("velocity_rate_hz", ins.velocity_rate_hz, 0, 10000));
+  double age_ms = ins.time_frame_max_age_s * 1e3;
+  TURNCAL_TRY(r.number("time_frame_max_age_ms", age_ms, 0.1, 1000));
+  ins.time_frame_max_age_s = age_ms * 1e-3;
+  if (ins.time == InsTimeSource::Receive && !(ins.velocity_rate_hz > 0))
+    return r.error_at(*t.get("time"), "time",
+                      "\"receive\" times the velocity on a clock of its nominal rate: give "
+                      "ins.velocity_rate_hz");
+  return Status{Ok{}};
+}
+
+Status read_table(const toml::table& t, const std::string& file, TableProtocol& table) {
+  Reader r(t, file, "table.");
+  TURNCAL_TRY(r.no_unknown_keys({"protocol"}));
+  return choice(r, "protocol", {"reference"}, table.name);
 }
 
 Status read_stand(const toml::table& t, const std::string& file, StandConfig& s) {
@@ -303,7 +359,8 @@ Result<Config> parse_config(std::string_view text, const std::string& file) {
   cfg.daemon.profile = std::filesystem::path(file).parent_path() / "profiles" / "tactical.toml";
   cfg.daemon.profiles_directory = std::filesystem::path(file).parent_path() / "profiles";
   for (auto&& [k, v] : root) {
-    if (k.str() != "can" && k.str() != "stand" && k.str() != "daemon" && k.str() != "tolerances")
+    if (k.str() != "can" && k.str() != "stand" && k.str() != "daemon" && k.str() != "tolerances" &&
+        k.str() != "ins" && k.str() != "table")
       return make_error("unknown section or key '" + std::string(k.str()) + "'",
                         pos_of(k.source(), file));
   }
@@ -324,6 +381,12 @@ Result<Config> parse_config(std::string_view text, const std::string& file) {
   auto c = read_can(can != nullptr ? *can->as_table() : empty, file);
   if (!c) return std::move(c).error();
   cfg.can = std::move(c).value();
+  if (const toml::table* t = section(root, "ins", st, file))
+    TURNCAL_TRY(read_ins(*t, file, cfg.can.ins));
+  TURNCAL_TRY(st);
+  if (const toml::table* t = section(root, "table", st, file))
+    TURNCAL_TRY(read_table(*t, file, cfg.can.table));
+  TURNCAL_TRY(st);
   return cfg;
 }
 
@@ -419,11 +482,74 @@ Result<can::Database> load_databases(const CanConfig& cfg) {
   return merged;
 }
 
+Result<double> velocity_unit(const can::Signal& sig) {
+  const std::string& u = sig.unit;
+  if (u.empty() || u == "m/s" || u == "m/sec" || u == "mps") return 1.0;
+  if (u == "cm/s") return 0.01;
+  if (u == "mm/s") return 1e-3;
+  if (u == "km/h" || u == "kph") return 1 / 3.6;
+  if (u == "ft/s" || u == "fps") return 0.3048;
+  if (u == "kn" || u == "kt" || u == "knot" || u == "knots") return 1852.0 / 3600.0;
+  return make_error("unit '" + u +
+                    "' is no velocity unit turncal knows (m/s, cm/s, mm/s, km/h, ft/s, kn)");
+}
+
+Result<TimeScale> time_unit(const can::Signal& sig) {
+  const std::string& u = sig.unit;
+  TimeScale s;
+  if (u.empty() || u == "us" || u == "\xC2\xB5s" || u == "usec")
+    s.to_us = 1;
+  else if (u == "ms" || u == "msec")
+    s.to_us = 1e3;
+  else if (u == "s" || u == "sec")
+    s.to_us = 1e6;
+  else
+    return make_error("unit '" + u + "' is no time unit turncal knows (us, ms, s)");
+  // an unsigned integer counter wraps after 2^length steps of its factor
+  s.range_us = sig.type == can::ValueType::Integer && !sig.is_signed && sig.length < 64
+                   ? std::ldexp(1.0, static_cast<int>(sig.length)) * sig.factor * s.to_us
+                   : std::numeric_limits<double>::infinity();
+  return s;
+}
+
+bool role_used(const CanConfig& cfg, Role role) {
+  switch (role) {
+    case Role::InsVelEastTimeTag:
+    case Role::InsStatusTimeTag:
+      return cfg.ins.time == InsTimeSource::Tag;
+    case Role::InsVelNorthTimeTag:
+      // one tag serves both components of one frame
+      return cfg.ins.time == InsTimeSource::Tag &&
+             !(cfg.roles[static_cast<std::size_t>(Role::InsVelNorth)].message ==
+                   cfg.roles[static_cast<std::size_t>(Role::InsVelEast)].message &&
+               cfg.roles[static_cast<std::size_t>(Role::InsVelNorthTimeTag)].empty());
+    case Role::InsTime:
+      return cfg.ins.time == InsTimeSource::TimeFrame;
+    default:
+      return true;
+  }
+}
+
+namespace {
+/// Roles that may be given as "" (none) where their layout uses them.
+bool role_optional(Role role) {
+  return role == Role::InsStatusTimeTag || role == Role::InsAlignRemaining;
+}
+}  // namespace
+
 Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
   RoleMap map;
   for (std::size_t i = 0; i < kRoleCount; ++i) {
+    const Role role = static_cast<Role>(i);
+    if (!role_used(cfg, role)) continue;
     const SignalRef& ref = cfg.roles[i];
     const std::string key = "can.roles." + std::string(kRoleKeys[i]);
+    if (ref.empty()) {
+      if (role_optional(role)) continue;
+      return make_error(
+          "key '" + key + "': needed by the INS layout and the table protocol, but none is given",
+          ref.where);
+    }
     const can::Message* m = db.find(ref.message);
     if (m == nullptr)
       return make_error("key '" + key + "': no message '" + ref.message + "' in the DBC",
@@ -433,16 +559,36 @@ Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
       return make_error(
           "key '" + key + "': message '" + ref.message + "' has no signal '" + ref.signal + "'",
           ref.where);
+    if (role == Role::InsVelEast || role == Role::InsVelNorth)
+      if (auto k = velocity_unit(*s); !k)
+        return make_error("key '" + key + "': " + k.error().message, ref.where);
+    if (role == Role::InsVelEastTimeTag || role == Role::InsVelNorthTimeTag ||
+        role == Role::InsStatusTimeTag || role == Role::InsTime)
+      if (auto k = time_unit(*s); !k)
+        return make_error("key '" + key + "': " + k.error().message, ref.where);
     map.roles[i] = ResolvedRole{m, s, static_cast<std::size_t>(s - m->signals.data())};
   }
   // One message is either sent or received by the host, never both.
   for (std::size_t i = 0; i < kRoleCount; ++i)
     for (std::size_t j = 0; j < kRoleCount; ++j)
-      if (map.roles[i].message == map.roles[j].message &&
+      if (map.roles[i].message != nullptr && map.roles[i].message == map.roles[j].message &&
           role_is_output(static_cast<Role>(i)) != role_is_output(static_cast<Role>(j)))
         return make_error("key 'can.roles." + std::string(kRoleKeys[i]) + "': message '" +
                               map.roles[i].message->name + "' is used both to send and to receive",
                           cfg.roles[i].where);
+  const ResolvedRole& east = map[Role::InsVelEast];
+  const ResolvedRole& north = map[Role::InsVelNorth];
+  if (cfg.ins.time != InsTimeSource::Tag && east.message != north.message)
+    return make_error(
+        "key 'can.roles.ins_vel_north': without time tags ([ins] time is not "
+        "\"tag\") the East and North velocity must be in one frame, or the two "
+        "halves of a sample cannot be told apart",
+        cfg.roles[static_cast<std::size_t>(Role::InsVelNorth)].where);
+  if (cfg.ins.time == InsTimeSource::TimeFrame && map[Role::InsTime].message == east.message)
+    return make_error(
+        "key 'can.roles.ins_time': the time frame is the velocity's own; that is "
+        "[ins] time = \"tag\"",
+        cfg.roles[static_cast<std::size_t>(Role::InsTime)].where);
   return map;
 }
 
@@ -469,7 +615,7 @@ std::vector<std::pair<std::uint32_t, bool>> RoleMap::receive_ids(bool ins) const
   std::vector<std::pair<std::uint32_t, bool>> out;
   for (std::size_t i = 0; i < kRoleCount; ++i) {
     const Role r = static_cast<Role>(i);
-    if (role_is_output(r) || role_is_ins(r) != ins) continue;
+    if (roles[i].message == nullptr || role_is_output(r) || role_is_ins(r) != ins) continue;
     const std::pair<std::uint32_t, bool> id{roles[i].message->id, roles[i].message->extended};
     if (std::find(out.begin(), out.end(), id) == out.end()) out.push_back(id);
   }

@@ -187,6 +187,9 @@ int turncal::ctl::usage(const char* why) {
                "        [--heading-offset DEG]            INS mounting on the table\n"
                "        [--json OUT] [--html OUT]         write the report, JSON or HTML\n"
                "        [--truth TRUTH.json]              turncal-sim's truth beside it\n"
+               "  check [--config FILE] [--profile PLAN.toml]\n"
+               "                                           a stand's configuration, DBC and\n"
+               "                                           plans checked without a run\n"
                "  plan                                     predict a planned experiment's sigmas\n"
                "        [--config FILE] [--profile PLAN.toml] [--set SECTION.KEY=VALUE]...\n"
                "        [--epoch S] [--mean|--sample] [--heading-offset DEG]\n"
@@ -219,6 +222,7 @@ int main(int argc, char** argv) {
   const std::string cmd = argv[i++];
   if (cmd == "replay") return replay(argc, argv, i, as_json);
   if (cmd == "plan") return plan(argc, argv, i, as_json);
+  if (cmd == "check") return check(argc, argv, i, as_json);
   json req = {{"cmd", cmd}};
   bool then_watch = false;
   json truth;  // turncal-sim's truth, shown beside the estimates

@@ -10,6 +10,8 @@
 //        [--json OUT]
 #include "offline.hpp"
 
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -21,6 +23,7 @@
 #include <vector>
 
 #include "turncal/config.hpp"
+#include "turncal/drivers/reference.hpp"
 #include "turncal/run/engine.hpp"
 #include "turncal/run/planning.hpp"
 #include "turncal/run/replay.hpp"
@@ -229,6 +232,17 @@ int plan(int argc, char** argv, int i, bool as_json) {
   if (!or_say(db)) return kUsage;
   auto roles = resolve_roles(cfg->can, *db);
   if (!or_say(roles)) return kUsage;
+  // the INS's output on this stand: its velocity signals' step and its rate
+  run::InsOutput ins_output;
+  for (const Role r : {Role::InsVelEast, Role::InsVelNorth}) {
+    const can::Signal& sig = *(*roles)[r].signal;
+    const double step = std::abs(sig.factor) * velocity_unit(sig).value();
+    if (step > ins_output.resolution_mps) {
+      ins_output.resolution_mps = step;
+      ins_output.signal = (*roles)[r].message->name + "." + sig.name;
+    }
+  }
+  ins_output.rate_hz = cfg->can.ins.velocity_rate_hz;
   auto analysed = [&](const std::string& profile, int& rc) -> std::optional<nlohmann::json> {
     auto p = load_plan(profile, so.overrides);
     if (!or_say(p)) {
@@ -251,6 +265,13 @@ int plan(int argc, char** argv, int i, bool as_json) {
       rc = kRefused;
       return std::nullopt;
     }
+    // what the stand's INS output costs this plan
+    auto warnings = run::ins_output_costs(*p, ps, ins_output, *j);
+    if (!or_say(warnings)) {
+      rc = kRefused;
+      return std::nullopt;
+    }
+    (*j)["stand_warnings"] = std::move(*warnings);
     return std::move(*j);
   };
   int rc = kOk;
@@ -261,12 +282,17 @@ int plan(int argc, char** argv, int i, bool as_json) {
     if (!j) return rc;
     out = std::move(*j);
     text = run::plan_text(out);
+    for (const auto& w : out["stand_warnings"])
+      text += "\nwarning: " + w["text"].get<std::string>() + "\n";
   } else {
     ps.sweep = false;  // the plans themselves, side by side
     std::vector<nlohmann::json> each;
     for (const std::string& f : compare) {
       auto j = analysed(f, rc);
       if (!j) return rc;
+      for (const auto& w : (*j)["stand_warnings"])
+        std::fprintf(stderr, "turncalctl: %s: warning: %s\n", f.c_str(),
+                     w["text"].get<std::string>().c_str());
       each.push_back(std::move(*j));
     }
     out = run::compare_json(each);
@@ -275,6 +301,143 @@ int plan(int argc, char** argv, int i, bool as_json) {
   if (!so.json_out.empty() && !write_text(so.json_out, out.dump(2) + "\n")) return kRefused;
   std::printf("%s", as_json ? (out.dump(2) + "\n").c_str() : text.c_str());
   return kOk;
+}
+
+int check(int argc, char** argv, int i, bool as_json) {
+  SharedOptions so;
+  for (; i < argc; ++i) {
+    if (std::string bad; shared_option(argc, argv, i, so, bad)) {
+      if (!bad.empty()) return usage(("check: " + bad).c_str());
+    } else {
+      return usage(("check: unknown argument " + std::string(argv[i])).c_str());
+    }
+  }
+  // each step names what it read; the first that fails says why, with the
+  // file, line and key
+  auto cfg = load_config(so.config);
+  if (!or_say(cfg)) return kUsage;
+  auto db = load_databases(cfg->can);
+  if (!or_say(db)) return kUsage;
+  auto roles = resolve_roles(cfg->can, *db);
+  if (!or_say(roles)) return kUsage;
+  json out;
+  out["config"] = so.config;
+  out["dbc"] = json::array();
+  for (const auto& f : cfg->can.dbc_files) out["dbc"].push_back(f.string());
+  out["messages"] = db->messages.size();
+  out["roles"] = json::object();
+  for (std::size_t k = 0; k < kRoleCount; ++k) {
+    const ResolvedRole& r = roles->roles[k];
+    if (r.signal == nullptr) continue;
+    out["roles"][std::string(role_key(static_cast<Role>(k)))] =
+        r.message->name + "." + r.signal->name +
+        (r.signal->unit.empty() ? "" : " [" + r.signal->unit + "]");
+  }
+  const InsLayout& ins = cfg->can.ins;
+  const char* time = ins.time == InsTimeSource::Tag         ? "tag"
+                     : ins.time == InsTimeSource::TimeFrame ? "time-frame"
+                                                            : "receive";
+  const bool one_frame = (*roles)[Role::InsVelEast].message == (*roles)[Role::InsVelNorth].message;
+  out["ins"] = {{"time", time},
+                {"frames", one_frame ? 1 : 2},
+                {"east_sign", ins.east_sign},
+                {"north_sign", ins.north_sign},
+                {"velocity_rate_hz", ins.velocity_rate_hz}};
+  out["table"] = {{"protocol", cfg->can.table.name}};
+  // the plans: the one named, else the default and every plan the daemon
+  // can be asked for by name
+  std::vector<std::string> plans;
+  if (!so.profile.empty()) {
+    plans.push_back(so.profile);
+  } else {
+    plans.push_back(cfg->daemon.profile.string());
+    std::error_code ec;
+    std::vector<std::string> named;
+    for (const auto& e : fs::directory_iterator(cfg->daemon.profiles_directory, ec))
+      if (e.path().extension() == ".toml" && fs::absolute(e.path()) != fs::absolute(plans[0]))
+        named.push_back(e.path().string());
+    std::sort(named.begin(), named.end());
+    plans.insert(plans.end(), named.begin(), named.end());
+  }
+  run::InsOutput ins_output;
+  for (const Role r : {Role::InsVelEast, Role::InsVelNorth}) {
+    const can::Signal& sig = *(*roles)[r].signal;
+    const double step = std::abs(sig.factor) * velocity_unit(sig).value();
+    if (step > ins_output.resolution_mps) {
+      ins_output.resolution_mps = step;
+      ins_output.signal = (*roles)[r].message->name + "." + sig.name;
+    }
+  }
+  ins_output.rate_hz = ins.velocity_rate_hz;
+  const drivers::Devices dev = drivers::make_devices(cfg->can, *roles, {}, 1);
+  bool usable = true;
+  out["plans"] = json::array();
+  for (const std::string& f : plans) {
+    json pj = {{"file", f}};
+    auto p = load_plan(f, so.overrides);
+    if (!p) {
+      pj["error"] = p.error().describe();
+      usable = false;
+      out["plans"].push_back(pj);
+      continue;
+    }
+    run::SequencerSettings q;
+    q.profile = p->profile;
+    q.start_angle_rad = p->start_angle_rad;
+    q.limits = cfg->stand.limits;
+    q.commands = run::command_signals(*dev.ins, *dev.table);
+    if (const std::string bad = run::check_plan(q); !bad.empty()) {
+      pj["error"] = "the stand would refuse it: " + bad;
+      usable = false;
+      out["plans"].push_back(pj);
+      continue;
+    }
+    run::PlanningSettings ps;
+    ps.sweep = false;
+    ps.heading_offset_rad = cfg->stand.heading_offset_rad;
+    auto analysed = run::plan_json(*p, ps);
+    if (!analysed) {
+      pj["error"] = analysed.error().describe();
+      usable = false;
+      out["plans"].push_back(pj);
+      continue;
+    }
+    auto warnings = run::ins_output_costs(*p, ps, ins_output, *analysed);
+    pj["warnings"] = json::array();
+    if (warnings)
+      for (const auto& w : *warnings) pj["warnings"].push_back(w["text"]);
+    out["plans"].push_back(pj);
+  }
+  out["usable"] = usable;
+  if (as_json) {
+    std::printf("%s\n", out.dump(2).c_str());
+    return usable ? kOk : kRefused;
+  }
+  std::printf("configuration %s\n", so.config.c_str());
+  for (const auto& d : out["dbc"]) std::printf("  DBC %s\n", d.get<std::string>().c_str());
+  std::printf("  %zu messages; roles:\n", db->messages.size());
+  for (const auto& [k, v] : out["roles"].items())
+    std::printf("    %-28s %s\n", k.c_str(), v.get<std::string>().c_str());
+  const std::string timed =
+      ins.time == InsTimeSource::Tag ? "its time tag"
+      : ins.time == InsTimeSource::TimeFrame
+          ? "the time frame before it (" + out["roles"]["ins_time"].get<std::string>() + ")"
+          : "the receive time on a clock of its rate (velocity_rate_hz)";
+  std::printf("  INS: velocity in %s, timed by %s; East sign %+g, North sign %+g\n",
+              one_frame ? "one frame" : "two frames", timed.c_str(), ins.east_sign, ins.north_sign);
+  std::printf("  table: protocol %s\n", cfg->can.table.name.c_str());
+  for (const auto& pj : out["plans"]) {
+    const std::string f = pj["file"];
+    if (pj.contains("error")) {
+      std::printf("  plan %s: REFUSED: %s\n", f.c_str(), pj["error"].get<std::string>().c_str());
+      continue;
+    }
+    std::printf("  plan %s: fits the stand\n", f.c_str());
+    for (const auto& w : pj["warnings"])
+      std::printf("    warning: %s\n", w.get<std::string>().c_str());
+  }
+  std::printf("%s\n", usable ? "usable" : "NOT usable");
+  return usable ? kOk : kRefused;
 }
 
 }  // namespace turncal::ctl

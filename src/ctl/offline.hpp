@@ -15,5 +15,9 @@ int replay(int argc, char** argv, int i, bool as_json);
 
 /// `turncalctl plan ...`: the covariance analysis of a planned experiment.
 int plan(int argc, char** argv, int i, bool as_json);
+/// `turncalctl check`: a whole stand configuration (its DBC, the roles
+/// against the INS layout and the table protocol, the plans against the
+/// stand's limits and command ranges), without starting a run.
+int check(int argc, char** argv, int i, bool as_json);
 
 }  // namespace turncal::ctl

@@ -733,7 +733,10 @@ json Daemon::start(const StartRequest& req) {
   {
     // refused before a log is opened or a run id given: nothing to record
     run::SequencerSettings checked = q;
-    checked.commands = run::command_signals(roles);
+    {
+      const drivers::Devices dev = drivers::make_devices(cfg.can, roles, {}, 1);
+      checked.commands = run::command_signals(*dev.ins, *dev.table);
+    }
     if (const std::string bad = run::check_plan(checked); !bad.empty())
       return {{"ok", false}, {"error", "plan refused: " + bad}};
   }
@@ -792,7 +795,9 @@ json Daemon::start(const StartRequest& req) {
     if (p.sock) p.at_run_start = p.sock->stats();
   run::BuildSettings b;
   b.heading_offset_rad = q.heading_offset_rad;
-  engine = std::make_unique<run::Engine>(db, roles, *plan, q, b,
+  drivers::Devices dev =
+      drivers::make_devices(cfg.can, roles, run::plausibility_of(cfg), cfg.stand.time_scale);
+  engine = std::make_unique<run::Engine>(db, std::move(dev.ins), std::move(dev.table), *plan, q, b,
                                          run::TimeBase{now / 1000, cfg.stand.time_scale},
                                          run::plausibility_of(cfg));
   input.reset();
@@ -1075,10 +1080,10 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
     const bool observing = d->running() && d->engine->sequencer().settings().observe;
     const bool gave_up = d->engine && d->engine->sequencer().course().quick_stop_gave_up;
     if (!d->cfg.daemon.observe && !observing && !gave_up)
-      for (const can::Frame& f : d->engine ? d->engine->ingest().table().heartbeat(
-                                                 d->heartbeat_counter++,
-                                                 d->engine->sequencer().host_state())
-                                           : d->idle_table->heartbeat(d->heartbeat_counter++, 0))
+      for (const can::Frame& f :
+           d->engine ? d->engine->ingest().table().heartbeat(d->heartbeat_counter++,
+                                                             d->engine->sequencer().host_state())
+                     : d->idle_table->heartbeat(d->heartbeat_counter++, 0))
         d->out.push_back({false, f});
     d->after_engine();
     if (d->stopping && !d->running() && !d->worker_busy) sd_event_exit(d->ev, 0);
@@ -1131,7 +1136,8 @@ Status Daemon::setup() {
   db = std::move(d);
   TURNCAL_ASSIGN(r, resolve_roles(cfg.can, db));
   roles = r;
-  idle_table = drivers::make_reference_table(roles, run::plausibility_of(cfg));
+  idle_table =
+      drivers::make_devices(cfg.can, roles, run::plausibility_of(cfg), cfg.stand.time_scale).table;
   state.emplace(cfg.daemon.state_directory);
   TURNCAL_TRY(state->create());
   state->release_stale();

@@ -73,7 +73,8 @@ void Engine::feed(const Event& e, std::vector<OutFrame>& out) {
         unsent = "table command not sent: " + frames.error().message;
         break;
       }
-      for (const can::Frame& f : *frames) out.push_back({false, f, t->code == TableCode::QuickStop});
+      for (const can::Frame& f : *frames)
+        out.push_back({false, f, t->code == TableCode::QuickStop});
       ++commands_sent_;
     } else if (const auto* i = std::get_if<InsCommand>(&c)) {
       auto frames = ingest_.ins().command(*i);

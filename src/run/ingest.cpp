@@ -296,6 +296,7 @@ Sample Ingest::on_frame(const can::TimedFrame& f) {
   // is its device's
   Decoded d = ins_->decode(view);
   counters_.half_pairs = ins_->half_pairs();
+  counters_.velocity_untimed = ins_->untimed();
   if (d.verdict == Decoded::Verdict::NotMine) d = table_->decode(view);
   switch (d.verdict) {
     case Decoded::Verdict::NotMine:
@@ -324,7 +325,7 @@ Sample Ingest::take(Decoded d, double host) {
     case kVelocity:
     case kInsStatus:
       saw(d.stream, host, d.device_s);
-      clock_sample(ins_clock_, d.device_s, host);
+      if (!std::isnan(d.device_s)) clock_sample(ins_clock_, d.device_s, host);
       break;
     case kEncoder: {
       const double a = std::get<EncoderSample>(d.sample).angle_rad;

@@ -308,4 +308,71 @@ std::string compare_text(const json& c) {
   return out;
 }
 
+namespace {
+
+/// The plan's determined parameters whose sigma `with` gives more than 5%
+/// over `base`'s, as {name: {sigma, with}}.
+json costs_of(const json& base, const json& with) {
+  json out = json::object();
+  for (const auto& [name, e] : base["predicted"].items()) {
+    if (!e.value("estimable", false) || !with["predicted"].contains(name)) continue;
+    const double a = e["sigma"].get<double>(), b = with["predicted"][name]["sigma"].get<double>();
+    if (b > 1.05 * a) out[name] = {{"sigma", a}, {"with", b}};
+  }
+  return out;
+}
+
+std::string cost_text(const json& costs) {
+  std::string t;
+  for (const auto& [name, c] : costs.items()) {
+    const auto [unit, k] = display_unit(name);
+    t += (t.empty() ? "" : ", ") + name + " " + fmt("%.3g", c["sigma"].get<double>() * k) + " -> " +
+         fmt("%.3g", c["with"].get<double>() * k) + " " + std::string(unit);
+  }
+  return t;
+}
+
+}  // namespace
+
+Result<json> ins_output_costs(const Plan& plan, const PlanningSettings& s, const InsOutput& ins,
+                              const json& analysed) {
+  json out = json::array();
+  PlanningSettings quiet = s;
+  quiet.sweep = false;
+  // rounding: uniform over a step, step / sqrt(12) RMS, added to the noise
+  const double rounding = ins.resolution_mps / std::sqrt(12.0);
+  if (rounding > 0.25 * plan.sigma_z) {
+    Plan coarse = plan;
+    coarse.sigma_z = std::hypot(plan.sigma_z, rounding);
+    TURNCAL_ASSIGN(with, plan_json(coarse, quiet));
+    json costs = costs_of(analysed, with);
+    if (!costs.empty())
+      out.push_back(
+          {{"what", "resolution"},
+           {"text",
+            "the INS velocity's step of " + fmt("%.3g", ins.resolution_mps * 1e3) + " mm/s (" +
+                ins.signal + ") adds " + fmt("%.2g", rounding * 1e3) +
+                " mm/s RMS to the plan's output noise of " + fmt("%.2g", plan.sigma_z * 1e3) +
+                " mm/s (sigma_z), which the plan's sigmas assume: with it, " + cost_text(costs)},
+           {"costs", costs}});
+  }
+  if (ins.rate_hz > 0 && ins.rate_hz < s.sample_rate_hz) {
+    PlanningSettings slow = quiet;
+    slow.sample_rate_hz = ins.rate_hz;
+    TURNCAL_ASSIGN(with, plan_json(plan, slow));
+    json costs = costs_of(analysed, with);
+    if (!costs.empty() || ins.rate_hz * plan.epoch_s < 1)
+      out.push_back({{"what", "rate"},
+                     {"text", "the INS velocity at " + fmt("%.3g", ins.rate_hz) + " Hz, not the " +
+                                  fmt("%.3g", s.sample_rate_hz) + " Hz the plan's sigmas assume" +
+                                  (ins.rate_hz * plan.epoch_s < 1
+                                       ? std::string(", leaves epochs of ") +
+                                             fmt("%.3g", plan.epoch_s) + " s without a sample"
+                                       : std::string()) +
+                                  (costs.empty() ? std::string() : ": " + cost_text(costs))},
+                     {"costs", costs}});
+  }
+  return out;
+}
+
 }  // namespace turncal::run

@@ -6,6 +6,7 @@
 #include <memory>
 
 #include "turncal/can/candump.hpp"
+#include "turncal/drivers/reference.hpp"
 #include "turncal/estimation/estimator.hpp"
 #include "turncal/plan.hpp"
 #include "turncal/run/engine.hpp"
@@ -132,7 +133,8 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
       live_number(live, "plausibility", "max_table_rate_rps").value_or(pl.max_table_rate_rps);
   pl.max_fraction = live_number(live, "plausibility", "max_fraction").value_or(pl.max_fraction);
   pl.step_slack_s = live_number(live, "plausibility", "step_slack_s").value_or(pl.step_slack_s);
-  Engine engine(db, roles, plan, q, b, tb, pl);
+  drivers::Devices dev = drivers::make_devices(cfg.can, roles, pl, tb.scale);
+  Engine engine(db, std::move(dev.ins), std::move(dev.table), plan, q, b, tb, pl);
   std::vector<OutFrame> sent;  // observe mode sends nothing; kept for the interface
   engine.start(tb.epoch_us * 1000, sent);
   std::int64_t first_ns = have ? rec.time_ns : 0, last_ns = first_ns;

@@ -329,6 +329,7 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
       {"encoder_tags_dropped", engine.record().encoder_tags().dropped()},
       {"clock_late_frames", in.ins_clock().late() + in.table_clock().late()},
       {"half_velocity_pairs", in.counters().half_pairs},
+      {"velocity_untimed", in.counters().velocity_untimed},
       {"encoder_reanchored", in.counters().encoder_reanchored},
       {"ins_clock_rate_ppm", in.ins_clock().rate_ppm()},
       {"table_clock_rate_ppm", in.table_clock().rate_ppm()},

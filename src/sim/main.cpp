@@ -388,6 +388,7 @@ Result<World> load_world(const Options& o) {
       setup.table_limits.max_rate_rps = std::max(setup.table_limits.max_rate_rps, t.max_rate_rps);
   }
   setup.seed = o.seed;
+  setup.ins_layout = w.cfg.can.ins;
   if (!o.truth_in.empty()) TURNCAL_TRY(read_truth(o.truth_in, setup.ins.sim));
   for (const std::string& f : o.faults) TURNCAL_TRY(apply_fault(f, setup));
   TURNCAL_TRY(apply_clock("--ins-clock", o.ins_clock, setup.ins_clock));

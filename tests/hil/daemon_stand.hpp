@@ -75,12 +75,16 @@ inline void write_plan(const hil::fs::path& dir, const std::string& name, int tu
 constexpr int kSlowTurnDps = 10;
 
 /// The short plan as short.toml, and a daemon configuration for it, in `dir`.
+/// `dbc` (under the source tree) and `extra` (further sections) describe
+/// another stand.
 inline void write_stand(const hil::fs::path& dir, const std::string& iface, bool observe = false,
-                        int turn_s = 60, int turn_rate_dps = 30) {
+                        int turn_s = 60, int turn_rate_dps = 30,
+                        const std::string& dbc = "config/reference-stand.dbc",
+                        const std::string& extra = "") {
   write_plan(dir, "short.toml", turn_s, turn_rate_dps);
   std::ofstream(dir / "turncal.toml")
       << "[can]\nins_interface = \"" << iface << "\"\ntable_interface = \"" << iface
-      << "\"\ndbc = [\"" << kSrc << "/config/reference-stand.dbc\"]\n"
+      << "\"\ndbc = [\"" << kSrc << "/" << dbc << "\"]\n"
       << "[stand]\ntime_scale = " << kSpeed
       << "\n"
       // the host's scheduling latency (real ms): the guest shares one
@@ -88,7 +92,8 @@ inline void write_stand(const hil::fs::path& dir, const std::string& iface, bool
       // host that may itself be shared; 250 ms of it were seen
       << "[daemon]\nstale_floor_ms = 250\nstate_directory = \"" << (dir / "state").string()
       << "\"\nsocket = \"" << (dir / "control.sock").string()
-      << "\"\nprofile = \"short.toml\"\nobserve = " << (observe ? "true" : "false") << "\n";
+      << "\"\nprofile = \"short.toml\"\nobserve = " << (observe ? "true" : "false") << "\n"
+      << extra;
 }
 
 /// turncalctl with these arguments; its exit status, its stdout in `out`.

@@ -291,4 +291,52 @@ TEST_SUITE("daemon") {
     CHECK(st["table"]["fault"] == kHeartbeatLostFault);
     CHECK(st["table"]["rate_dps"] == 0.0);
   }
+
+  TEST_CASE(
+      "an INS with another layout through turncald: North-West-Down in one frame, "
+      "timed by the kernel's receive stamps") {
+    // config/stands/navigation-ins's INS (cm/s, West, one frame), with no
+    // device time at all: the daemon times each sample by the kernel's
+    // receive stamp on a clock of the stand's 25 Hz
+    hil::TempDir dir;
+    write_stand(dir.path, hil::if0(), false, 60, 30,
+                "config/stands/navigation-ins/navigation-ins.dbc",
+                "[ins]\ntime = \"receive\"\nvelocity_rate_hz = 25\neast_sign = -1\n"
+                "[can.roles]\nins_vel_east = \"INS_NavVel.VelW\"\n"
+                "ins_vel_north = \"INS_NavVel.VelN\"\nins_status_time_tag = \"\"\n");
+    Child sim = start_sim(dir.path);
+    Child daemon({kDaemon, "--config", (dir.path / "turncal.toml").string()}, dir.path);
+    REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+    REQUIRE(ctl(dir.path, {"start", "--watch"}, "watch.out", 120000ms) == 0);
+    REQUIRE(ctl(dir.path, {"--json", "reports"}, "list.json") == 0);
+    const auto reports = nlohmann::json::parse(slurp(dir.path / "list.json"));
+    REQUIRE(reports["reports"].size() == 1);
+    const std::string id = reports["reports"][0]["run_id"];
+    REQUIRE(ctl(dir.path, {"--json", "show", id}, "report.json") == 0);
+    const auto r = nlohmann::json::parse(slurp(dir.path / "report.json"));
+    CHECK(r["status"] == "done");
+    CAPTURE(r["health"].dump());
+    // every velocity frame a sample: the guest's latency leaves the kernel's
+    // stamps within half a period (20 ms) but for a few
+    const double frames = r["health"]["ins_velocity"]["frames"].get<double>();
+    CHECK(frames > 100 * 25);
+    CHECK(r["health"]["velocity_untimed"].get<double>() <= 0.01 * frames);
+    // the run determines what the short plan determines, within 4 sigma of
+    // the truth (a fixed seed, as in the first daemon test)
+    const auto truth = nlohmann::json::parse(slurp(dir.path / "truth.json"));
+    int params = 0;
+    for (const auto& [name, t] : truth["errors"].items()) {
+      if (!r["estimates"].contains(name)) continue;
+      CAPTURE(name);
+      const auto& e = r["estimates"][name];
+      if (e["determined"] != "determined") continue;
+      CHECK(std::abs(e["value"].get<double>() - t.get<double>()) <= 4 * e["sigma"].get<double>());
+      ++params;
+    }
+    CHECK(params >= 4);
+    daemon.terminate();
+    CHECK(daemon.wait(10000ms) == 0);
+    sim.terminate();
+    sim.wait(5000ms);
+  }
 }

@@ -1242,4 +1242,157 @@ TEST_SUITE("run engine on the virtual stand") {
                                          << ", r2 " << std::sqrt(ss[3] / 5) << ", combinations "
                                          << std::sqrt(ss_sharp / n_sharp));
   }
+
+  TEST_CASE(
+      "INS layouts: one North-West-Down frame timed by a time frame or by its receipt "
+      "estimates as the reference INS does") {
+    // The same simulated INS (seed 21) sent as the reference's two frames
+    // with tags, and as config/stands/navigation-ins's one frame (cm/s,
+    // West, 1e-4 m/s steps) timed by INS_TimeStamp, or by the receive time
+    // on a 100 Hz clock. Bounds: the 1e-4 m/s steps add 2.9e-5 m/s RMS to
+    // the 1e-3 m/s output noise, which moves an estimate by about 0.03 of
+    // its sigma; 0.15 is five times that. The sigmas depend only on the
+    // times of the samples, which both layouts give to the microsecond.
+    // The INS clock keeps its offset but runs at the host's rate here: the
+    // epochs are on the INS clock, and one 50 ppm fast puts them 0.09 s
+    // later against a turn at 1800 s, another schedule of measurements
+    // (r1's sigma 3% smaller), which receive-time stamps, on the host's
+    // clock, cannot see.
+    const Plan plan = load("tactical.toml");
+    const std::string profile = std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/tactical.toml";
+    stand::StandSetup setup = setup_of(plan, 21);
+    setup.ins_clock.rate_ppm = 0;
+    TempDir dir;
+    auto run = [&](const Config& cfg, const can::Database& db, const RoleMap& roles,
+                   const std::string& name) {
+      stand::StandSetup s = setup;
+      s.ins_layout = cfg.can.ins;
+      const auto log = dir.path / (name + ".log");
+      {
+        auto w = can::LogWriter::open(log.string());
+        REQUIRE(w.ok());
+        REQUIRE(stand::run_offline(plan, cfg.can, db, roles, s, *w, 1.7e9).ok());
+        REQUIRE(w->close().ok());
+      }
+      run::ReplayOptions o;
+      o.profile = profile;
+      auto r = run::replay_log(cfg, db, roles, log.string(), nullptr, o);
+      REQUIRE(r.ok());
+      const nlohmann::json& j = r->report;
+      REQUIRE_MESSAGE(j["status"] == "done", (j.contains("reason") ? j["reason"].dump() : ""));
+      return j;
+    };
+    // the reference INS: its samples, two frames each
+    const nlohmann::json ref =
+        run(reference_stand().cfg, reference_stand().db, stand_roles(), "reference");
+    const std::string path =
+        std::string(TURNCAL_SOURCE_DIR) + "/config/stands/navigation-ins/turncal.toml";
+    std::ifstream in(path);
+    std::stringstream text;
+    text << in.rdbuf();
+    auto with = [&](const std::string& from, const std::string& to) {
+      std::string t = text.str();
+      const auto at = t.find(from);
+      REQUIRE(at != std::string::npos);
+      return t.replace(at, from.size(), to);
+    };
+    // the largest |difference| / sigma over the estimates, and of the sigmas
+    auto compare = [&](const nlohmann::json& j, double& value_z, double& sigma_rel) {
+      value_z = 0;
+      sigma_rel = 0;
+      REQUIRE(j["estimates"].size() == ref["estimates"].size());
+      for (const auto& [name, e] : ref["estimates"].items()) {
+        const auto& o = j["estimates"][name];
+        const double s = e["sigma"].get<double>();
+        value_z =
+            std::max(value_z, std::abs(o["value"].get<double>() - e["value"].get<double>()) / s);
+        sigma_rel = std::max(sigma_rel, std::abs(o["sigma"].get<double>() / s - 1));
+      }
+    };
+    for (const std::string mode : {"time-frame", "receive"}) {
+      CAPTURE(mode);
+      auto cfg = parse_config(with("time = \"time-frame\"", "time = \"" + mode + "\""), path);
+      REQUIRE(cfg.ok());
+      auto db = load_databases(cfg->can);
+      REQUIRE(db.ok());
+      auto roles = resolve_roles(cfg->can, *db);
+      REQUIRE(roles.ok());
+      const nlohmann::json j = run(*cfg, *db, *roles, mode);
+      CHECK(j["health"]["velocity_untimed"] == 0);
+      CHECK(j["health"]["ins_velocity"]["dropped"] == 0);
+      CHECK(j["health"]["ins_velocity"]["frames"] == ref["health"]["ins_velocity"]["frames"]);
+      double value_z = 0, sigma_rel = 0;
+      compare(j, value_z, sigma_rel);
+      MESSAGE(mode << ": estimates within " << value_z
+                   << " sigma of the reference INS's, sigmas within " << sigma_rel);
+      CHECK(value_z <= 0.15);
+      CHECK(sigma_rel <= 1e-3);
+    }
+    // The comparison has teeth: the West velocity taken as East moves the
+    // estimates by many sigmas.
+    auto cfg = parse_config(with("east_sign = -1", "east_sign = 1"), path);
+    REQUIRE(cfg.ok());
+    auto db = load_databases(cfg->can);
+    REQUIRE(db.ok());
+    auto roles = resolve_roles(cfg->can, *db);
+    REQUIRE(roles.ok());
+    cfg->can.ins.east_sign = -1;  // the stand sends West ...
+    stand::StandSetup s = setup;
+    s.ins_layout = cfg->can.ins;
+    const auto log = dir.path / "wrong-sign.log";
+    {
+      auto w = can::LogWriter::open(log.string());
+      REQUIRE(w.ok());
+      REQUIRE(stand::run_offline(plan, cfg->can, *db, *roles, s, *w, 1.7e9).ok());
+      REQUIRE(w->close().ok());
+    }
+    cfg->can.ins.east_sign = 1;  // ... and the host reads it as East
+    run::ReplayOptions o;
+    o.profile = profile;
+    auto r = run::replay_log(*cfg, *db, *roles, log.string(), nullptr, o);
+    REQUIRE(r.ok());
+    REQUIRE(r->report["status"] == "done");
+    double value_z = 0, sigma_rel = 0;
+    compare(r->report, value_z, sigma_rel);
+    MESSAGE("West read as East: estimates up to " << value_z << " sigma off");
+    CHECK(value_z > 3);
+  }
+
+  TEST_CASE("plan: an INS velocity too coarse for the plan is named, with what it costs") {
+    const Plan plan = load("tactical.toml");
+    run::PlanningSettings ps;
+    ps.sweep = false;
+    auto base = run::plan_json(plan, ps);
+    REQUIRE(base.ok());
+    // the reference INS: 1e-6 m/s steps at 100 Hz cost nothing
+    auto fine = run::ins_output_costs(plan, ps, {1e-6, "INS_VelE.VelE", 100}, *base);
+    REQUIRE(fine.ok());
+    CHECK(fine->empty());
+    // 1 cm/s steps: 2.9 mm/s RMS of rounding beside 1 mm/s of noise. No
+    // sigma can grow by more than the noise does (hypot(1, 2.89) = 3.06:
+    // the information falls by at most its square), and the ones the
+    // velocity noise limits grow by well over 5%.
+    REQUIRE(plan.sigma_z == doctest::Approx(1e-3).epsilon(1e-12));
+    auto coarse = run::ins_output_costs(plan, ps, {0.01, "INS_NavVel.VelN", 100}, *base);
+    REQUIRE(coarse.ok());
+    REQUIRE(coarse->size() == 1);
+    const auto& w = (*coarse)[0];
+    CHECK(w["what"] == "resolution");
+    CHECK(w["text"].get<std::string>().find("INS_NavVel.VelN") != std::string::npos);
+    CHECK(w["text"].get<std::string>().find("2.9 mm/s RMS") != std::string::npos);
+    REQUIRE(w["costs"].contains("r1"));
+    const double noise_ratio = std::hypot(1.0, 0.01 / std::sqrt(12.0) / 1e-3);
+    for (const auto& [name, c] : w["costs"].items()) {
+      CAPTURE(name);
+      const double ratio = c["with"].get<double>() / c["sigma"].get<double>();
+      CHECK(ratio > 1.05);
+      CHECK(ratio <= noise_ratio * (1 + 1e-6));
+    }
+    // a rate under one sample an epoch leaves epochs without one
+    auto slow = run::ins_output_costs(plan, ps, {1e-6, "INS_VelE.VelE", 0.5}, *base);
+    REQUIRE(slow.ok());
+    REQUIRE(slow->size() == 1);
+    CHECK((*slow)[0]["what"] == "rate");
+    CHECK((*slow)[0]["text"].get<std::string>().find("without a sample") != std::string::npos);
+  }
 }

@@ -76,8 +76,8 @@ class Engine {
          BuildSettings build, TimeBase time, Plausibility plausibility = {});
   /// The stand's own devices; `db` must outlive it.
   Engine(const can::Database& db, std::unique_ptr<InsDriver> ins,
-         std::unique_ptr<TableDriver> table, Plan plan, SequencerSettings seq,
-         BuildSettings build, TimeBase time, Plausibility plausibility = {});
+         std::unique_ptr<TableDriver> table, Plan plan, SequencerSettings seq, BuildSettings build,
+         TimeBase time, Plausibility plausibility = {});
 
   void start(std::int64_t now_ns, std::vector<OutFrame>& out);
   void abort(std::int64_t now_ns, const std::string& reason, std::vector<OutFrame>& out);

@@ -145,17 +145,17 @@ using turncal::AngleUnwrap;
 using turncal::EncoderSample;
 using turncal::HostCommandSample;
 using turncal::InsStatusSample;
+using turncal::kEncoder;
+using turncal::kInsStatus;
+using turncal::kStreams;
+using turncal::kTableStatus;
+using turncal::kVelocity;
 using turncal::Plausibility;
 using turncal::Sample;
 using turncal::Stream;
 using turncal::TableStatusSample;
 using turncal::TagUnwrap;
 using turncal::VelocitySample;
-using turncal::kEncoder;
-using turncal::kInsStatus;
-using turncal::kStreams;
-using turncal::kTableStatus;
-using turncal::kVelocity;
 
 /// What the host hears of one kind of frame.
 struct StreamHealth {
@@ -180,11 +180,12 @@ struct StreamHealth {
 
 struct IngestCounters {
   std::uint64_t frames = 0;
-  std::uint64_t unknown_id = 0;      ///< no message in the DBC
-  std::uint64_t malformed = 0;       ///< wrong length, or a role signal not a number
-  std::uint64_t ignored = 0;         ///< known, but no role of turncal's
-  std::uint64_t clock_outliers = 0;  ///< time tags off their clock fit by over 50 ms
-  std::uint64_t half_pairs = 0;      ///< a velocity frame whose other half never came
+  std::uint64_t unknown_id = 0;        ///< no message in the DBC
+  std::uint64_t malformed = 0;         ///< wrong length, or a role signal not a number
+  std::uint64_t ignored = 0;           ///< known, but no role of turncal's
+  std::uint64_t clock_outliers = 0;    ///< time tags off their clock fit by over 50 ms
+  std::uint64_t half_pairs = 0;        ///< a velocity frame whose other half never came
+  std::uint64_t velocity_untimed = 0;  ///< velocity left out: no time frame just before it
   /// Encoder references given up: several samples in a row agreed with
   /// each other and not with it (a garbled sample had become it).
   std::uint64_t encoder_reanchored = 0;

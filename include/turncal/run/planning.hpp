@@ -47,6 +47,24 @@ Result<nlohmann::json> plan_json(const Plan& plan, const PlanningSettings& s);
 /// The same in display units, for people.
 std::string plan_text(const nlohmann::json& plan);
 
+/// What a stand's INS output is: the step of its velocity signal and its
+/// rate.
+struct InsOutput {
+  double resolution_mps = 0;  ///< the velocity signal's step (DBC factor, in m/s); 0: none
+  std::string signal;         ///< "Message.Signal" of the coarser component
+  double rate_hz = 0;         ///< its velocity rate; 0: not known
+};
+
+/// Warnings when the INS output is too coarse for the plan (`analysed`,
+/// plan_json's at the plan's own noise and 100 Hz): rounding to a step
+/// adds step/sqrt(12) RMS to the output noise, and a slow rate measures
+/// further from the turns. Each {what, text, costs: {name: {sigma, with}}}
+/// gives the plan's sigmas again with the cost, for every parameter the
+/// plan determines that loses more than 5%; a coarseness that costs none
+/// that much is not warned of. Empty: nothing to say.
+Result<nlohmann::json> ins_output_costs(const Plan& plan, const PlanningSettings& s,
+                                        const InsOutput& ins, const nlohmann::json& analysed);
+
 /// Several plans' analyses (plan_json each) side by side: the JSON, and
 /// the table for people, a row per parameter and a column per plan.
 nlohmann::json compare_json(const std::vector<nlohmann::json>& plans);

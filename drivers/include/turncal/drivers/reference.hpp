@@ -12,6 +12,16 @@
 namespace turncal::drivers {
 
 /// `roles` (and the database it points into) must outlive the driver.
+/// The INS of `layout`; `time_scale`: stand seconds per real second.
+std::unique_ptr<InsDriver> make_ins(const InsLayout& layout, const RoleMap& roles,
+                                    Plausibility plausibility, double time_scale);
+/// The devices a configuration names.
+struct Devices {
+  std::unique_ptr<InsDriver> ins;
+  std::unique_ptr<TableDriver> table;
+};
+Devices make_devices(const CanConfig& can, const RoleMap& roles, Plausibility plausibility,
+                     double time_scale);
 std::unique_ptr<InsDriver> make_reference_ins(const RoleMap& roles, Plausibility plausibility);
 std::unique_ptr<TableDriver> make_reference_table(const RoleMap& roles, Plausibility plausibility);
 

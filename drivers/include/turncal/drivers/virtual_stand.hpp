@@ -29,6 +29,8 @@ struct DeviceClock {
   }
   /// The ICD's time tag: microseconds, wrapping every 2^32.
   [[nodiscard]] std::uint32_t tag(double t) const;
+  /// A time signal's value at t in its DBC unit, wrapping as the signal does.
+  [[nodiscard]] double tag_value(double t, const TimeScale& scale, double factor) const;
 };
 
 /// Faults of the stand as a whole (the devices' own are in their setups).
@@ -53,6 +55,9 @@ struct StandSetup {
   DeviceClock ins_clock;
   DeviceClock table_clock;
   StandFaults faults;
+  /// The INS's output layout ([ins]): one frame or two, the signs, where
+  /// the time is.
+  InsLayout ins_layout;
   double ins_status_hz = 10;
   double encoder_hz = 200;
   double table_status_hz = 20;
@@ -96,6 +101,8 @@ class VirtualStand {
   void emit_garbage(double t, std::vector<StandFrame>& out);
   can::Frame encode(Role any_role_of_message, std::span<const std::pair<Role, double>> values);
   [[nodiscard]] bool ins_quiet(double t) const;
+  /// The INS clock's value at t for a time role, in its signal's unit (0: none).
+  [[nodiscard]] double ins_tag(Role r, double t) const;
   [[nodiscard]] double role_value(Role r, std::span<const double> values) const;
 
   StandSetup setup_;
