@@ -404,6 +404,8 @@ Result<can::Database> load_databases(const CanConfig& cfg) {
     TURNCAL_TRY(check_reference_revision(cfg, *db, path.string()));
     if (merged.version.empty()) merged.version = db->version;
     for (auto& n : db->nodes) merged.nodes.push_back(n);
+    merged.node_long_names.merge(db->node_long_names);
+    for (auto& w : db->warnings) merged.warnings.push_back(std::move(w));
     for (auto& m : db->messages) {
       for (std::size_t i = 0; i < merged.messages.size(); ++i) {
         const can::Message& o = merged.messages[i];
@@ -420,6 +422,11 @@ Result<can::Database> load_databases(const CanConfig& cfg) {
 }
 
 Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
+  // " (turncal.toml:12)": where the configuration names the role
+  auto at = [](const SourcePos& p) {
+    if (p.file.empty()) return std::string();
+    return " (" + p.file + (p.line != 0 ? ":" + std::to_string(p.line) : std::string()) + ")";
+  };
   RoleMap map;
   for (std::size_t i = 0; i < kRoleCount; ++i) {
     const SignalRef& ref = cfg.roles[i];
@@ -433,6 +440,11 @@ Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
       return make_error(
           "key '" + key + "': message '" + ref.message + "' has no signal '" + ref.signal + "'",
           ref.where);
+    // what the roles do not use may be unusable; what they use may not
+    if (!s->usable)
+      return make_error("key '" + key + "'" + at(ref.where) + ": signal '" + m->name + "." +
+                            s->name + "' cannot be used: " + s->problem,
+                        SourcePos{m->file, s->line, 0});
     map.roles[i] = ResolvedRole{m, s, static_cast<std::size_t>(s - m->signals.data())};
   }
   // One message is either sent or received by the host, never both.

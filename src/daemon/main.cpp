@@ -1125,6 +1125,10 @@ Status Daemon::setup() {
   db = std::move(d);
   TURNCAL_ASSIGN(r, resolve_roles(cfg.can, db));
   roles = r;
+  // what the DBC files say that was read with a warning or skipped
+  for (const can::Diagnostic& w : db.warnings)
+    say(w.severity == can::Diagnostic::Severity::Note ? LOG_NOTICE : LOG_WARNING, "", "idle",
+        w.describe());
   state.emplace(cfg.daemon.state_directory);
   TURNCAL_TRY(state->create());
   state->release_stale();
