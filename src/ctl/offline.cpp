@@ -436,15 +436,19 @@ int decode(int argc, char** argv, int i, bool as_json) {
     const double t =
         static_cast<double>((rec.time_ns + (rec.time_ns >= 0 ? 500 : -500)) / 1000) / 1e6;
     if (as_json) {
-      json j = {{"t", t}, {"interface", rec.interface}, {"id", f.id}, {"extended", f.extended}};
-      j["message"] = m != nullptr ? json(m->display_name()) : json(nullptr);
-      json sig = json::object();
+      // keys in the order documented, signals in the DBC's order
+      nlohmann::ordered_json j = {
+          {"t", t}, {"interface", rec.interface}, {"id", f.id}, {"extended", f.extended}};
+      j["message"] = m != nullptr ? nlohmann::ordered_json(m->display_name())
+                                  : nlohmann::ordered_json(nullptr);
+      nlohmann::ordered_json sig = nlohmann::ordered_json::object();
       if (carried)
         for (std::size_t k = 0; k < values.size(); ++k)
           if (!std::isnan(values[k])) sig[m->signals[k].display_name()] = values[k];
       j["signals"] = std::move(sig);
       if (!error.empty()) j["error"] = error;
-      std::printf("%s\n", j.dump(-1, ' ', false, json::error_handler_t::replace).c_str());
+      std::printf("%s\n",
+                  j.dump(-1, ' ', false, nlohmann::ordered_json::error_handler_t::replace).c_str());
     } else {
       std::printf("(%.6f) %s %s%s %s", t, rec.interface.c_str(), hex(f.id).c_str(),
                   f.extended ? "x" : "", m != nullptr ? m->display_name().c_str() : "?");
@@ -464,10 +468,10 @@ int decode(int argc, char** argv, int i, bool as_json) {
   }
   std::fflush(stdout);
   if (malformed > 0)
-    std::fprintf(stderr,
-                 "turncalctl: %s: %llu malformed lines skipped (the first, line %llu: %s)\n",
-                 files[1].c_str(), static_cast<unsigned long long>(malformed),
-                 static_cast<unsigned long long>(first_bad), first_why.c_str());
+    std::fprintf(
+        stderr, "turncalctl: %s: %llu malformed line%s skipped (the first, line %llu: %s)\n",
+        files[1].c_str(), static_cast<unsigned long long>(malformed), malformed == 1 ? "" : "s",
+        static_cast<unsigned long long>(first_bad), first_why.c_str());
   return kOk;
 }
 
