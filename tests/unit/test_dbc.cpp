@@ -328,6 +328,9 @@ TEST_SUITE("dbc") {
     auto r = parse_dbc(text, "ok.dbc");
     REQUIRE_MESSAGE(r.ok(), (r.ok() ? "" : r.error().describe()));
     CHECK(r->messages.size() == 1);
+    // the stale ones are named: SG_MUL_VAL_ for a signal that is not
+    // multiplexed (line 6), a comment for a message the file lacks (line 9)
+    CHECK(warning_lines(*r) == std::vector<std::uint32_t>{6, 9});
   }
 
   TEST_CASE("property: random layouts encode and decode as inverses, through DBC text") {
