@@ -945,6 +945,19 @@ Result<Database> Parser::run() {
       st = parse_message(t);
     } else if (t.text == "SG_") {
       st = parse_signal(t);
+      // An SG_ line that cannot be read, with its error on that line, is
+      // skipped: its message keeps the line, and a role in that message is
+      // refused (resolve_roles). Any other message stays usable.
+      if (!st && current_ && !lx_.lex_error() && st.error().where.line == t.line) {
+        Message& m = db_.messages[*current_];
+        m.unread.push_back(
+            Diagnostic{Diagnostic::Severity::Warning, st.error().where,
+                       "SG_ line of message '" + m.name +
+                           "' not read, its signal left out: " + st.error().message});
+        db_.warnings.push_back(m.unread.back());
+        skip_line(t.line);
+        st = Status{Ok{}};
+      }
     } else if (t.text == "CM_") {
       st = parse_comment();
     } else if (t.text == "VAL_") {

@@ -435,6 +435,12 @@ Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
     if (m == nullptr)
       return make_error("key '" + key + "': no message '" + ref.message + "' in the DBC",
                         ref.where);
+    // a message with an SG_ line that could not be read is not the
+    // message the file meant: a role may not be in it
+    if (!m->unread.empty())
+      return make_error("key '" + key + "'" + at(ref.where) + ": message '" + m->name +
+                            "' has an SG_ line that could not be read: " + m->unread[0].text,
+                        m->unread[0].where);
     const can::Signal* s = m->find_signal(ref.signal);
     if (s == nullptr)
       return make_error(

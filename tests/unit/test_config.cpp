@@ -155,6 +155,20 @@ TEST_SUITE("config") {
       CHECK(roles.error().message.find("turncal.toml:4") != std::string::npos);
       CHECK(roles.error().message.find("does not fit") != std::string::npos);
     }
+    SUBCASE("an SG_ line of the role's message that cannot be read: an error at that line") {
+      std::string text = current;
+      const std::string time_tag = " SG_ TimeTag : 0|32@1+";
+      const auto at = text.find(time_tag, angle_at - 200);  // TBL_Encoder's, before Angle
+      REQUIRE(at < angle_at);
+      text.replace(at, time_tag.size(), " SG_ TimeTag : 0|32@3+");
+      auto [cfg, db] = load(text);
+      auto roles = resolve_roles(cfg.can, db);
+      REQUIRE_FALSE(roles.ok());
+      CHECK(roles.error().where.file == (dir / "stand.dbc").string());
+      CHECK(roles.error().where.line == angle_line - 1);
+      CHECK(roles.error().message.find("can.roles.encoder_") != std::string::npos);
+      CHECK(roles.error().message.find("could not be read") != std::string::npos);
+    }
     std::filesystem::remove_all(dir);
   }
 

@@ -294,11 +294,11 @@ TEST_SUITE("dbc") {
       const char* text;
       std::uint32_t line;
     };
-    // (a signal that does not fit, or cannot be decoded, and an ID above
-    // 0x7FF without the extended flag are read with a warning now: see
-    // the test cases below)
+    // (a signal that does not fit, or cannot be decoded, an SG_ line that
+    // cannot be read, and an ID above 0x7FF without the extended flag are
+    // read with a warning now: see the test cases below)
     const Case cases[] = {
-        {"BO_ 1 M: 8 A\n SG_ S : 0|8@2+ (1,0) [0|1] \"\" B\n", 2},
+        {"BO_ 1 M: 8 A\n SG_ S : 0|8@1+ (1,0) [0|1]\n SG_ T : 8|8@1+ (1,0) [0|1] \"\" B\n", 3},
         {"BO_ 1 M: 9 A\n", 1},
         {"BO_ 1 M: 8 A\nBO_ 1 N: 8 A\n", 2},
         {"\n SG_ S : 0|8@1+ (1,0) [0|1] \"\" B\n", 2},
@@ -307,7 +307,6 @@ TEST_SUITE("dbc") {
         {"BO_ 2684354560 M: 8 A\n", 1},  // the flag and 0x20000000
         {"VERSION \"x\"\nFOO_ bar;\n", 2},
         {"BO_ 1 M: 8 A\n SG_ S M : 0|8@1+ (1,0) [0|1] \"\" B\n\nSG_MUL_VAL_ 1 S S 1+2;\n", 4},
-        {"BO_ 1 M: 8 A\n SG_ S m1x : 0|8@1+ (1,0) [0|1] \"\" B\n", 2},
     };
     for (const Case& c : cases) {
       CAPTURE(c.text);
@@ -591,6 +590,30 @@ TEST_SUITE("dbc") {
     const Frame f = FrameCodec::encode(*m, values);
     CHECK(f.data[0] == 1);
     CHECK(f.data[7] == 0);
+  }
+
+  TEST_CASE("an SG_ line that cannot be read is skipped with a warning; its message keeps it") {
+    const Database db = parsed(
+        "BO_ 1 M: 8 A\n"
+        " SG_ S : 0|8@2+ (1,0) [0|1] \"\" B\n"      // 2: byte order 2
+        " SG_ T m1x : 8|8@1+ (1,0) [0|1] \"\" B\n"  // 3: bad multiplexer indicator
+        " SG_ U : 16|8@1+ (1,0) [0|255] \"\" B\n"
+        " SG_ U : 24|8@1+ (1,0) [0|255] \"\" B\n"  // 5: U again
+        " SG_ V : 32|8@1+ (1,0) [0|255] \"\" B\n"
+        "BO_ 2 N: 1 A\n"
+        " SG_ W : 0|8@1+ (1,0) [0|255] \"\" B\n");
+    CHECK(warning_lines(db) == std::vector<std::uint32_t>{2, 3, 5});
+    CHECK(warned(db, 2,
+                 "SG_ line of message 'M' not read, its signal left out: expected byte "
+                 "order 0 or 1, found '2'"));
+    CHECK(warned(db, 5, "signal 'U' defined twice in M"));
+    const Message* m = db.find("M");
+    REQUIRE(m->unread.size() == 3);
+    CHECK(m->unread[0].where.line == 2);
+    CHECK(m->unread[0].where.file == "vendor.dbc");
+    CHECK(db.find("N")->unread.empty());
+    CHECK(decoded(db, 1, false, {1, 2, 3, 4, 5, 6, 7, 8}) == Values{{"U", 3}, {"V", 5}});
+    CHECK(decoded(db, 2, false, {9}) == Values{{"W", 9}});
   }
 
   TEST_CASE("comments and value tables anywhere, stale ones with a warning") {

@@ -14,7 +14,9 @@
 // unknown) is kept but marked unusable. Each such place is a warning with
 // file and line in Database::warnings. Whether an unusable signal matters
 // is for the user of the file to say: resolve_roles (config.hpp) refuses a
-// role that names one. What the grammar cannot read stays an error.
+// role that names one. So is an SG_ line the grammar cannot read: it is
+// skipped with a warning, and no role may be in its message. Anything else
+// the grammar cannot read stays an error.
 #pragma once
 
 #include <cstdint>
@@ -117,6 +119,9 @@ struct Message {
   std::string comment;
   std::string file;  ///< the DBC file it comes from
   std::uint32_t line = 0;
+  /// Its SG_ lines that could not be read (each also a warning): the
+  /// message is usable, but no role may be in it.
+  std::vector<Diagnostic> unread;
 
   [[nodiscard]] const std::string& display_name() const {
     return long_name.empty() ? name : long_name;
