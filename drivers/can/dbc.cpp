@@ -30,7 +30,9 @@ struct Token {
 
 class Lexer {
  public:
-  explicit Lexer(std::string_view text) : s_(text) {}
+  explicit Lexer(std::string_view text) : s_(text) {
+    if (s_.starts_with("\xEF\xBB\xBF")) p_ = 3;  // a UTF-8 byte order mark
+  }
 
   const Token& peek() {
     if (!have_) {
@@ -130,11 +132,82 @@ class Lexer {
   std::optional<Error> err_;
 };
 
+/// Length of the UTF-8 sequence at s[i], or 0 when it is not one.
+std::size_t utf8_sequence(std::string_view s, std::size_t i) {
+  const auto b = [&](std::size_t k) { return static_cast<unsigned char>(s[k]); };
+  const unsigned c = b(i);
+  std::size_t n = 0;
+  unsigned min = 0;
+  if (c < 0x80) return 1;
+  if (c >= 0xC2 && c <= 0xDF) {
+    n = 2;
+    min = 0x80;
+  } else if (c >= 0xE0 && c <= 0xEF) {
+    n = 3;
+    min = 0x800;
+  } else if (c >= 0xF0 && c <= 0xF4) {
+    n = 4;
+    min = 0x10000;
+  } else {
+    return 0;
+  }
+  if (i + n > s.size()) return 0;
+  unsigned cp = c & (0x7Fu >> n);
+  for (std::size_t k = 1; k < n; ++k) {
+    if ((b(i + k) & 0xC0u) != 0x80u) return 0;
+    cp = (cp << 6) | (b(i + k) & 0x3Fu);
+  }
+  if (cp < min || cp > 0x10FFFF || (cp >= 0xD800 && cp <= 0xDFFF)) return 0;
+  return n;
+}
+
+bool valid_utf8(std::string_view s) {
+  for (std::size_t i = 0; i < s.size();) {
+    const std::size_t n = utf8_sequence(s, i);
+    if (n == 0) return false;
+    i += n;
+  }
+  return true;
+}
+
+void append_utf8(std::string& out, unsigned cp) {
+  if (cp < 0x80) {
+    out += static_cast<char>(cp);
+  } else if (cp < 0x800) {
+    out += static_cast<char>(0xC0 | (cp >> 6));
+    out += static_cast<char>(0x80 | (cp & 0x3F));
+  } else {
+    out += static_cast<char>(0xE0 | (cp >> 12));
+    out += static_cast<char>(0x80 | ((cp >> 6) & 0x3F));
+    out += static_cast<char>(0x80 | (cp & 0x3F));
+  }
+}
+
+/// Windows-1252 to UTF-8. 0x80..0x9F per the code page (its five unassigned
+/// bytes as the C1 controls of the same number, as Windows converts them),
+/// 0xA0..0xFF as Latin-1.
+std::string cp1252_to_utf8(std::string_view s) {
+  static constexpr std::uint16_t kHigh[32] = {
+      0x20AC, 0x0081, 0x201A, 0x0192, 0x201E, 0x2026, 0x2020, 0x2021, 0x02C6, 0x2030, 0x0160,
+      0x2039, 0x0152, 0x008D, 0x017D, 0x008F, 0x0090, 0x2018, 0x2019, 0x201C, 0x201D, 0x2022,
+      0x2013, 0x2014, 0x02DC, 0x2122, 0x0161, 0x203A, 0x0153, 0x009D, 0x017E, 0x0178};
+  std::string out;
+  out.reserve(s.size() + s.size() / 2);
+  for (const char ch : s) {
+    const auto c = static_cast<unsigned char>(ch);
+    append_utf8(out, c >= 0x80 && c < 0xA0 ? kHigh[c - 0x80] : c);
+  }
+  return out;
+}
+
+/// A string's text: escapes resolved (a backslash keeps the next
+/// character), CRLF line ends as LF.
 std::string unescape(std::string_view s) {
   std::string out;
   out.reserve(s.size());
   for (std::size_t i = 0; i < s.size(); ++i) {
     if (s[i] == '\\' && i + 1 < s.size()) ++i;
+    if (s[i] == '\r' && i + 1 < s.size() && s[i + 1] == '\n') continue;
     out += s[i];
   }
   return out;
@@ -170,13 +243,31 @@ bool is_keyword(std::string_view w) {
                                                    "SGTYPE_",
                                                    "SGTYPE_VAL_",
                                                    "BA_SGTYPE_",
-                                                   "SIG_TYPE_REF_"};
+                                                   "BU_SG_REL_",
+                                                   "BU_EV_REL_",
+                                                   "BU_BO_REL_",
+                                                   "EV_DATA_",
+                                                   "ENVVAR_DATA_",
+                                                   "BA_DEF_SGTYPE_",
+                                                   "NS_DESC_",
+                                                   "SIGTYPE_VALTYPE_"};
   for (auto k : kKeywords)
     if (w == k) return true;
   return false;
 }
 
 // --------------------------------------------------------------- parser ----
+
+/// The key a message is known by: its ID with the DBC's extended flag. An ID
+/// above 0x7FF written without the flag is read as extended, as Vector's
+/// tools and canmatrix read it.
+std::uint32_t canonical_id(std::uint32_t raw_id) {
+  if ((raw_id & kDbcExtendedFlag) == 0 && raw_id > kStdIdMask && raw_id <= kExtIdMask)
+    return raw_id | kDbcExtendedFlag;
+  return raw_id;
+}
+
+constexpr std::string_view kIndependentSignals = "VECTOR__INDEPENDENT_SIG_MSG";
 
 class Parser {
  public:
@@ -186,20 +277,35 @@ class Parser {
 
  private:
   struct PendingValType {
-    std::uint32_t raw_id;
+    std::uint32_t key;
     std::string signal;
     int type;
     std::uint32_t line;
   };
   struct PendingValues {
-    std::uint32_t raw_id;
+    std::uint32_t key;
     std::string signal;
     std::map<std::int64_t, std::string> values;
+    std::uint32_t line;
   };
   struct PendingComment {
-    std::uint32_t raw_id;
+    std::uint32_t key;
     std::string signal;  // empty: the message
     std::string text;
+    std::uint32_t line;
+  };
+  struct PendingLongName {
+    std::uint32_t key;
+    std::string signal;  // empty: the message
+    std::string name;
+    std::uint32_t line;
+  };
+  struct PendingMuxValues {
+    std::uint32_t key;
+    std::string signal;
+    std::string multiplexor;
+    std::vector<MuxRange> ranges;
+    std::uint32_t line;
   };
 
   Error err(const Token& t, std::string what) const {
@@ -213,6 +319,18 @@ class Parser {
     }
     const std::string got = t.kind == Token::End ? "end of file" : "'" + std::string(t.text) + "'";
     return err(t, "expected " + std::string(expected) + ", found " + got);
+  }
+  void warn(std::uint32_t line, std::string text,
+            Diagnostic::Severity sev = Diagnostic::Severity::Warning) {
+    db_.warnings.push_back(Diagnostic{sev, SourcePos{file_, line, 0}, std::move(text)});
+  }
+  /// A string token's text in UTF-8: escapes resolved, and where it is not
+  /// UTF-8, read as Windows-1252 (what Vector's Windows tools write).
+  std::string text_of(const Token& t) {
+    std::string s = unescape(t.text);
+    if (valid_utf8(s)) return s;
+    if (non_utf8_strings_++ == 0) first_non_utf8_line_ = t.line;
+    return cp1252_to_utf8(s);
   }
   Status expect_punct(char c) {
     const Token t = lx_.next();
@@ -255,14 +373,20 @@ class Parser {
       return err(t, "bad integer '" + std::string(t.text) + "'");
     return v;
   }
+  /// A message ID as written (with the extended flag where written).
   Result<std::uint32_t> message_id() {
+    const Token t = lx_.peek();
     auto v = unsigned_number("a message ID");
     if (!v) return std::move(v).error();
-    if (*v > 0xFFFFFFFFu)
-      return make_error("message ID out of range", SourcePos{file_, last_line(), 0});
+    if (*v > 0xFFFFFFFFu) return err(t, "message ID out of range");
     return static_cast<std::uint32_t>(*v);
   }
-  std::uint32_t last_line() { return lx_.peek().line; }
+  /// A reference to a message: its key (canonical_id).
+  Result<std::uint32_t> message_ref() {
+    auto v = message_id();
+    if (!v) return v;
+    return canonical_id(*v);
+  }
 
   /// Skips an unknown or ignored statement: up to and including ';', or up
   /// to a keyword at the start of a line.
@@ -279,6 +403,25 @@ class Parser {
   void skip_line(std::uint32_t line) {
     while (lx_.peek().kind != Token::End && lx_.peek().line == line) lx_.next();
   }
+  /// The names of NS_: indented words, or a keyword alone on its line at
+  /// column 1 (some writers do not indent them).
+  void skip_new_symbols() {
+    for (;;) {
+      const Token& p = lx_.peek();
+      if (p.kind == Token::End) return;
+      if (!p.line_start) {
+        lx_.next();
+        continue;
+      }
+      if (p.kind != Token::Ident || !(is_keyword(p.text) || p.text.ends_with('_'))) return;
+      Lexer probe = lx_;
+      const std::uint32_t line = p.line;
+      probe.next();
+      const Token& q = probe.peek();
+      if (q.kind != Token::End && q.line == line) return;  // a statement, not a name
+      lx_.next();
+    }
+  }
 
   Status parse_message(const Token& kw);
   Status parse_signal(const Token& kw);
@@ -286,20 +429,27 @@ class Parser {
   Status parse_values();
   Status parse_valtype();
   Status parse_attribute();
+  Status parse_mux_values(const Token& kw);
   Status finish(Database& db);
+  void resolve_multiplexing(Message& m);
 
   Lexer lx_;
   std::string file_;
   Database db_;
   std::optional<std::size_t> current_;  // index of the message SG_ lines belong to
-  std::unordered_map<std::uint32_t, std::size_t> by_raw_id_;
+  std::unordered_map<std::uint32_t, std::size_t> by_key_;
   std::vector<PendingValType> valtypes_;
   std::vector<PendingValues> values_;
   std::vector<PendingComment> comments_;
+  std::vector<PendingLongName> long_names_;
+  std::vector<PendingMuxValues> mux_values_;
   std::vector<std::pair<std::uint32_t, int>> frame_formats_;
+  std::size_t non_utf8_strings_ = 0;
+  std::uint32_t first_non_utf8_line_ = 0;
 };
 
 Status Parser::parse_message(const Token& kw) {
+  const Token id_tok = lx_.peek();
   TURNCAL_ASSIGN(raw_id, message_id());
   TURNCAL_ASSIGN(name, expect(Token::Ident, "a message name"));
   TURNCAL_TRY(expect_punct(':'));
@@ -309,18 +459,32 @@ Status Parser::parse_message(const Token& kw) {
     return err(size_tok, "message size " + std::to_string(size) + " is not a CAN or CAN FD length");
   std::string transmitter;
   if (lx_.peek().kind == Token::Ident && lx_.peek().line == kw.line) transmitter = lx_.next().text;
-  if (by_raw_id_.count(raw_id) != 0)
-    return err(kw, "message ID " + std::to_string(raw_id & ~kDbcExtendedFlag) + " defined twice");
+  const bool independent = name.text == kIndependentSignals;
+  const std::uint32_t key = canonical_id(raw_id);
   Message m;
-  m.extended = (raw_id & kDbcExtendedFlag) != 0;
-  m.id = raw_id & (m.extended ? kExtIdMask : 0xFFFFFFFFu);
-  if (!m.extended && m.id > kStdIdMask) return err(kw, "standard message ID above 0x7FF");
+  m.extended = (key & kDbcExtendedFlag) != 0;
+  m.id = key & ~kDbcExtendedFlag;
+  if (!independent) {
+    if (!m.extended && m.id > kStdIdMask)
+      return err(id_tok, "message ID " + std::to_string(raw_id) +
+                             " is above 0x1FFFFFFF and has no extended flag (bit 31)");
+    if (m.extended && m.id > kExtIdMask) return err(id_tok, "extended message ID above 0x1FFFFFFF");
+    if (key != raw_id) {
+      char hex[16];
+      std::snprintf(hex, sizeof hex, "0x%X", m.id);
+      warn(kw.line, "message '" + std::string(name.text) + "': ID " + hex +
+                        " is above 0x7FF without the extended flag (bit 31): read as extended");
+    }
+  }
+  if (by_key_.count(key) != 0)
+    return err(kw, "message ID " + std::to_string(m.id) + " defined twice");
   m.name = name.text;
   m.size = static_cast<std::uint32_t>(size);
   m.fd = m.size > kMaxClassicLen;
   m.transmitter = std::move(transmitter);
+  m.file = file_;
   m.line = kw.line;
-  by_raw_id_[raw_id] = db_.messages.size();
+  by_key_[key] = db_.messages.size();
   current_ = db_.messages.size();
   db_.messages.push_back(std::move(m));
   return Status{Ok{}};
@@ -339,7 +503,10 @@ Status Parser::parse_signal(const Token& kw) {
       s.mux = MuxRole::Multiplexor;
     } else if (m.size() >= 2 && m[0] == 'm') {
       std::string_view digits = m.substr(1);
-      if (digits.back() == 'M') digits.remove_suffix(1);  // extended multiplexing: taken as simple
+      if (digits.back() == 'M') {  // extended multiplexing: multiplexed and a multiplexor
+        digits.remove_suffix(1);
+        s.multiplexor_too = true;
+      }
       std::uint64_t v = 0;
       auto [ptr, ec] = std::from_chars(digits.data(), digits.data() + digits.size(), v);
       if (ec != std::errc{} || ptr != digits.data() + digits.size() || digits.empty())
@@ -351,7 +518,6 @@ Status Parser::parse_signal(const Token& kw) {
     }
   }
   TURNCAL_TRY(expect_punct(':'));
-  const Token start_tok = lx_.peek();
   TURNCAL_ASSIGN(start, unsigned_number("the start bit"));
   TURNCAL_TRY(expect_punct('|'));
   TURNCAL_ASSIGN(length, unsigned_number("the signal length"));
@@ -373,18 +539,26 @@ Status Parser::parse_signal(const Token& kw) {
   TURNCAL_ASSIGN(maximum, number());
   TURNCAL_TRY(expect_punct(']'));
   TURNCAL_ASSIGN(unit, expect(Token::String, "the unit string"));
-  if (length < 1 || length > 64) return err(start_tok, "signal length must be 1 to 64 bits");
-  if (start >= kMaxBits) return err(start_tok, "start bit out of range");
-  if (factor == 0.0) return err(start_tok, "signal factor must not be zero");
-  s.start_bit = static_cast<std::uint32_t>(start);
-  s.length = static_cast<std::uint32_t>(length);
+  // what cannot be decoded is kept, unusable: a role that names it is refused
+  if (length < 1 || length > 64) {
+    s.usable = false;
+    s.problem = "its length " + std::to_string(length) + " is not 1 to 64 bits";
+  } else if (start >= kMaxBits) {
+    s.usable = false;
+    s.problem = "its start bit " + std::to_string(start) + " is beyond any CAN FD frame";
+  } else if (factor == 0.0 || !std::isfinite(factor) || !std::isfinite(offset)) {
+    s.usable = false;
+    s.problem = "its factor is zero or its scaling not a number";
+  }
+  s.start_bit = static_cast<std::uint32_t>(std::min<std::uint64_t>(start, kMaxBits));
+  s.length = static_cast<std::uint32_t>(std::min<std::uint64_t>(length, 65));
   s.order = order_tok.text == "1" ? ByteOrder::LittleEndian : ByteOrder::BigEndian;
   s.is_signed = sign_tok.text == "-";
   s.factor = factor;
   s.offset = offset;
   s.minimum = minimum;
   s.maximum = maximum;
-  s.unit = unescape(unit.text);
+  s.unit = text_of(unit);
   // receivers: comma-separated names on the same line
   while (lx_.peek().kind == Token::Ident && lx_.peek().line == kw.line && !lx_.peek().line_start) {
     s.receivers.emplace_back(lx_.next().text);
@@ -403,14 +577,14 @@ Status Parser::parse_comment() {
   if (t.kind == Token::String) return expect_punct(';');
   if (t.kind != Token::Ident) return unexpected(t, "a comment");
   if (t.text == "BO_" || t.text == "SG_") {
-    TURNCAL_ASSIGN(raw_id, message_id());
+    TURNCAL_ASSIGN(key, message_ref());
     std::string signal;
     if (t.text == "SG_") {
       TURNCAL_ASSIGN(name, expect(Token::Ident, "a signal name"));
       signal = name.text;
     }
     TURNCAL_ASSIGN(text, expect(Token::String, "the comment string"));
-    comments_.push_back({raw_id, std::move(signal), unescape(text.text)});
+    comments_.push_back({key, std::move(signal), text_of(text), t.line});
     return expect_punct(';');
   }
   skip_statement();  // BU_ and EV_ comments
@@ -422,9 +596,10 @@ Status Parser::parse_values() {
     skip_statement();
     return Status{Ok{}};
   }
-  TURNCAL_ASSIGN(raw_id, message_id());
+  const std::uint32_t line = lx_.peek().line;
+  TURNCAL_ASSIGN(key, message_ref());
   TURNCAL_ASSIGN(name, expect(Token::Ident, "a signal name"));
-  PendingValues pv{raw_id, std::string(name.text), {}};
+  PendingValues pv{key, std::string(name.text), {}, line};
   for (;;) {
     const Token& t = lx_.peek();
     if (t.kind == Token::Punct && t.text == ";") {
@@ -433,7 +608,7 @@ Status Parser::parse_values() {
     }
     TURNCAL_ASSIGN(v, signed_number());
     TURNCAL_ASSIGN(desc, expect(Token::String, "a value description"));
-    pv.values[v] = unescape(desc.text);
+    pv.values[v] = text_of(desc);
   }
   values_.push_back(std::move(pv));
   return Status{Ok{}};
@@ -441,93 +616,303 @@ Status Parser::parse_values() {
 
 Status Parser::parse_valtype() {
   const std::uint32_t line = lx_.peek().line;
-  TURNCAL_ASSIGN(raw_id, message_id());
+  TURNCAL_ASSIGN(key, message_ref());
   TURNCAL_ASSIGN(name, expect(Token::Ident, "a signal name"));
   if (lx_.peek().kind == Token::Punct && lx_.peek().text == ":") lx_.next();
   const Token vt = lx_.peek();
   TURNCAL_ASSIGN(type, unsigned_number("a value type 0, 1 or 2"));
   if (type > 2) return err(vt, "SIG_VALTYPE_ must be 0, 1 or 2");
-  valtypes_.push_back({raw_id, std::string(name.text), static_cast<int>(type), line});
+  valtypes_.push_back({key, std::string(name.text), static_cast<int>(type), line});
   return expect_punct(';');
 }
 
 Status Parser::parse_attribute() {
   const Token name = lx_.peek();
-  if (name.kind == Token::String && name.text == "VFrameFormat") {
+  if (name.kind != Token::String) {
+    skip_statement();
+    return Status{Ok{}};
+  }
+  const std::string_view attr = name.text;
+  if (attr == "VFrameFormat" && lx_.next().kind == Token::String &&
+      lx_.peek().kind == Token::Ident && lx_.peek().text == "BO_") {
     lx_.next();
-    const Token obj = lx_.peek();
-    if (obj.kind == Token::Ident && obj.text == "BO_") {
-      lx_.next();
-      TURNCAL_ASSIGN(raw_id, message_id());
-      TURNCAL_ASSIGN(value, signed_number());
-      frame_formats_.emplace_back(raw_id, static_cast<int>(value));
-      return expect_punct(';');
+    TURNCAL_ASSIGN(key, message_ref());
+    TURNCAL_ASSIGN(value, signed_number());
+    frame_formats_.emplace_back(key, static_cast<int>(value));
+    return expect_punct(';');
+  }
+  // The names Vector's tools cut to 32 characters in the file, in full.
+  if (attr == "SystemMessageLongSymbol" || attr == "SystemSignalLongSymbol" ||
+      attr == "SystemNodeLongSymbol" || attr == "SystemEnvVarLongSymbol") {
+    lx_.next();
+    const Token obj = lx_.next();
+    if (obj.kind != Token::Ident) return unexpected(obj, "BO_, SG_, BU_ or EV_");
+    if (obj.text == "BO_" || obj.text == "SG_") {
+      TURNCAL_ASSIGN(key, message_ref());
+      std::string signal;
+      if (obj.text == "SG_") {
+        TURNCAL_ASSIGN(sig, expect(Token::Ident, "a signal name"));
+        signal = sig.text;
+      }
+      TURNCAL_ASSIGN(value, expect(Token::String, "the long name"));
+      long_names_.push_back({key, std::move(signal), text_of(value), name.line});
+    } else if (obj.text == "BU_") {
+      TURNCAL_ASSIGN(node, expect(Token::Ident, "a node name"));
+      TURNCAL_ASSIGN(value, expect(Token::String, "the long name"));
+      db_.node_long_names[std::string(node.text)] = text_of(value);
+    } else if (obj.text == "EV_") {
+      TURNCAL_ASSIGN(env, expect(Token::Ident, "an environment variable name"));
+      TURNCAL_TRY(expect(Token::String, "the long name"));
+      warn(name.line,
+           "long name of environment variable '" + std::string(env.text) +
+               "' skipped: environment variables are not read",
+           Diagnostic::Severity::Note);
+    } else {
+      return unexpected(obj, "BO_, SG_, BU_ or EV_");
     }
+    return expect_punct(';');
   }
   skip_statement();
   return Status{Ok{}};
 }
 
-Status Parser::finish(Database& db) {
-  auto find = [&](std::uint32_t raw_id) -> Message* {
-    auto it = by_raw_id_.find(raw_id);
-    return it == by_raw_id_.end() ? nullptr : &db.messages[it->second];
+// SG_MUL_VAL_ <message ID> <signal> <multiplexor> <lo>-<hi>, ... ;
+Status Parser::parse_mux_values(const Token& kw) {
+  TURNCAL_ASSIGN(key, message_ref());
+  TURNCAL_ASSIGN(sig, expect(Token::Ident, "a signal name"));
+  TURNCAL_ASSIGN(mux, expect(Token::Ident, "a multiplexor name"));
+  PendingMuxValues pm{key, std::string(sig.text), std::string(mux.text), {}, kw.line};
+  for (;;) {
+    TURNCAL_ASSIGN(lo, unsigned_number("a multiplexor value"));
+    // "3-5" reads as the numbers 3 and -5; "3 - 5" as 3, '-', 5
+    const Token t = lx_.next();
+    std::uint64_t hi = 0;
+    if (t.kind == Token::Number && t.text.starts_with('-')) {
+      const std::string_view d = t.text.substr(1);
+      auto [ptr, ec] = std::from_chars(d.data(), d.data() + d.size(), hi);
+      if (ec != std::errc{} || ptr != d.data() + d.size())
+        return err(t, "bad multiplexor value range end '" + std::string(t.text) + "'");
+    } else if (t.kind == Token::Punct && t.text == "-") {
+      TURNCAL_ASSIGN(h, unsigned_number("a multiplexor value"));
+      hi = h;
+    } else {
+      return unexpected(t, "'-' and the range's end");
+    }
+    if (lo > hi)
+      warn(kw.line, "SG_MUL_VAL_ of '" + pm.signal + "': empty range " + std::to_string(lo) + "-" +
+                        std::to_string(hi) + " skipped");
+    else
+      pm.ranges.push_back({lo, hi});
+    const Token sep = lx_.next();
+    if (sep.kind == Token::Punct && sep.text == ";") break;
+    if (sep.kind != Token::Punct || sep.text != ",") return unexpected(sep, "',' or ';'");
+  }
+  mux_values_.push_back(std::move(pm));
+  return Status{Ok{}};
+}
+
+namespace {
+
+std::string hex_id(std::uint32_t key) {
+  char buf[24];
+  std::snprintf(buf, sizeof buf, "0x%X%s", key & ~kDbcExtendedFlag,
+                (key & kDbcExtendedFlag) != 0 ? " (extended)" : "");
+  return buf;
+}
+
+}  // namespace
+
+// Which multiplexor selects each multiplexed signal, and by which values:
+// SG_MUL_VAL_ where the file has it, else the simple rule (the message's
+// one multiplexor `M`, the value of `m3`). A signal whose multiplexor is
+// unknown, ambiguous, unusable or part of a loop is unusable.
+void Parser::resolve_multiplexing(Message& m) {
+  const std::uint32_t key = m.id | (m.extended ? kDbcExtendedFlag : 0u);
+  auto index_of = [&](std::string_view n) -> std::int32_t {
+    for (std::size_t i = 0; i < m.signals.size(); ++i)
+      if (m.signals[i].name == n) return static_cast<std::int32_t>(i);
+    return -1;
   };
-  auto find_sig = [&](std::uint32_t raw_id, const std::string& name) -> Signal* {
-    Message* m = find(raw_id);
+  auto unusable = [&](Signal& s, std::string why) {
+    if (!s.usable) return;
+    s.usable = false;
+    s.problem = std::move(why);
+    warn(s.line, "signal '" + m.name + "." + s.name + "' left out: " + s.problem);
+  };
+  std::vector<bool> explicit_mux(m.signals.size(), false);
+  for (const PendingMuxValues& pm : mux_values_) {
+    if (pm.key != key) continue;
+    const std::int32_t i = index_of(pm.signal);
+    if (i < 0) {
+      warn(pm.line, "SG_MUL_VAL_ for signal '" + pm.signal + "' that message '" + m.name +
+                        "' does not have: skipped");
+      continue;
+    }
+    Signal& s = m.signals[static_cast<std::size_t>(i)];
+    if (s.mux != MuxRole::Multiplexed) {
+      warn(pm.line, "SG_MUL_VAL_ for signal '" + m.name + "." + s.name +
+                        "', which is not multiplexed (no mN): skipped");
+      continue;
+    }
+    const std::int32_t j = index_of(pm.multiplexor);
+    if (j < 0 || !m.signals[static_cast<std::size_t>(j)].is_multiplexor()) {
+      unusable(s, "its SG_MUL_VAL_ (line " + std::to_string(pm.line) + ") names '" +
+                      pm.multiplexor + "', which is no multiplexor of '" + m.name + "'");
+      continue;
+    }
+    if (explicit_mux[static_cast<std::size_t>(i)] && s.selector != j) {
+      unusable(s, "SG_MUL_VAL_ lines give it two multiplexors");
+      continue;
+    }
+    explicit_mux[static_cast<std::size_t>(i)] = true;
+    s.selector = j;
+    s.selected_by.insert(s.selected_by.end(), pm.ranges.begin(), pm.ranges.end());
+  }
+  std::vector<std::int32_t> plain;  // `M` signals
+  for (std::size_t i = 0; i < m.signals.size(); ++i)
+    if (m.signals[i].mux == MuxRole::Multiplexor) plain.push_back(static_cast<std::int32_t>(i));
+  for (std::size_t i = 0; i < m.signals.size(); ++i) {
+    Signal& s = m.signals[i];
+    if (s.mux != MuxRole::Multiplexed || explicit_mux[i]) continue;
+    if (plain.empty()) {
+      unusable(s, "it is multiplexed but '" + m.name + "' has no multiplexor");
+    } else if (plain.size() > 1) {
+      unusable(
+          s, "'" + m.name + "' has several multiplexors and no SG_MUL_VAL_ says which selects it");
+    } else {
+      s.selector = plain[0];
+      s.selected_by = {MuxRange{s.mux_value, s.mux_value}};
+    }
+  }
+  // chains: each multiplexor usable, no loops (until nothing changes)
+  for (bool changed = true; changed;) {
+    changed = false;
+    for (Signal& s : m.signals) {
+      if (!s.usable || s.selector < 0) continue;
+      std::int32_t j = s.selector;
+      std::size_t steps = 0;
+      while (j >= 0 && steps <= m.signals.size() && m.signals[static_cast<std::size_t>(j)].usable) {
+        j = m.signals[static_cast<std::size_t>(j)].selector;
+        ++steps;
+      }
+      if (j >= 0) {
+        const Signal& at = m.signals[static_cast<std::size_t>(j)];
+        unusable(s, steps > m.signals.size() ? "its multiplexors select each other in a loop"
+                                             : "its multiplexor chain goes through '" + at.name +
+                                                   "', which is unusable");
+        changed = true;
+      }
+    }
+  }
+}
+
+Status Parser::finish(Database& db) {
+  auto find = [&](std::uint32_t key) -> Message* {
+    auto it = by_key_.find(key);
+    return it == by_key_.end() ? nullptr : &db.messages[it->second];
+  };
+  auto find_sig = [&](std::uint32_t key, const std::string& name) -> Signal* {
+    Message* m = find(key);
     if (m == nullptr) return nullptr;
     for (Signal& s : m->signals)
       if (s.name == name) return &s;
     return nullptr;
   };
-  // References to messages or signals the file does not define are left
-  // alone, as vendor tools do: stale comments and tables are common.
+  // References to messages or signals the file does not define are kept
+  // out with a warning, as vendor tools do: stale comments and tables are
+  // common.
+  auto stale = [&](std::uint32_t line, std::string_view what, std::uint32_t key,
+                   const std::string& signal) {
+    const Message* m = find(key);
+    if (m == nullptr)
+      warn(line, std::string(what) + " for message " + hex_id(key) +
+                     ", which the file does not define: skipped");
+    else
+      warn(line, std::string(what) + " for signal '" + signal + "', which message '" + m->name +
+                     "' does not have: skipped");
+  };
   for (const auto& v : valtypes_) {
-    Signal* s = find_sig(v.raw_id, v.signal);
-    if (s == nullptr) continue;
-    if (v.type == 1 && s->length != 32)
-      return make_error("float signal '" + s->name + "' must be 32 bits",
-                        SourcePos{file_, v.line, 0});
-    if (v.type == 2 && s->length != 64)
-      return make_error("double signal '" + s->name + "' must be 64 bits",
-                        SourcePos{file_, v.line, 0});
+    Signal* s = find_sig(v.key, v.signal);
+    if (s == nullptr) {
+      stale(v.line, "SIG_VALTYPE_", v.key, v.signal);
+      continue;
+    }
+    const std::uint32_t bits = v.type == 1 ? 32 : 64;
+    if (v.type != 0 && s->length != bits) {
+      if (s->usable) {
+        s->usable = false;
+        s->problem = std::string(v.type == 1 ? "float" : "double") + " (SIG_VALTYPE_ line " +
+                     std::to_string(v.line) + ") but " + std::to_string(s->length) + " bits, not " +
+                     std::to_string(bits);
+      }
+      continue;
+    }
     s->type = v.type == 1   ? ValueType::Float32
               : v.type == 2 ? ValueType::Float64
                             : ValueType::Integer;
   }
-  for (auto& v : values_)
-    if (Signal* s = find_sig(v.raw_id, v.signal)) s->values = std::move(v.values);
+  for (auto& v : values_) {
+    if (Signal* s = find_sig(v.key, v.signal))
+      s->values = std::move(v.values);
+    else
+      stale(v.line, "VAL_", v.key, v.signal);
+  }
   for (auto& c : comments_) {
     if (c.signal.empty()) {
-      if (Message* m = find(c.raw_id)) m->comment = std::move(c.text);
-    } else if (Signal* s = find_sig(c.raw_id, c.signal)) {
+      if (Message* m = find(c.key))
+        m->comment = std::move(c.text);
+      else
+        stale(c.line, "CM_", c.key, c.signal);
+    } else if (Signal* s = find_sig(c.key, c.signal)) {
       s->comment = std::move(c.text);
+    } else {
+      stale(c.line, "CM_", c.key, c.signal);
     }
   }
-  for (auto [raw_id, format] : frame_formats_)
-    if (Message* m = find(raw_id)) m->fd = m->fd || format == 14 || format == 15;
-  // Vector's placeholder for signals not in any message.
-  std::erase_if(db.messages,
-                [](const Message& m) { return m.name == "VECTOR__INDEPENDENT_SIG_MSG"; });
+  for (auto& l : long_names_) {
+    if (l.signal.empty()) {
+      if (Message* m = find(l.key))
+        m->long_name = std::move(l.name);
+      else
+        stale(l.line, "SystemMessageLongSymbol", l.key, l.signal);
+    } else if (Signal* s = find_sig(l.key, l.signal)) {
+      s->long_name = std::move(l.name);
+    } else {
+      stale(l.line, "SystemSignalLongSymbol", l.key, l.signal);
+    }
+  }
+  for (auto [key, format] : frame_formats_)
+    if (Message* m = find(key)) m->fd = m->fd || format == 14 || format == 15;
+  for (const auto& pm : mux_values_)
+    if (find(pm.key) == nullptr) stale(pm.line, "SG_MUL_VAL_", pm.key, pm.signal);
+  // Vector's placeholder for signals not in any message: never a CAN message.
+  std::erase_if(db.messages, [&](const Message& m) {
+    if (m.name != kIndependentSignals) return false;
+    warn(m.line, "'" + std::string(kIndependentSignals) + "' holds signals of no message: skipped",
+         Diagnostic::Severity::Note);
+    return true;
+  });
   for (Message& m : db.messages) {
-    int multiplexors = 0;
     for (Signal& s : m.signals) {
-      if (!s.finalize() || s.end_byte() > m.size)
-        return make_error("signal '" + s.name + "' (start " + std::to_string(s.start_bit) + ", " +
-                              std::to_string(s.length) + " bits) does not fit message '" + m.name +
-                              "' of " + std::to_string(m.size) + " bytes",
-                          SourcePos{file_, s.line, 0});
-      if (s.mux == MuxRole::Multiplexor) ++multiplexors;
+      if (!s.usable) {
+        warn(s.line, "signal '" + m.name + "." + s.name + "' left out: " + s.problem);
+        continue;
+      }
+      if (!s.finalize() || s.end_byte() > m.size) {
+        s.usable = false;
+        s.problem = "start " + std::to_string(s.start_bit) + ", " + std::to_string(s.length) +
+                    " bits does not fit the message's " + std::to_string(m.size) + " bytes";
+        warn(s.line, "signal '" + m.name + "." + s.name + "' left out: " + s.problem);
+      }
     }
-    if (multiplexors > 1)
-      return make_error("message '" + m.name + "' has more than one multiplexor",
-                        SourcePos{file_, m.line, 0});
-    for (const Signal& s : m.signals)
-      if (s.mux == MuxRole::Multiplexed && multiplexors == 0)
-        return make_error(
-            "signal '" + s.name + "' is multiplexed but '" + m.name + "' has no multiplexor",
-            SourcePos{file_, s.line, 0});
+    resolve_multiplexing(m);
   }
+  if (non_utf8_strings_ > 0)
+    warn(first_non_utf8_line_, "text is not UTF-8 (" + std::to_string(non_utf8_strings_) +
+                                   " strings from this line on): read as Windows-1252");
+  std::stable_sort(
+      db.warnings.begin(), db.warnings.end(),
+      [](const Diagnostic& a, const Diagnostic& b) { return a.where.line < b.where.line; });
   return Status{Ok{}};
 }
 
@@ -545,11 +930,11 @@ Result<Database> Parser::run() {
     Status st{Ok{}};
     if (t.text == "VERSION") {
       TURNCAL_ASSIGN(v, expect(Token::String, "the version string"));
-      db_.version = unescape(v.text);
+      db_.version = text_of(v);
       db_.version_line = t.line;
     } else if (t.text == "NS_") {
       st = expect_punct(':');
-      while (lx_.peek().kind != Token::End && !lx_.peek().line_start) lx_.next();
+      if (st) skip_new_symbols();
     } else if (t.text == "BS_") {
       skip_line(t.line);
     } else if (t.text == "BU_") {
@@ -560,6 +945,19 @@ Result<Database> Parser::run() {
       st = parse_message(t);
     } else if (t.text == "SG_") {
       st = parse_signal(t);
+      // An SG_ line that cannot be read, with its error on that line, is
+      // skipped: its message keeps the line, and a role in that message is
+      // refused (resolve_roles). Any other message stays usable.
+      if (!st && current_ && !lx_.lex_error() && st.error().where.line == t.line) {
+        Message& m = db_.messages[*current_];
+        m.unread.push_back(
+            Diagnostic{Diagnostic::Severity::Warning, st.error().where,
+                       "SG_ line of message '" + m.name +
+                           "' not read, its signal left out: " + st.error().message});
+        db_.warnings.push_back(m.unread.back());
+        skip_line(t.line);
+        st = Status{Ok{}};
+      }
     } else if (t.text == "CM_") {
       st = parse_comment();
     } else if (t.text == "VAL_") {
@@ -568,6 +966,8 @@ Result<Database> Parser::run() {
       st = parse_valtype();
     } else if (t.text == "BA_") {
       st = parse_attribute();
+    } else if (t.text == "SG_MUL_VAL_") {
+      st = parse_mux_values(t);
     } else if (is_keyword(t.text)) {
       current_.reset();
       skip_statement();
@@ -613,7 +1013,49 @@ bool Signal::finalize() {
 const Signal* Message::find_signal(std::string_view n) const {
   for (const Signal& s : signals)
     if (s.name == n) return &s;
+  for (const Signal& s : signals)
+    if (!s.long_name.empty() && s.long_name == n) return &s;
   return nullptr;
+}
+
+namespace {
+
+/// True when signal `index` of `m` is carried, given the raw value of each
+/// multiplexor (`raw_of(j)`): the walk up its multiplexor chain. The
+/// parser leaves no loops; `steps` bounds the walk on a hand-made Message.
+template <class RawOf>
+bool carried(const Message& m, std::size_t index, RawOf&& raw_of) {
+  std::size_t i = index;
+  for (std::size_t steps = 0; steps <= m.signals.size(); ++steps) {
+    const Signal& s = m.signals[i];
+    if (!s.usable) return false;
+    if (s.mux != MuxRole::Multiplexed) return true;
+    if (s.selector < 0 || static_cast<std::size_t>(s.selector) >= m.signals.size()) return false;
+    const auto j = static_cast<std::size_t>(s.selector);
+    if (!m.signals[j].usable) return false;
+    const std::uint64_t v = raw_of(j);
+    if (std::none_of(s.selected_by.begin(), s.selected_by.end(),
+                     [&](const MuxRange& r) { return v >= r.lo && v <= r.hi; }))
+      return false;
+    i = j;
+  }
+  return false;
+}
+
+}  // namespace
+
+bool Message::carries(std::size_t index, std::span<const std::uint8_t> payload) const {
+  if (index >= signals.size()) return false;
+  return carried(*this, index, [&](std::size_t j) { return extract_raw(signals[j], payload); });
+}
+
+std::string Diagnostic::describe() const {
+  std::string out;
+  if (!where.file.empty()) out += where.file + ":";
+  if (where.line != 0) out += std::to_string(where.line) + ":";
+  if (!out.empty()) out += " ";
+  out += severity == Severity::Note ? "note: " : "warning: ";
+  return out + text;
 }
 
 const Signal* Message::multiplexor() const {
@@ -631,6 +1073,8 @@ const Message* Database::find(std::uint32_t id, bool extended) const {
 const Message* Database::find(std::string_view n) const {
   for (const Message& m : messages)
     if (m.name == n) return &m;
+  for (const Message& m : messages)
+    if (!m.long_name.empty() && m.long_name == n) return &m;
   return nullptr;
 }
 
@@ -846,15 +1290,10 @@ DecodeStatus FrameCodec::decode(const Frame& f, std::span<double> out, const Mes
   if (st != DecodeStatus::Ok) return st;
   if (msg != nullptr) *msg = m;
   const std::span<const std::uint8_t> payload(f.data.data(), f.len);
-  std::optional<std::uint64_t> selector;
-  if (const Signal* mux = m->multiplexor()) selector = extract_raw(*mux, payload);
   for (std::size_t i = 0; i < m->signals.size() && i < out.size(); ++i) {
     const Signal& s = m->signals[i];
-    if (s.mux == MuxRole::Multiplexed && s.mux_value != *selector) {
-      out[i] = std::numeric_limits<double>::quiet_NaN();
-      continue;
-    }
-    out[i] = raw_to_physical(s, extract_raw(s, payload));
+    out[i] = m->carries(i, payload) ? raw_to_physical(s, extract_raw(s, payload))
+                                    : std::numeric_limits<double>::quiet_NaN();
   }
   return DecodeStatus::Ok;
 }
@@ -874,21 +1313,15 @@ Frame build(const Message& msg, std::span<const double> values, std::ptrdiff_t& 
   auto note = [&](std::size_t i, bool ok) {
     if (!ok && misfit_at < 0) misfit_at = static_cast<std::ptrdiff_t>(i);
   };
-  std::optional<std::uint64_t> selector;
+  // the raw value of each multiplexor (a NaN one's bits stay 0)
+  std::vector<std::uint64_t> mux_raw(msg.signals.size(), 0);
   for (std::size_t i = 0; i < msg.signals.size() && i < values.size(); ++i)
-    if (msg.signals[i].mux == MuxRole::Multiplexor) {
-      if (std::isnan(values[i])) {
-        selector = 0;  // its bits stay 0
-        continue;
-      }
-      const RawStep r = to_raw(msg.signals[i], values[i]);
-      note(i, r.fits);
-      selector = r.raw;
-    }
+    if (msg.signals[i].is_multiplexor() && msg.signals[i].usable && !std::isnan(values[i]))
+      mux_raw[i] = to_raw(msg.signals[i], values[i]).raw;
   for (std::size_t i = 0; i < msg.signals.size() && i < values.size(); ++i) {
     const Signal& s = msg.signals[i];
-    if (std::isnan(values[i])) continue;
-    if (s.mux == MuxRole::Multiplexed && (!selector || s.mux_value != *selector)) continue;
+    if (std::isnan(values[i]) || !s.usable) continue;
+    if (!carried(msg, i, [&](std::size_t j) { return mux_raw[j]; })) continue;
     const RawStep r = to_raw(s, values[i]);
     note(i, r.fits);
     insert_raw(s, payload, r.raw);

@@ -467,6 +467,8 @@ Result<can::Database> load_databases(const CanConfig& cfg) {
     TURNCAL_TRY(check_reference_revision(cfg, *db, path.string()));
     if (merged.version.empty()) merged.version = db->version;
     for (auto& n : db->nodes) merged.nodes.push_back(n);
+    merged.node_long_names.merge(db->node_long_names);
+    for (auto& w : db->warnings) merged.warnings.push_back(std::move(w));
     for (auto& m : db->messages) {
       for (std::size_t i = 0; i < merged.messages.size(); ++i) {
         const can::Message& o = merged.messages[i];
@@ -538,6 +540,11 @@ bool role_optional(Role role) {
 }  // namespace
 
 Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
+  // " (turncal.toml:12)": where the configuration names the role
+  auto at = [](const SourcePos& p) {
+    if (p.file.empty()) return std::string();
+    return " (" + p.file + (p.line != 0 ? ":" + std::to_string(p.line) : std::string()) + ")";
+  };
   RoleMap map;
   for (std::size_t i = 0; i < kRoleCount; ++i) {
     const Role role = static_cast<Role>(i);
@@ -554,11 +561,22 @@ Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
     if (m == nullptr)
       return make_error("key '" + key + "': no message '" + ref.message + "' in the DBC",
                         ref.where);
+    // a message with an SG_ line that could not be read is not the
+    // message the file meant: a role may not be in it
+    if (!m->unread.empty())
+      return make_error("key '" + key + "'" + at(ref.where) + ": message '" + m->name +
+                            "' has an SG_ line that could not be read: " + m->unread[0].text,
+                        m->unread[0].where);
     const can::Signal* s = m->find_signal(ref.signal);
     if (s == nullptr)
       return make_error(
           "key '" + key + "': message '" + ref.message + "' has no signal '" + ref.signal + "'",
           ref.where);
+    // what the roles do not use may be unusable; what they use may not
+    if (!s->usable)
+      return make_error("key '" + key + "'" + at(ref.where) + ": signal '" + m->name + "." +
+                            s->name + "' cannot be used: " + s->problem,
+                        SourcePos{m->file, s->line, 0});
     if (role == Role::InsVelEast || role == Role::InsVelNorth)
       if (auto k = velocity_unit(*s); !k)
         return make_error("key '" + key + "': " + k.error().message, ref.where);

@@ -7,11 +7,13 @@
 //   turncalctl [--socket PATH] [--json] history UNIT
 //   turncalctl [--json] replay LOG [options]       (no daemon: offline.cpp)
 //   turncalctl [--json] plan [options]             (no daemon: offline.cpp)
+//   turncalctl dbc FILE.dbc                         (no daemon: offline.cpp)
+//   turncalctl decode FILE.dbc LOG [--json]         (no daemon: offline.cpp)
 //
 // Exit codes: 0 done (a watched run ended done, a request answered ok, a
-// replay estimated a whole log); 1 the daemon refused the request, the
+// replay estimated a whole log, a DBC file read); 1 the daemon refused the request, the
 // watched run failed or was aborted, or a replay gave no estimates or met a
-// damaged log; 2 usage or a bad configuration; 3 the daemon cannot be
+// damaged log, or a DBC file cannot be used; 2 usage or a bad configuration; 3 the daemon cannot be
 // reached.
 #include <sys/socket.h>
 #include <sys/un.h>
@@ -196,8 +198,15 @@ int turncal::ctl::usage(const char* why) {
                "        [--rate HZ]                       INS velocity rate (default 100)\n"
                "        [--no-sweep] [--json OUT]         without the hold/turn table\n"
                "        [--compare PLAN.toml...]          several plans' sigmas side by side\n"
-               "exit codes: 0 ok; 1 refused, the watched run failed, or a replay gave no\n"
-               "estimates or met a damaged log; 2 usage or bad configuration; 3 no daemon\n",
+               "  dbc FILE.dbc                             what a DBC file holds as read:\n"
+               "                                           messages, signals, multiplexing,\n"
+               "                                           then its warnings (file:line)\n"
+               "  decode FILE.dbc LOG [--json]             a candump log decoded by a DBC file,\n"
+               "                                           a line (a JSON object) per frame;\n"
+               "                                           LOG - reads standard input\n"
+               "exit codes: 0 ok; 1 refused, the watched run failed, a replay gave no\n"
+               "estimates or met a damaged log, or a DBC file cannot be used; 2 usage or\n"
+               "bad configuration; 3 no daemon\n",
                why);
   return kUsage;
 }
@@ -223,6 +232,8 @@ int main(int argc, char** argv) {
   if (cmd == "replay") return replay(argc, argv, i, as_json);
   if (cmd == "plan") return plan(argc, argv, i, as_json);
   if (cmd == "check") return check(argc, argv, i, as_json);
+  if (cmd == "dbc") return dbc(argc, argv, i, as_json);
+  if (cmd == "decode") return decode(argc, argv, i, as_json);
   json req = {{"cmd", cmd}};
   bool then_watch = false;
   json truth;  // turncal-sim's truth, shown beside the estimates

@@ -8,6 +8,9 @@
 //   [--epoch S]
 //        [--mean | --sample] [--heading-offset DEG] [--rate HZ] [--no-sweep]
 //        [--json OUT]
+//   check [--config FILE] [--profile PLAN.toml]
+//   dbc FILE.dbc
+//   decode FILE.dbc LOG [--json]
 #include "offline.hpp"
 
 #include <algorithm>
@@ -16,12 +19,15 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <numbers>
 #include <optional>
 #include <sstream>
 #include <string>
 #include <vector>
 
+#include "turncal/can/candump.hpp"
+#include "turncal/can/dbc.hpp"
 #include "turncal/config.hpp"
 #include "turncal/drivers/reference.hpp"
 #include "turncal/run/engine.hpp"
@@ -325,6 +331,10 @@ int check(int argc, char** argv, int i, bool as_json) {
   out["dbc"] = json::array();
   for (const auto& f : cfg->can.dbc_files) out["dbc"].push_back(f.string());
   out["messages"] = db->messages.size();
+  // what the DBC files hold that was read with a warning or left out (none
+  // of it a role's: that would have been an error)
+  out["dbc_warnings"] = json::array();
+  for (const can::Diagnostic& w : db->warnings) out["dbc_warnings"].push_back(w.describe());
   out["roles"] = json::object();
   for (std::size_t k = 0; k < kRoleCount; ++k) {
     const ResolvedRole& r = roles->roles[k];
@@ -415,6 +425,8 @@ int check(int argc, char** argv, int i, bool as_json) {
   }
   std::printf("configuration %s\n", so.config.c_str());
   for (const auto& d : out["dbc"]) std::printf("  DBC %s\n", d.get<std::string>().c_str());
+  for (const auto& w : out["dbc_warnings"])
+    std::printf("  DBC warning: %s\n", w.get<std::string>().c_str());
   std::printf("  %zu messages; roles:\n", db->messages.size());
   for (const auto& [k, v] : out["roles"].items())
     std::printf("    %-28s %s\n", k.c_str(), v.get<std::string>().c_str());
@@ -438,6 +450,197 @@ int check(int argc, char** argv, int i, bool as_json) {
   }
   std::printf("%s\n", usable ? "usable" : "NOT usable");
   return usable ? kOk : kRefused;
+
+namespace {
+
+/// A number for people: up to 15 significant digits (1e-06, 0.1, 8.38190317153931e-08).
+std::string num(double v) {
+  char buf[40];
+  std::snprintf(buf, sizeof buf, "%.15g", v);
+  return buf;
+}
+
+std::string hex(std::uint32_t v) {
+  char buf[16];
+  std::snprintf(buf, sizeof buf, "0x%X", v);
+  return buf;
+}
+
+std::string named(const std::string& display, const std::string& written) {
+  return display == written ? display : display + " (DBC name " + written + ")";
+}
+
+/// "Top = 1", "Sub in 2-3, 5": what selects a multiplexed signal.
+std::string selection(const can::Message& m, const can::Signal& s) {
+  if (s.selector < 0) return "m" + std::to_string(s.mux_value) + ", no multiplexor";
+  std::string out = m.signals[static_cast<std::size_t>(s.selector)].display_name();
+  if (s.selected_by.size() == 1 && s.selected_by[0].lo == s.selected_by[0].hi)
+    return out + " = " + std::to_string(s.selected_by[0].lo);
+  out += " in ";
+  for (std::size_t k = 0; k < s.selected_by.size(); ++k) {
+    const can::MuxRange& r = s.selected_by[k];
+    if (k > 0) out += ", ";
+    out += std::to_string(r.lo);
+    if (r.hi != r.lo) out += "-" + std::to_string(r.hi);
+  }
+  return s.selected_by.empty() ? out + "nothing" : out;
+}
+
+void print_signal(const can::Message& m, const can::Signal& s) {
+  std::string type = s.type == can::ValueType::Float32   ? "float32"
+                     : s.type == can::ValueType::Float64 ? "float64"
+                     : s.is_signed                       ? "signed"
+                                                         : "unsigned";
+  std::printf("  %s: start bit %u, %u bits, %s, %s, factor %s, offset %s",
+              s.display_name() == s.name ? s.name.c_str() : named(s.display_name(), s.name).c_str(),
+              s.start_bit, s.length,
+              s.order == can::ByteOrder::LittleEndian ? "little-endian (Intel, @1)"
+                                                      : "big-endian (Motorola, @0)",
+              type.c_str(), num(s.factor).c_str(), num(s.offset).c_str());
+  std::printf(", unit \"%s\", [%s|%s]", s.unit.c_str(), num(s.minimum).c_str(),
+              num(s.maximum).c_str());
+  if (s.usable) std::printf(", range %s", can::describe_range(s).c_str());
+  if (s.is_multiplexor()) std::printf(", multiplexor");
+  if (s.mux == can::MuxRole::Multiplexed)
+    std::printf(", multiplexed by %s", selection(m, s).c_str());
+  if (!s.usable) std::printf(", UNUSABLE: %s", s.problem.c_str());
+  std::printf("  (line %u)\n", s.line);
+}
+
+void print_warnings(const can::Database& db, std::FILE* to) {
+  for (const can::Diagnostic& w : db.warnings) std::fprintf(to, "%s\n", w.describe().c_str());
+}
+
+}  // namespace
+
+int dbc(int argc, char** argv, int i, bool as_json) {
+  if (i >= argc) return usage("dbc: missing FILE.dbc");
+  const std::string path = argv[i++];
+  if (i < argc) return usage(("dbc: unknown argument " + std::string(argv[i])).c_str());
+  if (as_json) return usage("dbc: prints text only");
+  auto db = can::load_dbc(path);
+  if (!db) {
+    std::fprintf(stderr, "turncalctl: %s\n", db.error().describe().c_str());
+    return kRefused;
+  }
+  std::printf("%s: VERSION \"%s\", %zu messages, nodes:", path.c_str(), db->version.c_str(),
+              db->messages.size());
+  for (const std::string& n : db->nodes) {
+    auto it = db->node_long_names.find(n);
+    std::printf(" %s", it == db->node_long_names.end() ? n.c_str() : named(it->second, n).c_str());
+  }
+  std::printf("\n");
+  for (const can::Message& m : db->messages) {
+    std::printf("\n%s %s, %s, %u bytes%s, transmitter %s  (line %u)\n", hex(m.id).c_str(),
+                m.extended ? "extended" : "standard", named(m.display_name(), m.name).c_str(),
+                m.size, m.fd ? " (CAN FD)" : "",
+                m.transmitter.empty() ? "none" : m.transmitter.c_str(), m.line);
+    for (const can::Signal& s : m.signals) print_signal(m, s);
+  }
+  if (!db->warnings.empty()) {
+    std::printf("\n%zu warnings and notes:\n", db->warnings.size());
+    std::fflush(stdout);
+    print_warnings(*db, stdout);
+  }
+  return kOk;
+}
+
+int decode(int argc, char** argv, int i, bool as_json) {
+  std::vector<std::string> files;
+  for (; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "--json")
+      as_json = true;
+    else if (a.size() > 1 && a[0] == '-')
+      return usage(("decode: unknown argument " + a).c_str());
+    else
+      files.push_back(a);
+  }
+  if (files.size() != 2) return usage("decode: needs FILE.dbc and LOG");
+  auto db = can::load_dbc(files[0]);
+  if (!or_say(db)) return kUsage;
+  for (const can::Diagnostic& w : db->warnings)
+    std::fprintf(stderr, "turncalctl: %s\n", w.describe().c_str());
+  std::ifstream in_file;
+  std::istream* in = &std::cin;
+  if (files[1] != "-") {
+    in_file.open(files[1], std::ios::binary);
+    if (!in_file) {
+      std::fprintf(stderr, "turncalctl: cannot open %s\n", files[1].c_str());
+      return kUsage;
+    }
+    in = &in_file;
+  }
+  const can::FrameCodec codec(*db);
+  std::string line;
+  can::LogRecord rec;
+  std::uint64_t line_no = 0, malformed = 0, first_bad = 0;
+  std::string first_why;
+  std::vector<double> values;
+  while (std::getline(*in, line)) {
+    ++line_no;
+    if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+    if (auto st = can::parse_log_line(line, rec); !st) {
+      if (malformed++ == 0) {
+        first_bad = line_no;
+        first_why = st.error().message;
+      }
+      continue;
+    }
+    const can::Frame& f = rec.frame;
+    const can::Message* m = codec.message_for(f);
+    std::string error;
+    if (f.error)
+      error = "error frame";
+    else if (f.remote)
+      error = "remote frame";
+    else if (m != nullptr && f.len != m->size)
+      error = "length " + std::to_string(f.len) + ", the DBC says " + std::to_string(m->size);
+    if (f.error) m = nullptr;
+    values.assign(m != nullptr ? m->signals.size() : 0, 0.0);
+    const bool carried =
+        m != nullptr && error.empty() && codec.decode(f, values) == can::DecodeStatus::Ok;
+    // microseconds, as the log has them
+    const double t =
+        static_cast<double>((rec.time_ns + (rec.time_ns >= 0 ? 500 : -500)) / 1000) / 1e6;
+    if (as_json) {
+      // keys in the order documented, signals in the DBC's order
+      nlohmann::ordered_json j = {
+          {"t", t}, {"interface", rec.interface}, {"id", f.id}, {"extended", f.extended}};
+      j["message"] = m != nullptr ? nlohmann::ordered_json(m->display_name())
+                                  : nlohmann::ordered_json(nullptr);
+      nlohmann::ordered_json sig = nlohmann::ordered_json::object();
+      if (carried)
+        for (std::size_t k = 0; k < values.size(); ++k)
+          if (!std::isnan(values[k])) sig[m->signals[k].display_name()] = values[k];
+      j["signals"] = std::move(sig);
+      if (!error.empty()) j["error"] = error;
+      std::printf("%s\n",
+                  j.dump(-1, ' ', false, nlohmann::ordered_json::error_handler_t::replace).c_str());
+    } else {
+      std::printf("(%.6f) %s %s%s %s", t, rec.interface.c_str(), hex(f.id).c_str(),
+                  f.extended ? "x" : "", m != nullptr ? m->display_name().c_str() : "?");
+      if (carried)
+        for (std::size_t k = 0; k < values.size(); ++k) {
+          if (std::isnan(values[k])) continue;
+          const can::Signal& s = m->signals[k];
+          std::printf(" %s=%s%s%s", s.display_name().c_str(), num(values[k]).c_str(),
+                      s.unit.empty() ? "" : " ", s.unit.c_str());
+          if (auto v = s.values.find(static_cast<std::int64_t>(values[k]));
+              v != s.values.end() && s.factor == 1 && s.offset == 0)
+            std::printf(" (%s)", v->second.c_str());
+        }
+      if (!error.empty()) std::printf(" [%s]", error.c_str());
+      std::printf("\n");
+    }
+  }
+  std::fflush(stdout);
+  if (malformed > 0)
+    std::fprintf(
+        stderr, "turncalctl: %s: %llu malformed line%s skipped (the first, line %llu: %s)\n",
+        files[1].c_str(), static_cast<unsigned long long>(malformed), malformed == 1 ? "" : "s",
+        static_cast<unsigned long long>(first_bad), first_why.c_str());
+  return kOk;
 }
 
 }  // namespace turncal::ctl

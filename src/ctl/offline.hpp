@@ -1,4 +1,4 @@
-// turncalctl's commands that need no daemon (replay, plan). Internal to
+// turncalctl's commands that need no daemon (replay, plan, dbc, decode). Internal to
 // turncalctl.
 #pragma once
 
@@ -19,5 +19,13 @@ int plan(int argc, char** argv, int i, bool as_json);
 /// against the INS layout and the table protocol, the plans against the
 /// stand's limits and command ranges), without starting a run.
 int check(int argc, char** argv, int i, bool as_json);
+
+/// `turncalctl dbc FILE.dbc`: what a DBC file holds, as read, and its
+/// warnings; kRefused with the error (file:line) when it cannot be used.
+int dbc(int argc, char** argv, int i, bool as_json);
+
+/// `turncalctl decode FILE.dbc LOG [--json]`: a candump log decoded by a
+/// DBC file, a line per frame; malformed lines are counted and skipped.
+int decode(int argc, char** argv, int i, bool as_json);
 
 }  // namespace turncal::ctl

@@ -1138,6 +1138,10 @@ Status Daemon::setup() {
   roles = r;
   idle_table =
       drivers::make_devices(cfg.can, roles, run::plausibility_of(cfg), cfg.stand.time_scale).table;
+  // what the DBC files say that was read with a warning or skipped
+  for (const can::Diagnostic& w : db.warnings)
+    say(w.severity == can::Diagnostic::Severity::Note ? LOG_NOTICE : LOG_WARNING, "", "idle",
+        w.describe());
   state.emplace(cfg.daemon.state_directory);
   TURNCAL_TRY(state->create());
   state->release_stale();

@@ -3,6 +3,7 @@
 #include <unistd.h>
 #include <cmath>
 
+#include <algorithm>
 #include <filesystem>
 #include <fstream>
 #include <numbers>
@@ -104,6 +105,71 @@ TEST_SUITE("config") {
     CHECK(roles.error().where.file == "stand.toml");
     CHECK(roles.error().where.line == 5);
     CHECK(roles.error().message.find("Angel") != std::string::npos);
+  }
+
+  TEST_CASE("a role may not name an unusable signal; what no role uses only warns") {
+    std::ifstream in(kSrc + "/config/reference-stand.dbc");
+    std::stringstream ss;
+    ss << in.rdbuf();
+    const std::string current = ss.str();
+    const auto dir = std::filesystem::temp_directory_path() /
+                     ("turncal-test-roles-" + std::to_string(::getpid()));
+    std::filesystem::create_directories(dir);
+    auto load = [&](const std::string& text) {
+      std::ofstream(dir / "stand.dbc") << text;
+      auto cfg = parse_config(
+          "[can]\ndbc = [\"stand.dbc\"]\n[can.roles]\n"
+          "encoder_angle = \"TBL_Encoder.Angle\"\n",
+          (dir / "turncal.toml").string());
+      REQUIRE(cfg.ok());
+      auto db = load_databases(cfg->can);
+      REQUIRE_MESSAGE(db.ok(), (db.ok() ? "" : db.error().describe()));
+      return std::make_pair(std::move(*cfg), std::move(*db));
+    };
+    const std::string angle = " SG_ Angle : 32|32@1+";
+    const auto angle_at = current.find(angle);
+    REQUIRE(angle_at != std::string::npos);
+    const auto angle_line = static_cast<std::uint32_t>(
+        std::count(current.begin(), current.begin() + static_cast<std::ptrdiff_t>(angle_at), '\n') +
+        1);
+    SUBCASE("a signal no role uses that does not fit: a warning, the roles resolve") {
+      const std::string text = current +
+                               "\nBO_ 1000 Vendor_Extra: 4 TBL\n"
+                               " SG_ Beyond : 24|16@1+ (1,0) [0|0] \"\" HOST\n";
+      auto [cfg, db] = load(text);
+      REQUIRE(db.warnings.size() == 1);
+      CHECK(db.warnings[0].where.file == (dir / "stand.dbc").string());
+      CHECK(db.warnings[0].text.find("Vendor_Extra.Beyond") != std::string::npos);
+      auto roles = resolve_roles(cfg.can, db);
+      REQUIRE_MESSAGE(roles.ok(), (roles.ok() ? "" : roles.error().describe()));
+    }
+    SUBCASE("the role's own signal does not fit: an error at its DBC line, naming the key") {
+      std::string text = current;
+      text.replace(angle_at, angle.size(), " SG_ Angle : 40|32@1+");
+      auto [cfg, db] = load(text);
+      auto roles = resolve_roles(cfg.can, db);
+      REQUIRE_FALSE(roles.ok());
+      CHECK(roles.error().where.file == (dir / "stand.dbc").string());
+      CHECK(roles.error().where.line == angle_line);
+      CHECK(roles.error().message.find("can.roles.encoder_angle") != std::string::npos);
+      CHECK(roles.error().message.find("turncal.toml:4") != std::string::npos);
+      CHECK(roles.error().message.find("does not fit") != std::string::npos);
+    }
+    SUBCASE("an SG_ line of the role's message that cannot be read: an error at that line") {
+      std::string text = current;
+      const std::string time_tag = " SG_ TimeTag : 0|32@1+";
+      const auto at = text.find(time_tag, angle_at - 200);  // TBL_Encoder's, before Angle
+      REQUIRE(at < angle_at);
+      text.replace(at, time_tag.size(), " SG_ TimeTag : 0|32@3+");
+      auto [cfg, db] = load(text);
+      auto roles = resolve_roles(cfg.can, db);
+      REQUIRE_FALSE(roles.ok());
+      CHECK(roles.error().where.file == (dir / "stand.dbc").string());
+      CHECK(roles.error().where.line == angle_line - 1);
+      CHECK(roles.error().message.find("can.roles.encoder_") != std::string::npos);
+      CHECK(roles.error().message.find("could not be read") != std::string::npos);
+    }
+    std::filesystem::remove_all(dir);
   }
 
   TEST_CASE("a reference-protocol DBC must state ICD revision 2; an older one is refused") {

@@ -1,6 +1,7 @@
 #include <doctest/doctest.h>
 
 #include <cmath>
+#include <map>
 #include <random>
 #include <sstream>
 #include <string>
@@ -60,6 +61,53 @@ VAL_ 100 Flag 0 "off" 1 "on" ;
 SIG_VALTYPE_ 2147484000 F32 : 1;
 SIG_VALTYPE_ 200 D64 : 2;
 )";
+
+Database parsed(const std::string& text) {
+  auto r = parse_dbc(text, "vendor.dbc");
+  REQUIRE_MESSAGE(r.ok(), (r.ok() ? "" : r.error().describe()));
+  for (const Diagnostic& w : r->warnings) {
+    CHECK(w.where.file == "vendor.dbc");
+    CHECK(w.where.line > 0);
+  }
+  return std::move(r).value();
+}
+
+/// The lines of the warnings (not the notes), in order.
+std::vector<std::uint32_t> warning_lines(const Database& db) {
+  std::vector<std::uint32_t> out;
+  for (const Diagnostic& w : db.warnings)
+    if (w.severity == Diagnostic::Severity::Warning) out.push_back(w.where.line);
+  return out;
+}
+
+/// True when a warning at `line` says `text`.
+bool warned(const Database& db, std::uint32_t line, const std::string& text) {
+  for (const Diagnostic& w : db.warnings)
+    if (w.where.line == line && w.text.find(text) != std::string::npos) return true;
+  return false;
+}
+
+/// The signals a frame carries, by display name: what decode gives, NaN
+/// (not carried) left out.
+std::map<std::string, double> decoded(const Database& db, std::uint32_t id, bool extended,
+                                      std::vector<std::uint8_t> bytes) {
+  Frame f;
+  f.id = id;
+  f.extended = extended;
+  f.len = static_cast<std::uint8_t>(bytes.size());
+  std::copy(bytes.begin(), bytes.end(), f.data.begin());
+  FrameCodec codec(db);
+  const Message* m = codec.message_for(f);
+  REQUIRE(m != nullptr);
+  std::vector<double> out(m->signals.size());
+  REQUIRE(codec.decode(f, out) == DecodeStatus::Ok);
+  std::map<std::string, double> values;
+  for (std::size_t i = 0; i < out.size(); ++i)
+    if (!std::isnan(out[i])) values[m->signals[i].display_name()] = out[i];
+  return values;
+}
+
+using Values = std::map<std::string, double>;
 
 }  // namespace
 
@@ -246,20 +294,19 @@ TEST_SUITE("dbc") {
       const char* text;
       std::uint32_t line;
     };
+    // (a signal that does not fit, or cannot be decoded, an SG_ line that
+    // cannot be read, and an ID above 0x7FF without the extended flag are
+    // read with a warning now: see the test cases below)
     const Case cases[] = {
-        {"BO_ 1 M: 8 A\n SG_ S : 0|8@1+ (1,0) [0|1] \"\" B\n SG_ T : 60|8@1+ (1,0) [0|1] \"\" B\n",
-         3},
-        {"BO_ 1 M: 8 A\n SG_ S : 0|65@1+ (1,0) [0|1] \"\" B\n", 2},
-        {"BO_ 1 M: 8 A\n SG_ S : 0|8@2+ (1,0) [0|1] \"\" B\n", 2},
+        {"BO_ 1 M: 8 A\n SG_ S : 0|8@1+ (1,0) [0|1]\n SG_ T : 8|8@1+ (1,0) [0|1] \"\" B\n", 3},
         {"BO_ 1 M: 9 A\n", 1},
         {"BO_ 1 M: 8 A\nBO_ 1 N: 8 A\n", 2},
         {"\n SG_ S : 0|8@1+ (1,0) [0|1] \"\" B\n", 2},
         {"BO_ 1 M: 8 A\n SG_ S : 0|8@1+ (1,0) [0|1] \"unterminated\n", 2},
-        {"BO_ 1 M: 8 A\n SG_ S : 0|8@1+ (1,0) [0|1] \"\" B\nSIG_VALTYPE_ 1 S : 1;\n", 3},
-        {"BO_ 1 M: 8 A\n SG_ S m1 : 0|8@1+ (1,0) [0|1] \"\" B\n", 2},
-        {"BO_ 1 M: 8 A\n SG_ S : 0|8@1+ (0,0) [0|1] \"\" B\n", 2},
-        {"BO_ 4000 M: 8 A\n", 1},
+        {"BO_ 536870912 M: 8 A\n", 1},   // above 0x1FFFFFFF: not a CAN ID with or without the flag
+        {"BO_ 2684354560 M: 8 A\n", 1},  // the flag and 0x20000000
         {"VERSION \"x\"\nFOO_ bar;\n", 2},
+        {"BO_ 1 M: 8 A\n SG_ S M : 0|8@1+ (1,0) [0|1] \"\" B\n\nSG_MUL_VAL_ 1 S S 1+2;\n", 4},
     };
     for (const Case& c : cases) {
       CAPTURE(c.text);
@@ -280,6 +327,9 @@ TEST_SUITE("dbc") {
     auto r = parse_dbc(text, "ok.dbc");
     REQUIRE_MESSAGE(r.ok(), (r.ok() ? "" : r.error().describe()));
     CHECK(r->messages.size() == 1);
+    // the stale ones are named: SG_MUL_VAL_ for a signal that is not
+    // multiplexed (line 6), a comment for a message the file lacks (line 9)
+    CHECK(warning_lines(*r) == std::vector<std::uint32_t>{6, 9});
   }
 
   TEST_CASE("property: random layouts encode and decode as inverses, through DBC text") {
@@ -370,5 +420,311 @@ TEST_SUITE("dbc") {
       insert_raw(*d64, payload, *physical_to_raw(*d64, v));
       CHECK(raw_to_physical(*d64, extract_raw(*d64, payload)) == v);
     }
+  }
+  TEST_CASE("an ID above 0x7FF without the extended flag is read as extended, with a warning") {
+    const Database db = parsed(
+        "VERSION \"\"\n"
+        "BO_ 4000 Wide_Id: 8 A\n"  // 2: 0xFA0, no bit 31
+        " SG_ Speed : 0|16@1+ (0.5,0) [0|0] \"\" B\n"
+        "BO_ 2147487649 Flagged: 2 A\n"  // 4: 0xFA1 with bit 31: no warning
+        " SG_ X : 0|8@1+ (1,0) [0|0] \"\" B\n"
+        "BO_ 2047 Std: 1 A\n"  // 6: 0x7FF: standard
+        " SG_ Y : 0|8@1+ (1,0) [0|0] \"\" B\n"
+        "CM_ BO_ 2147487648 \"written with the flag\";\n"  // 8: the same message
+        "VAL_ 4000 Speed 2 \"one\";\n");
+    CHECK(warning_lines(db) == std::vector<std::uint32_t>{2});
+    CHECK(warned(db, 2, "0xFA0 is above 0x7FF without the extended flag"));
+    const Message* m = db.find(0xFA0, true);
+    REQUIRE(m != nullptr);
+    CHECK(m->name == "Wide_Id");
+    CHECK(db.find(0xFA0, false) == nullptr);
+    CHECK(m->comment == "written with the flag");
+    CHECK(m->find_signal("Speed")->values.at(2) == "one");
+    CHECK(db.find(0xFA1, true)->name == "Flagged");
+    CHECK_FALSE(db.find("Std")->extended);
+    CHECK(decoded(db, 0xFA0, true, {0x10, 0x27, 0, 0, 0, 0, 0, 0}) == Values{{"Speed", 5000}});
+    // the same ID as a standard frame is no frame of the file
+    Frame f;
+    f.id = 0xFA0 & 0x7FF;
+    f.len = 8;
+    std::vector<double> out(1);
+    CHECK(FrameCodec(db).decode(f, out) == DecodeStatus::UnknownId);
+  }
+
+  TEST_CASE("extended multiplexing: SG_MUL_VAL_ ranges and m1M chains select what decode gives") {
+    const Database db = parsed(
+        "BO_ 300 Mux: 8 A\n"
+        " SG_ Top M : 0|8@1+ (1,0) [0|0] \"\" B\n"     // 2
+        " SG_ Sub m1M : 8|8@1+ (1,0) [0|0] \"\" B\n"   // 3: multiplexed and multiplexor
+        " SG_ A m2 : 16|16@1+ (0.5,0) [0|0] \"\" B\n"  // 4: Sub in 2-3
+        " SG_ B m5 : 16|16@1- (1,0) [0|0] \"\" B\n"    // 5: Sub 5, 10-12
+        " SG_ C m0 : 8|16@1+ (1,10) [0|0] \"\" B\n"    // 6: Top 0 or 7-9
+        " SG_ Always : 56|8@1+ (1,0) [0|0] \"\" B\n"   // 7
+        "BO_ 301 Two: 8 A\n"                           // 8: two multiplexors, no SG_MUL_VAL_
+        " SG_ P M : 0|8@1+ (1,0) [0|0] \"\" B\n"
+        " SG_ Q M : 8|8@1+ (1,0) [0|0] \"\" B\n"
+        " SG_ R m1 : 16|8@1+ (1,0) [0|0] \"\" B\n"  // 11: whose?
+        " SG_ S : 24|8@1+ (1,0) [0|0] \"\" B\n"
+        "SG_MUL_VAL_ 300 Sub Top 1-1;\n"
+        "SG_MUL_VAL_ 300 A Sub 2-3;\n"
+        "SG_MUL_VAL_ 300 B Sub 5-5, 10-12;\n"
+        "SG_MUL_VAL_ 300 C Top 0-0, 7 - 9;\n"
+        "SG_MUL_VAL_ 300 Nope Top 1-1;\n");  // 17: no such signal
+    CHECK(warning_lines(db) == std::vector<std::uint32_t>{11, 17});
+    CHECK(warned(db, 11, "several multiplexors"));
+    const Message* m = db.find("Mux");
+    REQUIRE(m != nullptr);
+    const Signal* sub = m->find_signal("Sub");
+    CHECK(sub->is_multiplexor());
+    CHECK(sub->mux == MuxRole::Multiplexed);
+    CHECK(sub->selected_by == std::vector<MuxRange>{{1, 1}});
+    CHECK(m->find_signal("B")->selected_by == std::vector<MuxRange>{{5, 5}, {10, 12}});
+    CHECK(m->find_signal("C")->selected_by == std::vector<MuxRange>{{0, 0}, {7, 9}});
+    // Top 1 selects Sub; Sub 2 and 3 select A, 5 and 10..12 B
+    CHECK(decoded(db, 300, false, {1, 2, 0x10, 0x00, 0, 0, 0, 42}) ==
+          Values{{"Top", 1}, {"Sub", 2}, {"A", 8}, {"Always", 42}});
+    CHECK(decoded(db, 300, false, {1, 3, 0x10, 0x00, 0, 0, 0, 42}) ==
+          Values{{"Top", 1}, {"Sub", 3}, {"A", 8}, {"Always", 42}});
+    CHECK(decoded(db, 300, false, {1, 11, 0xFE, 0xFF, 0, 0, 0, 42}) ==
+          Values{{"Top", 1}, {"Sub", 11}, {"B", -2}, {"Always", 42}});
+    CHECK(decoded(db, 300, false, {1, 4, 0xFE, 0xFF, 0, 0, 0, 42}) ==
+          Values{{"Top", 1}, {"Sub", 4}, {"Always", 42}});
+    // Top 8 selects C, not Sub (whose value 2 would select A)
+    CHECK(decoded(db, 300, false, {8, 2, 0, 0, 0, 0, 0, 42}) ==
+          Values{{"Top", 8}, {"C", 10 + 2}, {"Always", 42}});
+    CHECK(decoded(db, 300, false, {2, 2, 0, 0, 0, 0, 0, 42}) == Values{{"Top", 2}, {"Always", 42}});
+    // two multiplexors and no SG_MUL_VAL_: R is left out, the rest decodes
+    CHECK_FALSE(db.find("Two")->find_signal("R")->usable);
+    CHECK(decoded(db, 301, false, {1, 1, 1, 7, 0, 0, 0, 0}) ==
+          Values{{"P", 1}, {"Q", 1}, {"S", 7}});
+    // encode follows the same chain: A is written only where Top and Sub select it
+    std::vector<double> values = {1, 3, 8, -2, 12, 42};
+    Frame f = FrameCodec::encode(*m, values);
+    CHECK(f.data[2] == 0x10);
+    values[1] = 4;  // Sub 4 selects neither A nor B
+    f = FrameCodec::encode(*m, values);
+    CHECK(f.data[2] == 0);
+  }
+
+  TEST_CASE("long names: the System*LongSymbol attributes name what the DBC cut to 32") {
+    const Database db = parsed(
+        "BU_: ECU_With_A_Long_Name_Cut_To_32_\n"
+        "BO_ 100 Engine_Status_Message_Cut_To_32: 8 ECU_With_A_Long_Name_Cut_To_32_\n"
+        " SG_ Engine_Coolant_Temperature_Cut : 0|8@1+ (1,-40) [0|0] \"\" B\n"
+        " SG_ Short : 8|8@1+ (2,0) [0|0] \"\" B\n"
+        "BA_DEF_ SG_ \"SystemSignalLongSymbol\" STRING ;\n"
+        "BA_DEF_ BO_ \"SystemMessageLongSymbol\" STRING ;\n"
+        "BA_DEF_ BU_ \"SystemNodeLongSymbol\" STRING ;\n"
+        "BA_DEF_ EV_ \"SystemEnvVarLongSymbol\" STRING ;\n"
+        "BA_DEF_DEF_ \"SystemSignalLongSymbol\" \"\";\n"
+        "BA_ \"SystemMessageLongSymbol\" BO_ 100 \"Engine_Status_Message_Cut_To_32_Characters\";\n"
+        "BA_ \"SystemSignalLongSymbol\" SG_ 100 Engine_Coolant_Temperature_Cut "
+        "\"Engine_Coolant_Temperature_Celsius\";\n"
+        "BA_ \"SystemNodeLongSymbol\" BU_ ECU_With_A_Long_Name_Cut_To_32_ "
+        "\"ECU_With_A_Long_Name_Cut_To_32_Characters\";\n"
+        "BA_ \"SystemEnvVarLongSymbol\" EV_ Env_Short \"Env_Long_Name\";\n"  // 13
+        "BA_ \"SystemSignalLongSymbol\" SG_ 100 Gone \"Gone_Long\";\n");     // 14
+    CHECK(warning_lines(db) == std::vector<std::uint32_t>{14});
+    const Message* by_short = db.find("Engine_Status_Message_Cut_To_32");
+    const Message* by_long = db.find("Engine_Status_Message_Cut_To_32_Characters");
+    REQUIRE(by_short != nullptr);
+    CHECK(by_short == by_long);
+    CHECK(by_short->display_name() == "Engine_Status_Message_Cut_To_32_Characters");
+    CHECK(by_short->name == "Engine_Status_Message_Cut_To_32");
+    const Signal* s = by_short->find_signal("Engine_Coolant_Temperature_Celsius");
+    REQUIRE(s != nullptr);
+    CHECK(s == by_short->find_signal("Engine_Coolant_Temperature_Cut"));
+    CHECK(s->name == "Engine_Coolant_Temperature_Cut");
+    CHECK(by_short->find_signal("Short")->display_name() == "Short");
+    CHECK(db.node_long_names.at("ECU_With_A_Long_Name_Cut_To_32_") ==
+          "ECU_With_A_Long_Name_Cut_To_32_Characters");
+    CHECK(db.warnings.front().where.line == 13);  // a note: environment variables are not read
+    CHECK(db.warnings.front().severity == Diagnostic::Severity::Note);
+    CHECK(decoded(db, 100, false, {60, 21, 0, 0, 0, 0, 0, 0}) ==
+          Values{{"Engine_Coolant_Temperature_Celsius", 20}, {"Short", 42}});
+  }
+
+  TEST_CASE("VECTOR__INDEPENDENT_SIG_MSG is skipped with a note, never a CAN message") {
+    const Database db = parsed(
+        "BO_ 3221225472 VECTOR__INDEPENDENT_SIG_MSG: 0 Vector__XXX\n"
+        " SG_ Unassigned : 0|16@1+ (1,0) [0|0] \"\" Vector__XXX\n"
+        "BO_ 5 Real: 1 A\n"
+        " SG_ X : 0|8@1+ (1,0) [0|0] \"\" B\n"
+        "CM_ SG_ 3221225472 Unassigned \"no message\";\n"
+        "VAL_ 3221225472 Unassigned 0 \"zero\";\n");
+    CHECK(warning_lines(db).empty());
+    REQUIRE(db.warnings.size() == 1);
+    CHECK(db.warnings[0].severity == Diagnostic::Severity::Note);
+    CHECK(db.warnings[0].where.line == 1);
+    REQUIRE(db.messages.size() == 1);
+    CHECK(db.find("VECTOR__INDEPENDENT_SIG_MSG") == nullptr);
+    CHECK(db.find(0, true) == nullptr);
+    CHECK(decoded(db, 5, false, {9}) == Values{{"X", 9}});
+  }
+
+  TEST_CASE("a signal that cannot be decoded is kept unusable with a warning; the rest decodes") {
+    const Database db = parsed(
+        "BO_ 1 M: 8 A\n"
+        " SG_ S : 0|8@1+ (1,0) [0|1] \"\" B\n"
+        " SG_ T : 60|8@1+ (1,0) [0|1] \"\" B\n"        // 3: beyond 8 bytes
+        " SG_ Long : 0|65@1+ (1,0) [0|1] \"\" B\n"     // 4: 65 bits
+        " SG_ Flat : 8|8@1+ (0,0) [0|1] \"\" B\n"      // 5: factor 0
+        " SG_ Lost m1 : 16|8@1+ (1,0) [0|1] \"\" B\n"  // 6: no multiplexor
+        " SG_ F : 24|16@1+ (1,0) [0|1] \"\" B\n"       // 7: float of 16 bits
+        " SG_ Moto : 35|8@0+ (1,0) [0|0] \"\" B\n"     // 8: Motorola from byte 4 into 5: fits
+        " SG_ Tail : 63|1@1+ (1,0) [0|1] \"\" B\n"
+        "SIG_VALTYPE_ 1 F : 1;\n");
+    CHECK(warning_lines(db) == std::vector<std::uint32_t>{3, 4, 5, 6, 7});
+    CHECK(warned(db, 3, "'M.T' left out: start 60, 8 bits does not fit the message's 8 bytes"));
+    const Message* m = db.find("M");
+    for (const char* n : {"T", "Long", "Flat", "Lost", "F"}) {
+      CAPTURE(n);
+      CHECK_FALSE(m->find_signal(n)->usable);
+      CHECK_FALSE(m->find_signal(n)->problem.empty());
+    }
+    CHECK(m->find_signal("S")->usable);
+    CHECK(decoded(db, 1, false, {0xAB, 0x0C, 7, 0, 0x0B, 0x00, 0, 0x80}) ==
+          Values{{"S", 0xAB}, {"Moto", 0xB0}, {"Tail", 1}});
+    // encode leaves them out too
+    const std::vector<double> values = {1, 255, 1, 1, 1, 1, 0, 0};
+    const Frame f = FrameCodec::encode(*m, values);
+    CHECK(f.data[0] == 1);
+    CHECK(f.data[7] == 0);
+  }
+
+  TEST_CASE("an SG_ line that cannot be read is skipped with a warning; its message keeps it") {
+    const Database db = parsed(
+        "BO_ 1 M: 8 A\n"
+        " SG_ S : 0|8@2+ (1,0) [0|1] \"\" B\n"      // 2: byte order 2
+        " SG_ T m1x : 8|8@1+ (1,0) [0|1] \"\" B\n"  // 3: bad multiplexer indicator
+        " SG_ U : 16|8@1+ (1,0) [0|255] \"\" B\n"
+        " SG_ U : 24|8@1+ (1,0) [0|255] \"\" B\n"  // 5: U again
+        " SG_ V : 32|8@1+ (1,0) [0|255] \"\" B\n"
+        "BO_ 2 N: 1 A\n"
+        " SG_ W : 0|8@1+ (1,0) [0|255] \"\" B\n");
+    CHECK(warning_lines(db) == std::vector<std::uint32_t>{2, 3, 5});
+    CHECK(warned(db, 2,
+                 "SG_ line of message 'M' not read, its signal left out: expected byte "
+                 "order 0 or 1, found '2'"));
+    CHECK(warned(db, 5, "signal 'U' defined twice in M"));
+    const Message* m = db.find("M");
+    REQUIRE(m->unread.size() == 3);
+    CHECK(m->unread[0].where.line == 2);
+    CHECK(m->unread[0].where.file == "vendor.dbc");
+    CHECK(db.find("N")->unread.empty());
+    CHECK(decoded(db, 1, false, {1, 2, 3, 4, 5, 6, 7, 8}) == Values{{"U", 3}, {"V", 5}});
+    CHECK(decoded(db, 2, false, {9}) == Values{{"W", 9}});
+  }
+
+  TEST_CASE("comments and value tables anywhere, stale ones with a warning") {
+    const Database db = parsed(
+        "VERSION \"\"\n"
+        "CM_ BO_ 10 \"before its message\";\n"             // 2
+        "VAL_ 10 Gear 0 \"P\" 1 \"R\" 2 \"N\" 3 \"D\";\n"  // 3
+        "CM_ SG_ 10 Gear \"a \\\"quoted\\\" word,\n"       // 4: multi-line, escapes
+        "over ; two lines\";\n"
+        "VAL_TABLE_ Gears 0 \"P\" 1 \"R\";\n"
+        "BO_ 10 Trans: 2 A\n"  // 7
+        " SG_ Gear : 0|4@1+ (1,0) [0|3] \"\" B\n"
+        " SG_ Torque : 8|8@1- (2,0) [0|0] \"Nm\" B\n"
+        "CM_ BO_ 99 \"no such message\";\n"      // 10
+        "CM_ SG_ 10 Nope \"no such signal\";\n"  // 11
+        "VAL_ 99 Gear 0 \"x\";\n"                // 12
+        "VAL_ 10 Nope 0 \"x\";\n"                // 13
+        "SIG_VALTYPE_ 77 X : 1;\n"               // 14
+        "CM_ BU_ A \"a node\";\n"
+        "CM_ \"the file\";\n");
+    CHECK(warning_lines(db) == std::vector<std::uint32_t>{10, 11, 12, 13, 14});
+    CHECK(warned(db, 10, "message 0x63, which the file does not define"));
+    CHECK(warned(db, 13, "signal 'Nope', which message 'Trans' does not have"));
+    const Message* m = db.find("Trans");
+    CHECK(m->comment == "before its message");
+    CHECK(m->find_signal("Gear")->comment == "a \"quoted\" word,\nover ; two lines");
+    CHECK(m->find_signal("Gear")->values.at(3) == "D");
+    CHECK(decoded(db, 10, false, {3, 0xFB}) == Values{{"Gear", 3}, {"Torque", -10}});
+  }
+
+  TEST_CASE("keywords in odd spots, empty sections, CRLF and tabs are read") {
+    std::string text =
+        "VERSION \"\"\n"
+        "\n"
+        "NS_ :\n"
+        "\tNS_DESC_\n"
+        "\tCM_\n"
+        "\tBA_DEF_DEF_REL_\n"
+        "\tBU_SG_REL_\n"
+        "\tSG_MUL_VAL_\n"
+        "\tSIGTYPE_VALTYPE_\n"
+        "BA_SGTYPE_\n"  // some writers put the names at column 1
+        "ENVVAR_DATA_\n"
+        "\n"
+        "BS_: 500 : 12,34\n"
+        "BU_:\n"
+        "VAL_TABLE_ Empty ;\n"
+        "BO_ 200\tBody :\t8\tA\n"
+        "\tSG_ Door : 0|2@1+ (1,0) [0|3] \"\"\tB\n"
+        "\tSG_ Window : 15|10@0+ (0.1,0) [0|100] \"%\" B,C\n"
+        "BO_TX_BU_ 200 : A,B;\n"
+        "EV_ EnvA : 0 [0|10] \"\" 0 1 DUMMY_NODE_VECTOR0 Vector__XXX;\n"
+        "ENVVAR_DATA_ EnvA : 4;\n"
+        "SGTYPE_ T1 : 8@1+ (1,0) [0|255] \"\" 0 , Vals;\n"
+        "SIG_TYPE_REF_ 200 Door : T1;\n"
+        "SIG_GROUP_ 200 Grp 1 : Door Window;\n"
+        "CAT_DEF_ 1 Cat 0;\n"
+        "CAT_ BO_ 200 1;\n"
+        "FILTER 0 ;\n"
+        "BA_DEF_ \"BusType\" STRING ;\n"
+        "BA_DEF_ BO_ \"GenMsgCycleTime\" INT 0 65535;\n"
+        "BA_DEF_ SG_ \"GenSigStartValue\" FLOAT -1E+030 1E+030;\n"
+        "BA_DEF_ BU_ \"NodeLayerModules\" HEX 0 255;\n"
+        "BA_DEF_ EV_ \"E\" ENUM \"a;b\",\"c\";\n"
+        "BA_DEF_REL_ BU_SG_REL_ \"GenSigTimeoutTime\" INT 0 65535;\n"
+        "BA_DEF_DEF_REL_ \"GenSigTimeoutTime\" 0;\n"
+        "BA_DEF_DEF_ \"BusType\" \"CAN\";\n"
+        "BA_ \"BusType\" \"CAN FD\";\n"
+        "BA_ \"GenMsgCycleTime\" BO_ 200 100;\n"
+        "BA_REL_ \"GenSigTimeoutTime\" BU_SG_REL_ B SG_ 200 Door 500;\n"
+        "BU_SG_REL_ B SG_ 200 Door;\n"
+        "BU_EV_REL_ A EnvA;\n"
+        "SIG_VALTYPE_ 200 Door : 0;\n"
+        ";\n";
+    // CRLF line ends throughout
+    std::string crlf;
+    for (char c : text) crlf += c == '\n' ? std::string("\r\n") : std::string(1, c);
+    for (const std::string* t : {&text, &crlf}) {
+      const Database db = parsed(*t);
+      CHECK(db.warnings.empty());
+      CHECK(db.nodes.empty());
+      REQUIRE(db.messages.size() == 1);
+      const Message* m = db.find("Body");
+      REQUIRE(m != nullptr);
+      CHECK(m->find_signal("Window")->receivers == std::vector<std::string>{"B", "C"});
+      // Window: Motorola, MSB bit 15 (byte 1 bit 7), 10 bits: byte 1, then 2 bits of byte 2
+      const Values v = decoded(db, 200, false, {0x02, 0x80, 0x40, 0, 0, 0, 0, 0});
+      REQUIRE(v.size() == 2);
+      CHECK(v.at("Door") == 2);
+      CHECK(v.at("Window") == doctest::Approx(51.3).epsilon(1e-12));
+    }
+  }
+
+  TEST_CASE("Windows-1252 text in comments and units becomes UTF-8, never an error") {
+    const Database db = parsed(
+        "BO_ 1 M: 1 A\n"
+        " SG_ T : 0|8@1- (1,0) [0|0] \"\xB0"
+        "C\" B\n"  // 2: degree sign in cp1252
+        "CM_ SG_ 1 T \"Gr\xF6\xDF"
+        "e in \x80, \x93quoted\x94\x81\";\n"           // 3
+        "CM_ BO_ 1 \"d\xC3\xA9j\xC3\xA0 UTF-8\";\n");  // 4: UTF-8 stays as it is
+    CHECK(warning_lines(db) == std::vector<std::uint32_t>{2});
+    CHECK(warned(db, 2, "2 strings from this line on"));
+    const Message* m = db.find("M");
+    CHECK(m->find_signal("T")->unit ==
+          "\xC2\xB0"
+          "C");
+    CHECK(m->find_signal("T")->comment ==
+          "Gr\xC3\xB6\xC3\x9F"
+          "e in \xE2\x82\xAC, \xE2\x80\x9Cquoted\xE2\x80\x9D\xC2\x81");
+    CHECK(m->comment == "d\xC3\xA9j\xC3\xA0 UTF-8");
+    CHECK(decoded(db, 1, false, {0xF6}) == Values{{"T", -10}});
   }
 }

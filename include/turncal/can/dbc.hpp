@@ -2,7 +2,21 @@
 // Pure: parse from text, encode and decode payload bytes. What real vendor
 // files use is supported (BU_, BO_, SG_ in Intel and Motorola order, signed
 // and unsigned, 1..64 bits, SIG_VALTYPE_ floats, VAL_ tables, CM_, simple
-// multiplexing, extended IDs, CAN FD lengths); other sections are skipped.
+// and extended multiplexing (SG_MUL_VAL_), extended IDs, CAN FD lengths,
+// the long names of the System*LongSymbol attributes); other sections are
+// skipped.
+//
+// Vendor files as written are read, not refused: what the file does not
+// quite say (an ID above 0x7FF without the extended bit, a comment for a
+// message it does not define, text in Windows-1252) is read the way
+// Vector's tools read it, and a signal that cannot be decoded (it does not
+// fit its message, its layout or scaling is impossible, its multiplexor is
+// unknown) is kept but marked unusable. Each such place is a warning with
+// file and line in Database::warnings. Whether an unusable signal matters
+// is for the user of the file to say: resolve_roles (config.hpp) refuses a
+// role that names one. So is an SG_ line the grammar cannot read: it is
+// skipped with a warning, and no role may be in its message. Anything else
+// the grammar cannot read stays an error.
 #pragma once
 
 #include <cstdint>
@@ -20,10 +34,31 @@ namespace turncal::can {
 
 enum class ByteOrder : std::uint8_t { LittleEndian, BigEndian };  // DBC @1 and @0
 enum class ValueType : std::uint8_t { Integer, Float32, Float64 };
+/// How a signal takes part in multiplexing. An extended multiplexing
+/// `m3M` signal is Multiplexed with `multiplexor` set as well.
 enum class MuxRole : std::uint8_t { None, Multiplexor, Multiplexed };
 
+/// A range of multiplexor values that selects a signal (SG_MUL_VAL_), both
+/// ends included.
+struct MuxRange {
+  std::uint64_t lo = 0;
+  std::uint64_t hi = 0;
+  friend bool operator==(const MuxRange&, const MuxRange&) = default;
+};
+
+/// Something in the file read with a warning (or a note), with where.
+struct Diagnostic {
+  enum class Severity : std::uint8_t { Note, Warning };
+  Severity severity = Severity::Warning;
+  SourcePos where;
+  std::string text;
+  /// "file:line: warning: text"
+  [[nodiscard]] std::string describe() const;
+};
+
 struct Signal {
-  std::string name;
+  std::string name;       ///< as written in the DBC (at most 32 characters for Vector's tools)
+  std::string long_name;  ///< SystemSignalLongSymbol; empty: none
   std::uint32_t start_bit = 0;  ///< as written in the DBC (Motorola: the MSB, sawtooth numbering)
   std::uint32_t length = 0;     ///< bits, 1..64
   ByteOrder order = ByteOrder::LittleEndian;
@@ -36,10 +71,30 @@ struct Signal {
   std::string unit;
   std::vector<std::string> receivers;
   MuxRole mux = MuxRole::None;
-  std::uint64_t mux_value = 0;                 ///< for Multiplexed signals
+  std::uint64_t mux_value = 0;  ///< for Multiplexed signals: the value written (m3)
+  /// Also a multiplexor itself (extended multiplexing, `m3M`).
+  bool multiplexor_too = false;
+  /// For Multiplexed signals, resolved by the parser: the index in the
+  /// message's signals of the multiplexor that selects this one, and the
+  /// values that select it (SG_MUL_VAL_, or mux_value alone).
+  std::int32_t selector = -1;
+  std::vector<MuxRange> selected_by;
   std::map<std::int64_t, std::string> values;  ///< VAL_ table
   std::string comment;
   std::uint32_t line = 0;  ///< where it is defined
+  /// False when the signal cannot be decoded; `problem` says why (and a
+  /// warning at `line`). Decode gives NaN for it, encode leaves it out.
+  bool usable = true;
+  std::string problem;
+
+  /// The long name where the file gives one, else the name.
+  [[nodiscard]] const std::string& display_name() const {
+    return long_name.empty() ? name : long_name;
+  }
+  /// True for an `M` or `m3M` signal.
+  [[nodiscard]] bool is_multiplexor() const {
+    return mux == MuxRole::Multiplexor || multiplexor_too;
+  }
 
   // Layout, computed by finalize(): the bytes [first_byte, first_byte+span)
   // hold the signal; `shift` moves its LSB to bit 0 of the loaded window.
@@ -55,29 +110,47 @@ struct Signal {
 struct Message {
   std::uint32_t id = 0;  ///< without the extended flag
   bool extended = false;
-  std::string name;
+  std::string name;        ///< as written in the DBC
+  std::string long_name;   ///< SystemMessageLongSymbol; empty: none
   std::uint32_t size = 0;  ///< payload bytes (DLC in the DBC, up to 64)
   bool fd = false;         ///< CAN FD (size > 8, or VFrameFormat says so)
   std::string transmitter;
   std::vector<Signal> signals;
   std::string comment;
+  std::string file;  ///< the DBC file it comes from
   std::uint32_t line = 0;
+  /// Its SG_ lines that could not be read (each also a warning): the
+  /// message is usable, but no role may be in it.
+  std::vector<Diagnostic> unread;
 
+  [[nodiscard]] const std::string& display_name() const {
+    return long_name.empty() ? name : long_name;
+  }
+  /// By the name as written or the long name.
   [[nodiscard]] const Signal* find_signal(std::string_view name) const;
+  /// The first multiplexor (`M`) of the message, or nullptr.
   [[nodiscard]] const Signal* multiplexor() const;
+  /// True when a payload of this message (`size` bytes) carries signal
+  /// `index`: the signal is usable, and each multiplexor of its chain is
+  /// carried and holds a value that selects the next.
+  [[nodiscard]] bool carries(std::size_t index, std::span<const std::uint8_t> payload) const;
 };
 
 struct Database {
   std::string version;
   std::uint32_t version_line = 0;  ///< where VERSION is; 0: none
   std::vector<std::string> nodes;
+  std::map<std::string, std::string> node_long_names;  ///< SystemNodeLongSymbol
   std::vector<Message> messages;
+  /// What was read with a warning or skipped with a note, in file order.
+  std::vector<Diagnostic> warnings;
 
   [[nodiscard]] const Message* find(std::uint32_t id, bool extended) const;
+  /// By the name as written or the long name.
   [[nodiscard]] const Message* find(std::string_view name) const;
 };
 
-/// Parses DBC text; `file` is used in error positions.
+/// Parses DBC text; `file` is used in error and warning positions.
 Result<Database> parse_dbc(std::string_view text, const std::string& file = "<dbc>");
 /// Reads and parses a DBC file.
 Result<Database> load_dbc(const std::string& path);
@@ -154,7 +227,7 @@ class FrameCodec {
   DecodeStatus check(const Frame& frame, const Message** msg) const;
   /// Physical values of every signal of the message, in its signal order
   /// (`out` must hold msg->signals.size()). Multiplexed signals not selected
-  /// by the multiplexor are set to NaN.
+  /// by their multiplexor chain, and unusable signals, are set to NaN.
   DecodeStatus decode(const Frame& frame, std::span<double> out,
                       const Message** msg = nullptr) const;
   /// Builds a frame of `msg` from physical values (signal order; NaN leaves
