@@ -402,7 +402,9 @@ Master::Master(MasterSettings s)
       rpdo_(s_.rpdo_layout()),
       tpdo_(s_.tpdo_layout()),
       cpr_(s_.counts_per_rad()),
-      sdo_(s_.node_id, s_.sdo_timeout_s) {}
+      sdo_(s_.node_id, s_.sdo_timeout_s) {
+  if (const Status ok = s_.check(); !ok) invalid_ = ok.error().message;
+}
 
 Result<std::unique_ptr<Master>> Master::create(MasterSettings s) {
   TURNCAL_TRY(s.check());
@@ -411,6 +413,11 @@ Result<std::unique_ptr<Master>> Master::create(MasterSettings s) {
 
 void Master::start(double now_s, std::vector<can::Frame>& out) {
   now_ = now_s;
+  if (!invalid_.empty()) {  // nothing goes to the drive
+    phase_ = CommPhase::Failed;
+    latch(FaultCode::Configuration, "invalid settings: " + invalid_);
+    return;
+  }
   host_hb_on_ = true;
   next_host_hb_ = now_s;
   next_sync_ = now_s;
@@ -444,7 +451,8 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
   };
   const double per_deg = cpr_ / kRadToDeg;
   auto u32 = [&](double v_rad, const char* what, std::uint16_t index) {
-    // check() has proved these fit
+    // the constructor's check() has proved these fit (start() and
+    // command() go no further when it failed)
     return to_u32_counts(v_rad * kRadToDeg, per_deg, what, index, "deg").value();
   };
   std::vector<Step> steps;
@@ -807,6 +815,7 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
 Status Master::command(TableCommandCode code, std::uint8_t seq, double target_rad, double rate_rps,
                        double now_s, std::vector<can::Frame>& out) {
   now_ = std::max(now_, now_s);
+  if (!invalid_.empty()) return make_error("invalid CANopen master settings: " + invalid_);
   if (phase_ == CommPhase::Idle) return make_error("the CANopen master has not been started");
   const bool running = phase_ == CommPhase::Running;
   switch (code) {

@@ -316,7 +316,14 @@ TEST_SUITE("cia402") {
     l.master.write(0x2001, 0, std::vector<std::uint8_t>(label.begin(), label.end()), keep);
     l.master.read(0x2001, 0, keep);
     l.master.write(0x1008, 0, {'x', 'y', 'z', 'w', 'v'}, keep);  // read only
-    REQUIRE(l.run_until([&] { return done.size() == 4; }, 1.0));
+    l.master.read(0x2FFF, 0, keep);
+    l.master.read(0x1018, 9, keep);
+    l.master.write(0x6060, 0, {3}, keep);  // profile velocity mode: not this drive's
+    REQUIRE(l.run_until([&] { return done.size() == 7; }, 1.0));
+    CHECK(done[4].abort == 0x06020000);
+    CHECK(done[5].abort == 0x06090011);
+    CHECK(done[6].abort == 0x06090030);
+    CHECK(*l.drive.value(0x6060, 0) == 1);
     REQUIRE(done[0].ok());
     CHECK(std::string(done[0].data.begin(), done[0].data.end()) == "turncal virtual CiA 402 drive");
     CHECK(done[1].ok());
@@ -326,7 +333,7 @@ TEST_SUITE("cia402") {
     CHECK(done[3].aborted_by_server);
     CHECK(done[3].describe().find("attempt to write a read only object") != std::string::npos);
     CHECK(l.drive.sdo_writes().back() == std::make_pair<std::uint16_t, std::uint8_t>(0x2001, 0));
-    CHECK(l.drive.counts().sdo_aborts == 1);
+    CHECK(l.drive.counts().sdo_aborts == 4);
   }
 
   TEST_CASE("an object the drive refuses: the abort's text, the configuration stops") {
@@ -405,6 +412,10 @@ TEST_SUITE("cia402") {
     CHECK(std::fabs(l.master.angle_rad() - 90 * kDeg) * cpr <= 1.0);
     CHECK(l.drive.position_counts(l.t) == 250000);
     CHECK((l.drive.statusword() & 0x0400) != 0);
+    // the handshake is closed: bit 4 cleared by us, bit 12 by the drive
+    CHECK((l.drive.controlword() & 0x10) == 0);
+    CHECK((l.drive.controlword() & 0x40) != 0);  // it was relative
+    CHECK((l.drive.statusword() & 0x1000) == 0);
     // absolute to -45 deg at 20 deg/s: the profile velocity goes first by SDO
     REQUIRE(l.command(TableCommandCode::MoveAbsolute, 3, -45 * kDeg, 20 * kDeg));
     REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.2));
@@ -479,10 +490,12 @@ TEST_SUITE("cia402") {
     CHECK(l.drive.angle(l.t) - from == doctest::Approx(11.25 * kDeg).epsilon(1e-3));
     CHECK((l.drive.controlword() & 0x100) != 0);
     CHECK(l.drive.state() == State::OperationEnabled);
-    // a new move clears halt and goes
+    // a new move clears halt and goes, relative to where the table stopped
+    const std::int64_t stopped = l.drive.position_counts(l.t);
     REQUIRE(l.command(TableCommandCode::MoveRelative, 4, -10 * kDeg, 30 * kDeg));
     REQUIRE(l.in_position(4, 5));
     CHECK((l.drive.controlword() & 0x100) == 0);
+    CHECK(l.drive.position_counts(l.t) == stopped - 27778);  // 10 deg: 27777.8 counts
   }
 
   TEST_CASE("a drive fault with EMCY: fault with its text; fault reset brings it back") {
@@ -615,6 +628,104 @@ TEST_SUITE("cia402") {
     CHECK_FALSE(l.drive.moving(l.t));
   }
 
+  TEST_CASE("the host heartbeat stops with 0x6007 = 1: the drive goes to fault") {
+    cia402::MasterSettings ms = master_settings();
+    ms.abort_connection_option = 1;
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    CHECK(*l.drive.value(0x6007, 0) == 1);
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 180 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    l.master.set_host_heartbeat(false);
+    REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 1));
+    l.run_for(0.5);
+    CHECK(l.drive.state() == State::Fault);
+    CHECK(*l.drive.value(0x603F, 0) == 0x8130);
+    CHECK_FALSE(l.drive.moving(l.t));
+    CHECK(l.master.status().fault_name == "EMCY 0x8130 life guard error or heartbeat error");
+    l.master.set_host_heartbeat(true);
+    REQUIRE(l.enabled(3));
+    CHECK(l.drive.state() == State::OperationEnabled);
+  }
+
+  TEST_CASE("the drive leaves operational or boots again: a fault, and a new configuration") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    std::string why;
+    SUBCASE("another node sends it to pre-operational") {
+      l.drive.receive(l.t, canopen::nmt_frame(canopen::NmtCommand::EnterPreOperational, 5),
+                      l.from_drive);
+      why = "drive NMT state pre-operational while running";
+    }
+    SUBCASE("another node resets it") {
+      l.drive.receive(l.t, canopen::nmt_frame(canopen::NmtCommand::ResetNode, 5), l.from_drive);
+      why = "drive booted again (boot-up while running)";
+    }
+    REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 0.5));
+    CHECK(l.master.status().fault == FaultCode::DriveNmtState);
+    CHECK(l.master.status().fault_name == why);
+    CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
+    REQUIRE(l.enabled(2));
+    CHECK(l.master.counts().nmt_resets == 2);
+    CHECK(l.master.counts().configurations == 2);
+    CHECK(l.drive.nmt() == canopen::NmtState::Operational);
+    CHECK(l.drive.state() == State::OperationEnabled);
+  }
+
+  TEST_CASE("change set immediately: a new target while moving is taken at once") {
+    cia402::MasterSettings ms = master_settings();
+    ms.change_set_immediately = true;
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveAbsolute, 2, 180 * kDeg, 30 * kDeg));
+    l.run_for(2.0);
+    REQUIRE(l.master.status().state == TableState::Moving);
+    REQUIRE(l.command(TableCommandCode::MoveAbsolute, 3, 20 * kDeg, 30 * kDeg));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.1));
+    CHECK((l.drive.controlword() & 0x20) != 0);
+    REQUIRE(l.in_position(3, 10));
+    CHECK(std::fabs(l.drive.angle(l.t) - 20 * kDeg) * l.drive.counts_per_rad() <= 1.0);
+    CHECK(l.drive.counts().set_points == 2);
+  }
+
+  TEST_CASE("without change set immediately a move under way is not replaced") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveAbsolute, 2, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    const Status s = l.command(TableCommandCode::MoveAbsolute, 3, 20 * kDeg, 30 * kDeg);
+    REQUIRE_FALSE(s.ok());
+    CHECK(s.error().message.find("under way") != std::string::npos);
+    REQUIRE(l.in_position(2, 10));
+    CHECK(l.drive.position_counts(l.t) == 250000);
+  }
+
+  TEST_CASE("quick stop option 2: the drive ends switch on disabled, still quick-stopped to us") {
+    cia402::MasterSettings ms = master_settings();
+    ms.quick_stop_option = 2;
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    REQUIRE(l.command(TableCommandCode::QuickStop, 3));
+    l.run_for(0.5);
+    CHECK(l.drive.state() == State::SwitchOnDisabled);
+    CHECK_FALSE(l.drive.moving(l.t));
+    CHECK(l.master.status().ack == 3);
+    CHECK(l.master.status().state == TableState::QuickStopped);
+    REQUIRE(l.enabled(4));
+  }
+
   TEST_CASE("following error: statusword bit 13 and EMCY 0x8611, the master in fault") {
     stand::Drive402Faults df;
     df.following_error_at_s = 2.0;
@@ -690,6 +801,18 @@ TEST_SUITE("cia402") {
     s = master_settings();
     s.host_heartbeat_timeout_s = 70;  // 70000 ms > u16
     CHECK_FALSE(s.check().ok());
+    // constructed anyway: inert, it says why and sends nothing
+    cia402::Master m(s);
+    std::vector<can::Frame> out;
+    m.start(0, out);
+    m.tick(1, out);
+    CHECK(out.empty());
+    CHECK(m.status().state == TableState::Fault);
+    CHECK(m.status().fault_name.find("invalid settings: heartbeat times") == 0);
+    const Status c = m.command(TableCommandCode::Enable, 1, 0, 0, 1, out);
+    REQUIRE_FALSE(c.ok());
+    CHECK(c.error().message.find("invalid CANopen master settings") == 0);
+    CHECK(out.empty());
   }
 
   TEST_CASE("frames of a wrong length are counted and skipped") {

@@ -321,7 +321,9 @@ const char* to_string(CommPhase p);
 
 class Master {
  public:
-  /// The settings must pass check() (create() does that).
+  /// Settings that fail check() leave the master inert: start() latches a
+  /// configuration fault with the reason and sends nothing, command()
+  /// returns it (create() refuses them up front).
   explicit Master(MasterSettings s);
   [[nodiscard]] static Result<std::unique_ptr<Master>> create(MasterSettings s);
   Master(const Master&) = delete;
@@ -404,6 +406,7 @@ class Master {
   [[nodiscard]] std::uint16_t motion_bits() const;
 
   MasterSettings s_;
+  std::string invalid_;  // why the settings fail check(); empty: they pass
   RpdoLayout rpdo_;
   TpdoLayout tpdo_;
   double cpr_;  // counts per table rad
