@@ -730,7 +730,9 @@ void VirtualDrive402::on_controlword(double t, std::uint16_t c, std::vector<Driv
         enter(State::OperationEnabled);  // 16
       break;
     case State::Fault:
-      if (cmd == C::FaultReset) {  // 15
+      if (cmd == C::FaultReset && faults_.resets_ignored > 0) {
+        --faults_.resets_ignored;
+      } else if (cmd == C::FaultReset) {  // 15
         enter(State::SwitchOnDisabled);
         following_error_ = false;
         set(obj::kErrorCode, 0, 0);

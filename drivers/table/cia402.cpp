@@ -826,7 +826,10 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
       move_ = MoveStep::None;
       ack_on_ = AckOn::Enabled;
       ack_seq_ = seq;
-      if (fault_ != FaultCode::None && recovery_ == Recovery::None) {
+      // a fault reset already tried and still no statusword without fault:
+      // this Enable tries again
+      if (fault_ != FaultCode::None &&
+          (recovery_ == Recovery::None || recovery_ == Recovery::WaitFresh)) {
         if (needs_comm_reset_ || phase_ == CommPhase::Failed) {
           recovery_ = Recovery::AfterComm;
           reset_comm(now_s, out);
@@ -918,9 +921,10 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
         const std::uint64_t gen = ++move_generation_;
         sdo_.download(obj::kProfileVelocity, 0, le_bytes(vel, 4),
                       [this, gen, vel](const canopen::SdoResult& r) {
+                        // what the drive holds, whether the move still waits or not
+                        if (r.ok()) velocity_written_ = vel;
                         if (gen != move_generation_ || move_ != MoveStep::WaitSdo) return;
                         if (r.ok()) {
-                          velocity_written_ = vel;
                           move_ = MoveStep::Ready;
                         } else {
                           move_ = MoveStep::None;

@@ -529,6 +529,52 @@ TEST_SUITE("cia402") {
     CHECK(l.master.counts().nmt_resets == 1);             // no communication reset needed
   }
 
+  TEST_CASE("a fault that outlives the first reset: the next Enable resets again") {
+    stand::Drive402Faults df;
+    df.fault_at_s = 0.5;
+    df.fault_code = 0x3210;
+    df.resets_ignored = 1;
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    l.run_for(1.0);
+    REQUIRE(l.master.status().fault_name == "EMCY 0x3210 DC link over-voltage");
+    CHECK_FALSE(l.enabled(2));
+    CHECK(l.drive.state() == State::Fault);
+    CHECK(l.master.status().state == TableState::Fault);
+    CHECK(l.master.status().ack == 1);
+    REQUIRE(l.enabled(3));
+    CHECK(l.drive.counts().fault_resets == 1);
+    CHECK(l.drive.state() == State::OperationEnabled);
+  }
+
+  TEST_CASE("a profile velocity written for a move that was quick-stopped is remembered") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    // the move's SDO and the quick stop go out before the drive answers
+    REQUIRE(l.master.command(TableCommandCode::MoveRelative, 2, 10 * kDeg, 20 * kDeg, l.t,
+                             l.from_master));
+    REQUIRE(l.master.command(TableCommandCode::QuickStop, 3, 0, 0, l.t, l.from_master));
+    l.deliver();
+    l.run_for(0.1);
+    CHECK(*l.drive.value(0x6081, 0) == std::llround(20 * kDeg * l.drive.counts_per_rad()));
+    CHECK(l.drive.counts().set_points == 0);
+    REQUIRE(l.enabled(4));
+    // 30 deg/s again: the drive holds 20, so the SDO must go first
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 5, 90 * kDeg, 30 * kDeg));
+    double peak = 0;
+    REQUIRE(l.run_until(
+        [&] {
+          peak = std::max(peak, std::fabs(l.drive.rate(l.t)));
+          return l.master.status().state == TableState::InPosition;
+        },
+        10));
+    CHECK(peak == doctest::Approx(30 * kDeg).epsilon(1e-4));
+  }
+
   TEST_CASE("stale PDO: a drive in fault whose TPDO says operation enabled") {
     stand::Drive402Faults df;
     df.fault_at_s = 0.5;

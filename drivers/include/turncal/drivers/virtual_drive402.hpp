@@ -21,7 +21,9 @@
 // * releasing halt does not resume the move: a new set-point is needed;
 // * disable voltage, shutdown and disable operation while moving stop at
 //   the quick stop deceleration (a motor let go would coast);
-// * a lost host heartbeat does not change the NMT state (0x1029 absent).
+// * a lost host heartbeat does not change the NMT state (0x1029 absent);
+// * an event-driven TPDO1 goes on every statusword change and at its event
+//   timer (position changes alone wait for the timer).
 #pragma once
 
 #include <cmath>
@@ -71,6 +73,7 @@ struct Drive402Faults {
   double silent_until_s = std::numeric_limits<double>::infinity();  ///< ... to then
   double following_error_at_s = NAN;  ///< statusword bit 13, EMCY 0x8611, fault
   bool refuse_moves = false;          ///< new set-points are never acknowledged
+  int resets_ignored = 0;  ///< the first fault resets leave it in fault (the cause persists)
   /// (index << 8 | sub) -> abort code for any SDO access to that object.
   std::map<std::uint32_t, std::uint32_t> refuse_objects;
 };
