@@ -108,6 +108,14 @@ void VirtualDrive402::build_dictionary() {
   add(obj::kTpdo1Comm, 5, uns(2, true, setup_.tpdo_event_timer_ms));
   add(obj::kTpdo1Map, 0, uns(1, true, map ? 2 : 0, false, 0, 8));
   for (std::uint8_t i = 1; i <= 8; ++i) add(obj::kTpdo1Map, i, uns(4, true, 0));
+  // TPDO2: not valid and empty until a master maps it (velocity actual)
+  add(obj::kTpdo2Comm, 0, uns(1, false, 5));
+  add(obj::kTpdo2Comm, 1, uns(4, true, 0x80000000u | (canopen::kTpdo2Base + node)));
+  add(obj::kTpdo2Comm, 2, uns(1, true, 0xFF));
+  add(obj::kTpdo2Comm, 3, uns(2, true, 0));
+  add(obj::kTpdo2Comm, 5, uns(2, true, 0));
+  add(obj::kTpdo2Map, 0, uns(1, true, 0, false, 0, 8));
+  for (std::uint8_t i = 1; i <= 8; ++i) add(obj::kTpdo2Map, i, uns(4, true, 0));
   if (map) {
     set(obj::kRpdo1Map, 1, 0x60400010);
     set(obj::kRpdo1Map, 2, 0x607A0020);
@@ -401,9 +409,9 @@ std::uint32_t VirtualDrive402::write(double t, std::uint32_t key,
   const std::uint8_t sub = sub_of(key);
   if (index == obj::kModesOfOperation && v != 1) return ac::kValueRange;  // profile position only
   if (index == obj::kProfileVelocity && v > u32(obj::kMaxProfileVelocity)) return ac::kValueHigh;
-  if (index == obj::kRpdo1Map || index == obj::kTpdo1Map) {
+  if (index == obj::kRpdo1Map || index == obj::kTpdo1Map || index == obj::kTpdo2Map) {
     if (nmt_ == canopen::NmtState::Operational) return ac::kDeviceState;
-    const std::uint16_t comm = index == obj::kRpdo1Map ? obj::kRpdo1Comm : obj::kTpdo1Comm;
+    const std::uint16_t comm = static_cast<std::uint16_t>(index - 0x200);  // 0x1A0n -> 0x180n
     if ((u32(comm, 1) & 0x80000000u) == 0) return ac::kUnsupportedAccess;  // PDO valid
     auto mappable = [&](std::uint32_t entry) {
       const auto o = od_.find(entry >> 8 & 0xFFFFFF);
@@ -588,6 +596,21 @@ void VirtualDrive402::send_tpdo(double t, std::vector<DriveFrame>& out) {
   ++counts_.tpdo;
   last_sent_sw_ = statusword();
   if (!in_fault) frozen_ = f;
+  // TPDO2 goes with TPDO1, after it (its identifier loses arbitration)
+  const std::uint32_t cob2 = u32(obj::kTpdo2Comm, 1);
+  const std::uint32_t n2 = u32(obj::kTpdo2Map, 0);
+  if ((cob2 & 0x80000000u) == 0 && n2 > 0) {
+    can::Frame g;
+    g.id = cob2 & 0x7FF;
+    std::size_t at2 = 0;
+    for (std::uint8_t i = 1; i <= n2; ++i) {
+      const Entry& e = od_.at(u32(obj::kTpdo2Map, i) >> 8 & 0xFFFFFF);
+      std::copy(e.value.begin(), e.value.end(), g.data.begin() + static_cast<std::ptrdiff_t>(at2));
+      at2 += e.value.size();
+    }
+    g.len = static_cast<std::uint8_t>(at2);
+    emit(t, g, out);
+  }
   const std::uint32_t timer = u32(obj::kTpdo1Comm, 5);
   if (event_driven() && timer > 0) next_tpdo_ = t + timer / 1000.0;
 }

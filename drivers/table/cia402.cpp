@@ -152,6 +152,10 @@ const char* object_name(std::uint16_t index) {
       return "TPDO1 communication parameter";
     case obj::kTpdo1Map:
       return "TPDO1 mapping";
+    case obj::kTpdo2Comm:
+      return "TPDO2 communication parameter";
+    case obj::kTpdo2Map:
+      return "TPDO2 mapping";
     default:
       return nullptr;
   }
@@ -333,6 +337,35 @@ Result<std::vector<std::uint32_t>> TpdoLayout::mapping() const {
                     size);
 }
 
+VelocityPdoLayout VelocityPdoLayout::defaults(std::uint8_t node) {
+  VelocityPdoLayout l;
+  l.cob_id = canopen::kTpdo2Base + node;
+  return l;
+}
+
+Result<VelocityPdoLayout> VelocityPdoLayout::from_dbc(const can::Message& msg,
+                                                      std::string_view velocity_actual) {
+  TURNCAL_TRY(message_fits(msg));
+  VelocityPdoLayout l;
+  l.cob_id = msg.id;
+  l.size = static_cast<std::uint8_t>(msg.size);
+  TURNCAL_ASSIGN(v, field_from_signal(msg, velocity_actual, 32));
+  l.velocity_actual = v;
+  TURNCAL_TRY(l.check());
+  return l;
+}
+
+Status VelocityPdoLayout::check() const {
+  if (cob_id == 0 || cob_id > 0x7FF) return make_error("TPDO2 layout: COB-ID " + hex(cob_id, 3));
+  if (size > 8) return make_error("TPDO2 layout: more than 8 bytes");
+  return field_in(velocity_actual, size, 4, "velocity actual");
+}
+
+Result<std::vector<std::uint32_t>> VelocityPdoLayout::mapping() const {
+  TURNCAL_TRY(check());
+  return mapping_of({{velocity_actual, obj::kVelocityActual}}, size);
+}
+
 // ---- settings ----
 
 Status MasterSettings::check() const {
@@ -369,6 +402,14 @@ Status MasterSettings::check() const {
                             "quick stop deceleration", obj::kQuickStopDeceleration, "deg/s^2"));
   TURNCAL_TRY(rpdo_layout().check());
   TURNCAL_TRY(tpdo_layout().check());
+  if (velocity_pdo) {
+    TURNCAL_TRY(velocity_layout().check());
+    const std::uint32_t ids[] = {rpdo_layout().cob_id, tpdo_layout().cob_id,
+                                 velocity_layout().cob_id};
+    if (ids[2] == ids[0] || ids[2] == ids[1])
+      return make_error("TPDO2's COB-ID " + hex(ids[2], 3) + " is another PDO's");
+    if (configure_mapping) TURNCAL_TRY(velocity_layout().mapping());
+  }
   if (configure_mapping) {
     TURNCAL_TRY(rpdo_layout().mapping());
     TURNCAL_TRY(tpdo_layout().mapping());
@@ -401,6 +442,7 @@ Master::Master(MasterSettings s)
     : s_(std::move(s)),
       rpdo_(s_.rpdo_layout()),
       tpdo_(s_.tpdo_layout()),
+      tpdo2_(s_.velocity_layout()),
       cpr_(s_.counts_per_rad()),
       sdo_(s_.node_id, s_.sdo_timeout_s) {
   if (const Status ok = s_.check(); !ok) invalid_ = ok.error().message;
@@ -497,6 +539,8 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
   if (s_.configure_mapping) {
     pdo(obj::kRpdo1Comm, obj::kRpdo1Map, rpdo_.cob_id, rpdo_.mapping().value(), false);
     pdo(obj::kTpdo1Comm, obj::kTpdo1Map, tpdo_.cob_id, tpdo_.mapping().value(), true);
+    if (s_.velocity_pdo)
+      pdo(obj::kTpdo2Comm, obj::kTpdo2Map, tpdo2_.cob_id, tpdo2_.mapping().value(), true);
   } else if (s_.sync_period_s > 0) {
     steps.push_back({obj::kTpdo1Comm, 2, le_bytes(1, 1)});
   }
@@ -588,6 +632,16 @@ void Master::on_frame(const can::Frame& f, double t_s, std::vector<can::Frame>& 
     on_emcy(f, t_s);
   } else if (f.id == tpdo_.cob_id) {
     on_tpdo(f, t_s, out);
+  } else if (s_.velocity_pdo && f.id == tpdo2_.cob_id) {
+    const auto& v = tpdo2_.velocity_actual;
+    if (f.len < v.offset + v.length) {
+      ++counts_.malformed;
+      return;
+    }
+    ++counts_.velocity_pdo;
+    velocity_ = static_cast<std::int32_t>(get_le(f.payload(), v.offset, 4)) / cpr_;
+    velocity_t_ = t_s;
+    return;
   } else {
     return;
   }
@@ -949,7 +1003,10 @@ TableView Master::status() const {
   TableView v;
   v.ack = ack_;
   // a rate older than the drive's heartbeat timeout is not known
-  v.rate_rps = now_ - last_tpdo_t_ <= s_.drive_heartbeat_timeout_s ? rate_ : std::nan("");
+  if (s_.velocity_pdo)
+    v.rate_rps = now_ - velocity_t_ <= s_.drive_heartbeat_timeout_s ? velocity_ : std::nan("");
+  else
+    v.rate_rps = now_ - last_tpdo_t_ <= s_.drive_heartbeat_timeout_s ? rate_ : std::nan("");
   if (fault_ != FaultCode::None) {
     v.state = TableState::Fault;
     v.fault = fault_;

@@ -305,6 +305,43 @@ TEST_SUITE("cia402") {
     CHECK(l.drive.state() == State::OperationEnabled);
   }
 
+  TEST_CASE("velocity actual in TPDO2: the table's rate is the drive's own") {
+    cia402::MasterSettings ms = master_settings();
+    ms.configure_mapping = true;
+    ms.velocity_pdo = true;
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    CHECK(*l.drive.value(0x1A01, 0) == 1);
+    CHECK(*l.drive.value(0x1A01, 1) == 0x606C0020);
+    CHECK(*l.drive.value(0x1801, 1) == 0x285);  // valid
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, -90 * kDeg, 30 * kDeg));
+    l.run_for(2.0);  // cruising
+    const double v = -static_cast<double>(*l.drive.value(0x6081, 0)) / l.drive.counts_per_rad();
+    CHECK(l.drive.rate(l.t) == doctest::Approx(v).epsilon(1e-12));
+    CHECK(l.master.status().rate_rps == doctest::Approx(v).epsilon(1e-12));
+    CHECK(l.master.velocity_rps() == doctest::Approx(v).epsilon(1e-12));
+    CHECK(l.master.counts().velocity_pdo >= 150);
+    REQUIRE(l.in_position(2, 5));
+    l.run_for(0.05);
+    CHECK(l.master.status().rate_rps == 0);
+  }
+
+  TEST_CASE("velocity PDO asked for but never sent: the rate is unknown, not zero") {
+    cia402::MasterSettings ms = master_settings();
+    ms.velocity_pdo = true;  // the drive's TPDO2 stays invalid: nobody maps it
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    CHECK(l.master.counts().velocity_pdo == 0);
+    CHECK(std::isnan(l.master.status().rate_rps));
+    CHECK(l.master.status().state == TableState::Moving);
+  }
+
   TEST_CASE("segmented SDO: the device name read, a label written and read back") {
     Loop l;
     l.start();
@@ -448,6 +485,8 @@ TEST_SUITE("cia402") {
     REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
     l.run_for(3.0);                                                          // cruising at 30 deg/s
     REQUIRE(l.drive.rate(l.t) == doctest::Approx(30 * kDeg).epsilon(1e-4));  // to a count/s
+    // without TPDO2 the master's rate comes from the encoder steps
+    CHECK(l.master.status().rate_rps == doctest::Approx(30 * kDeg).epsilon(2e-3));
     const double from = l.drive.angle(l.t);
     const double t_stop = l.t;
     REQUIRE(l.command(TableCommandCode::QuickStop, 3));

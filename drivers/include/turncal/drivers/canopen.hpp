@@ -26,6 +26,7 @@ inline constexpr std::uint32_t kSyncId = 0x080;
 inline constexpr std::uint32_t kEmcyBase = 0x080;
 inline constexpr std::uint32_t kTpdo1Base = 0x180;
 inline constexpr std::uint32_t kRpdo1Base = 0x200;
+inline constexpr std::uint32_t kTpdo2Base = 0x280;
 inline constexpr std::uint32_t kSdoTxBase = 0x580;  ///< server to client
 inline constexpr std::uint32_t kSdoRxBase = 0x600;  ///< client to server
 inline constexpr std::uint32_t kHeartbeatBase = 0x700;

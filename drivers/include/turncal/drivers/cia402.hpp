@@ -6,11 +6,13 @@
 //   NMT reset communication -> the drive's boot-up (0x700+node, 0x00) ->
 //   NMT enter pre-operational -> configuration by SDO (0x6060 = 1,
 //   0x6081, 0x6083, 0x6084, 0x6085, 0x605A, 0x6007, 0x1016:01, 0x1017, then
-//   the PDO mappings 0x1600 / 0x1A00 when the settings ask) -> NMT start.
+//   the PDO mappings 0x1600 / 0x1A00 [/ 0x1A01] when the settings ask) ->
+//   NMT start.
 // From then on RPDO1 (controlword + target position) goes out, TPDO1
-// (statusword + position actual) comes in, the drive's
-// heartbeat is watched, its EMCYs are decoded and kept, and the master
-// produces its own heartbeat (and SYNC when asked) from tick().
+// (statusword + position actual) and, when asked, TPDO2 (velocity actual)
+// come in, the drive's heartbeat is watched, its EMCYs are decoded and
+// kept, and the master produces its own heartbeat (and SYNC when asked)
+// from tick().
 //
 // The sequencer's table (include/turncal/icd.hpp) is what status() shows:
 //
@@ -89,6 +91,8 @@ inline constexpr std::uint16_t kRpdo1Comm = 0x1400;
 inline constexpr std::uint16_t kRpdo1Map = 0x1600;
 inline constexpr std::uint16_t kTpdo1Comm = 0x1800;
 inline constexpr std::uint16_t kTpdo1Map = 0x1A00;
+inline constexpr std::uint16_t kTpdo2Comm = 0x1801;
+inline constexpr std::uint16_t kTpdo2Map = 0x1A01;
 }  // namespace obj
 /// A name for the objects above ("profile velocity"), nullptr for others.
 [[nodiscard]] const char* object_name(std::uint16_t index);
@@ -198,9 +202,8 @@ struct RpdoLayout {
 };
 
 /// TPDO1: what the drive sends. Velocity actual (s32) does not fit beside
-/// the statusword and position actual in 8 bytes: it would need TPDO2,
-/// which this master does not use; the table's rate comes from the
-/// position samples.
+/// the statusword and position actual in 8 bytes: it goes in TPDO2
+/// (VelocityPdoLayout) when the settings ask.
 struct TpdoLayout {
   std::uint32_t cob_id = 0;
   std::uint8_t size = 6;
@@ -212,6 +215,19 @@ struct TpdoLayout {
   [[nodiscard]] static Result<TpdoLayout> from_dbc(const can::Message& msg,
                                                    std::string_view statusword,
                                                    std::string_view position_actual);
+  [[nodiscard]] Status check() const;
+  [[nodiscard]] Result<std::vector<std::uint32_t>> mapping() const;
+};
+
+/// TPDO2, optional: velocity actual (0x606C, s32).
+struct VelocityPdoLayout {
+  std::uint32_t cob_id = 0;
+  std::uint8_t size = 4;
+  PdoField velocity_actual{0, 4};
+  /// 0x280 + node, velocity actual s32.
+  [[nodiscard]] static VelocityPdoLayout defaults(std::uint8_t node);
+  [[nodiscard]] static Result<VelocityPdoLayout> from_dbc(const can::Message& msg,
+                                                          std::string_view velocity_actual);
   [[nodiscard]] Status check() const;
   [[nodiscard]] Result<std::vector<std::uint32_t>> mapping() const;
 };
@@ -249,6 +265,11 @@ struct MasterSettings {
   /// The layouts; empty: CiA 402's defaults for node_id (velocity not mapped).
   std::optional<RpdoLayout> rpdo;
   std::optional<TpdoLayout> tpdo;
+  /// Velocity actual from TPDO2 (written with the mappings when
+  /// configure_mapping): the table's rate in status() is then the drive's
+  /// own; otherwise it comes from the position samples.
+  bool velocity_pdo = false;
+  std::optional<VelocityPdoLayout> tpdo2;  ///< empty: defaults for node_id
   /// > 0: we produce SYNC at this period, TPDO1 is synchronous (transmission
   /// type 1, written) and an encoder sample's time is its SYNC's.
   double sync_period_s = 0;
@@ -263,6 +284,9 @@ struct MasterSettings {
   }
   [[nodiscard]] TpdoLayout tpdo_layout() const {
     return tpdo ? *tpdo : TpdoLayout::defaults(node_id);
+  }
+  [[nodiscard]] VelocityPdoLayout velocity_layout() const {
+    return tpdo2 ? *tpdo2 : VelocityPdoLayout::defaults(node_id);
   }
   /// Every value in range and every configured value fits its object
   /// (u32 counts/s and counts/s^2, u16 ms), or why not.
@@ -288,7 +312,9 @@ struct TableView {
   std::uint8_t ack = 0;  ///< seq of the last command the drive accepted
   FaultCode fault = FaultCode::None;
   std::string fault_name;
-  double rate_rps = NAN;  ///< the table's, from encoder steps; NaN: unknown or stale
+  /// The table's, from velocity actual (TPDO2) or else encoder steps;
+  /// NaN: unknown, or older than the drive heartbeat timeout.
+  double rate_rps = NAN;
 };
 
 /// One position actual from TPDO1, as a table angle.
@@ -302,6 +328,7 @@ struct EncoderSample {
 /// Frames the master could not use (counted and skipped) and what it saw.
 struct MasterCounts {
   std::uint64_t tpdo = 0;
+  std::uint64_t velocity_pdo = 0;
   std::uint64_t emcy = 0;
   std::uint64_t heartbeats = 0;
   std::uint64_t malformed = 0;       ///< a TPDO, EMCY or heartbeat of a wrong length
@@ -360,6 +387,8 @@ class Master {
   void take_samples(std::vector<EncoderSample>& out);
   /// The last position actual, as a table angle (NaN before any).
   [[nodiscard]] double angle_rad() const { return angle_; }
+  /// The last velocity actual (TPDO2) as a table rate, rad/s; NaN before any.
+  [[nodiscard]] double velocity_rps() const { return velocity_; }
   [[nodiscard]] const MasterCounts& counts() const { return counts_; }
   [[nodiscard]] const canopen::SdoCounts& sdo_counts() const { return sdo_.counts(); }
   [[nodiscard]] const MasterSettings& settings() const { return s_; }
@@ -409,6 +438,7 @@ class Master {
   std::string invalid_;  // why the settings fail check(); empty: they pass
   RpdoLayout rpdo_;
   TpdoLayout tpdo_;
+  VelocityPdoLayout tpdo2_;
   double cpr_;  // counts per table rad
   canopen::SdoClient sdo_;
   CommPhase phase_ = CommPhase::Idle;
@@ -460,6 +490,8 @@ class Master {
   double angle_ = NAN;
   double last_sample_t_ = NAN;
   double last_tpdo_t_ = -1e300;
+  double velocity_ = NAN;
+  double velocity_t_ = -1e300;
   double rate_ = NAN;
   std::vector<EncoderSample> samples_;
   std::vector<canopen::Emcy> emcy_;

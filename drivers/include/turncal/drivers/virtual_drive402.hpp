@@ -7,7 +7,8 @@
 // handshake, target reached, relative or absolute), quick stop (0x6085,
 // then per 0x605A), halt, its heartbeat (0x1017) and its watch of the
 // host's (0x1016, the action of 0x6007 and EMCY 0x8130 when it is lost),
-// EMCY on faults, TPDO1 on change and event timer or on SYNC, a writable
+// EMCY on faults, TPDO1 on change and event timer or on SYNC (TPDO2, for
+// velocity actual when a master maps it, goes with TPDO1), a writable
 // string 0x2001 (a label, up to 64 bytes) for segmented downloads; and faults
 // to inject. Pure and deterministic, in the stand's time (seconds), like
 // VirtualTable: advance(t) emits what is due, receive(t, frame) answers.
