@@ -442,14 +442,27 @@ void SdoClient::abort_active(std::uint32_t code, double now_s, std::vector<can::
 }
 
 void SdoClient::cancel_all(std::vector<can::Frame>& out, std::uint32_t code) {
-  queue_.clear();
-  if (!active_) return;
-  can::Frame f = request();
-  f.data[0] = 0x80;
-  put_le(f.data, 4, 4, code);
-  out.push_back(f);
-  ++counts_.aborts_sent;
-  active_.reset();
+  std::deque<Transfer> dropped;
+  dropped.swap(queue_);
+  if (active_) {
+    can::Frame f = request();
+    f.data[0] = 0x80;
+    put_le(f.data, 4, 4, code);
+    out.push_back(f);
+    ++counts_.aborts_sent;
+    dropped.push_front(std::move(*active_));
+    active_.reset();
+  }
+  // every caller hears how its transfer ended; a callback may queue anew
+  for (Transfer& t : dropped) {
+    if (!t.done) continue;
+    SdoResult r;
+    r.index = t.index;
+    r.subindex = t.sub;
+    r.upload = t.upload;
+    r.abort = code;
+    t.done(r);
+  }
 }
 
 void SdoClient::tick(double now_s, std::vector<can::Frame>& out) {

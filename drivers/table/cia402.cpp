@@ -468,8 +468,11 @@ void Master::start(double now_s, std::vector<can::Frame>& out) {
 }
 
 void Master::reset_comm(double now_s, std::vector<can::Frame>& out) {
-  sdo_.cancel_all(out);
+  // the configuration's and a waiting move's transfers end here: their
+  // callbacks see a stale generation or no move waiting, and do nothing
   ++config_generation_;
+  move_ = MoveStep::None;
+  sdo_.cancel_all(out);
   out.push_back(canopen::nmt_frame(canopen::NmtCommand::ResetCommunication, s_.node_id));
   ++counts_.nmt_resets;
   phase_ = CommPhase::WaitBootUp;
@@ -480,7 +483,6 @@ void Master::reset_comm(double now_s, std::vector<can::Frame>& out) {
   sw_.reset();
   state_ = State::Unknown;
   cw_sent_ = false;
-  if (move_ != MoveStep::None) move_ = MoveStep::None;
 }
 
 void Master::configure(double now_s, std::vector<can::Frame>& out) {

@@ -226,6 +226,21 @@ TEST_SUITE("cia402") {
     r.len = 5;
     CHECK(c.on_frame(r, 1.6, out));
     CHECK(c.counts().malformed == 1);
+    // cancelled transfers are not lost: each callback hears the abort
+    c.upload(0x6064, 0, [&](const canopen::SdoResult& res) { done.push_back(res); });
+    c.upload(0x6041, 0, [&](const canopen::SdoResult& res) { done.push_back(res); });
+    out.clear();
+    c.tick(2.0, out);
+    REQUIRE(out.size() == 1);  // the first under way
+    out.clear();
+    c.cancel_all(out, 0x08000000);
+    REQUIRE(out.size() == 1);  // its abort on the bus
+    CHECK(out[0].data[0] == 0x80);
+    REQUIRE(done.size() == 4);
+    CHECK(done[2].index == 0x6064);
+    CHECK(done[3].index == 0x6041);
+    CHECK(done[3].abort == 0x08000000);
+    CHECK(c.idle());
   }
 
   TEST_CASE("boot-up, configuration in order, start: the values written arrive") {

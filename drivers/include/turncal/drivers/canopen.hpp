@@ -152,8 +152,8 @@ class SdoClient {
   void tick(double now_s, std::vector<can::Frame>& out);
   /// A frame from the bus; false when it is not this server's SDO response.
   bool on_frame(const can::Frame& f, double now_s, std::vector<can::Frame>& out);
-  /// Drops every queued transfer and the one under way (aborted by us with
-  /// `code` when one is under way); their callbacks are not called.
+  /// Ends every queued transfer and the one under way (aborted on the bus
+  /// with `code`); each callback gets `code`, none is lost.
   void cancel_all(std::vector<can::Frame>& out, std::uint32_t code = abort_code::kGeneral);
   /// Drops the queued transfers, not the one under way (safe in a callback).
   void drop_queued() { queue_.clear(); }
