@@ -944,6 +944,32 @@ TEST_SUITE("cia402") {
     CHECK(l.master.status().fault_name == "EMCY 0x8210 PDO not processed due to length error");
   }
 
+  TEST_CASE("position actual unwrapped across the drive's 32-bit wrap") {
+    cia402::Master m(master_settings());
+    std::vector<can::Frame> out;
+    auto tpdo = [&](std::uint32_t raw, double t) {
+      can::Frame f;
+      f.id = 0x185;
+      f.len = 6;
+      canopen::put_le(f.data, 0, 2, 0x0250);
+      canopen::put_le(f.data, 2, 4, raw);
+      m.on_frame(f, t, out);
+    };
+    tpdo(0x7FFFFFF0u, 0.00);
+    tpdo(0x80000010u, 0.01);  // +32 counts through the wrap
+    tpdo(0x7FFFFFFFu, 0.02);  // and back, -17
+    std::vector<cia402::EncoderSample> smp;
+    m.take_samples(smp);
+    REQUIRE(smp.size() == 3);
+    CHECK(smp[0].counts == 0x7FFFFFF0LL);
+    CHECK(smp[1].counts == 0x80000010LL);
+    CHECK(smp[2].counts == 0x7FFFFFFFLL);
+    const double cpr = 1e6 / kTwoPi;
+    CHECK(smp[1].angle_rad - smp[0].angle_rad == doctest::Approx(32 / cpr).epsilon(1e-6));
+    CHECK(smp[1].t_s == 0.01);
+    CHECK(out.empty());  // not started: nothing to say
+  }
+
   TEST_CASE("PDO layouts from the stand's DBC drive the mapping and the codec") {
     const char* dbc =
         "VERSION \"\"\n\nBU_: HOST DRV\n\n"
