@@ -49,6 +49,17 @@
 // that an Enable sends can clear it. After a lost heartbeat (or a drive
 // that left operational or rebooted) the Enable first resets the drive's
 // communication (NMT) and configures it again.
+//
+// Wiring (the daemon, the replay, a test):
+//   auto m = Master::create(settings);           // an error names the misfit
+//   m->start(now_s, out);                         // send `out`
+//   every frame of the table's bus: m->on_frame(frame, t_s, out);
+//   the main loop, at least every heartbeat period: m->tick(now_s, out);
+//   a sequencer TableCommand: m->command(code, seq, target_rad, rate_rps,
+//     now_s, out) -- an error means nothing was sent;
+//   after each: m->take_samples(samples) -> EncoderEvents (t_s, angle_rad),
+//     and m->status() -> a TableStatusEvent when it changed
+//     (state, ack, int(fault), fault_name, rate_rps).
 #pragma once
 
 #include <cmath>
