@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -942,6 +943,46 @@ TEST_SUITE("cia402") {
     l.deliver();
     CHECK(l.drive.counts().malformed == 1);
     CHECK(l.master.status().fault_name == "EMCY 0x8210 PDO not processed due to length error");
+  }
+
+  TEST_CASE("garbage on the bus: counted and skipped, nothing thrown") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    std::mt19937 rng(7);
+    const std::uint32_t master_ids[] = {0x585, 0x705, 0x085, 0x185, 0x123, 0x7FF};
+    std::uint64_t wrong_length = 0;
+    const auto malformed = l.master.counts().malformed;
+    for (int i = 0; i < 5000; ++i) {
+      can::Frame f;
+      f.id = master_ids[rng() % 6];
+      f.len = static_cast<std::uint8_t>(rng() % 9);
+      for (std::size_t k = 0; k < f.len; ++k) f.data[k] = static_cast<std::uint8_t>(rng());
+      if ((f.id == 0x185 && f.len < 6) || (f.id == 0x705 && f.len != 1) ||
+          (f.id == 0x085 && f.len != 8))
+        ++wrong_length;
+      CHECK_NOTHROW(l.master.on_frame(f, l.t, l.from_master));
+    }
+    CHECK(l.master.counts().malformed - malformed == wrong_length);
+    CHECK(l.master.sdo_counts().malformed > 0);
+    // the random EMCYs and statuswords leave it in fault, with a name
+    CHECK(l.master.status().state == TableState::Fault);
+    CHECK_FALSE(l.master.status().fault_name.empty());
+    // the drive takes garbage too: NMT, SYNC, SDO, RPDO, a heartbeat
+    const std::uint32_t drive_ids[] = {0x000, 0x080, 0x605, 0x205, 0x77F};
+    for (int i = 0; i < 5000; ++i) {
+      can::Frame f;
+      f.id = drive_ids[rng() % 5];
+      f.len = static_cast<std::uint8_t>(rng() % 9);
+      for (std::size_t k = 0; k < f.len; ++k) f.data[k] = static_cast<std::uint8_t>(rng());
+      CHECK_NOTHROW(l.drive.receive(l.t, f, l.from_drive));
+      l.from_drive.clear();
+    }
+    CHECK(l.drive.counts().malformed > 0);
+    CHECK(l.drive.counts().sdo_aborts > 0);
+    // and both go on: time passes without a throw
+    CHECK_NOTHROW(l.run_for(1.0));
   }
 
   TEST_CASE("position actual unwrapped across the drive's 32-bit wrap") {
