@@ -1,0 +1,512 @@
+// A CANopen master for one CiA 402 servo drive in profile position mode,
+// pure (style.md, 2 and 7): frames in, frames out, time injected as seconds;
+// every timeout comes from tick(now_s), nothing blocks.
+//
+// What it does, in order:
+//   NMT reset communication -> the drive's boot-up (0x700+node, 0x00) ->
+//   NMT enter pre-operational -> configuration by SDO (0x6060 = 1,
+//   0x6081, 0x6083, 0x6084, 0x6085, 0x605A, 0x6007, 0x1016:01, 0x1017, then
+//   the PDO mappings 0x1600 / 0x1A00 [/ 0x1A01] when the settings ask) ->
+//   NMT start.
+// From then on RPDO1 (controlword + target position) goes out, TPDO1
+// (statusword + position actual) and, when asked, TPDO2 (velocity actual)
+// come in, the drive's heartbeat is watched, its EMCYs are decoded and
+// kept, and the master produces its own heartbeat (and SYNC when asked)
+// from tick().
+//
+// The sequencer's table (include/turncal/icd.hpp) is what status() shows:
+//
+//   CiA 402 state (statusword)        | TableState
+//   ----------------------------------+-----------------------------------------
+//   not configured / NMT not started  | Disabled
+//   Not ready to switch on,           | Disabled
+//   Switch on disabled, Ready to      |
+//   switch on, Switched on            |   (QuickStopped after our quick stop)
+//   Operation enabled, no move yet    | Holding
+//   Operation enabled, set-point      | Moving (until target reached, bit 10)
+//   acknowledged (bit 12), or halted  |
+//   and still decelerating            |
+//   Operation enabled, target reached | InPosition
+//   Quick stop active                 | QuickStopped
+//   Fault reaction active, Fault      | Fault
+//   any, with a latched fault (EMCY   | Fault, until an Enable's fault reset is
+//   with a non-zero code, heartbeat   | followed by a statusword without fault
+//   lost, following error, SDO abort  |
+//   during configuration, ...)        |
+//
+// The acknowledgement (status().ack) is the seq of the last command the
+// drive accepted: Enable when Operation enabled is reached, Disable when
+// Switch on disabled is, a move when the drive acknowledges its set-point
+// (statusword bit 12), ControlledStop at the first statusword after the
+// halt bit went out, QuickStop when the drive is in Quick stop active or
+// not enabled at all (at rest).
+//
+// The stale-PDO trap: a drive in fault may keep (or stop sending) a last
+// TPDO that says Operation enabled. The master judges by the freshest
+// information: an EMCY with a non-zero code, the drive's heartbeat lost, or
+// its NMT state leaving operational latches a fault whatever the last
+// statusword said, and only a statusword received after the fault reset
+// that an Enable sends can clear it. After a lost heartbeat (or a drive
+// that left operational or rebooted) the Enable first resets the drive's
+// communication (NMT) and configures it again.
+//
+// Wiring (the daemon, the replay, a test):
+//   auto m = Master::create(settings);           // an error names the misfit
+//   m->start(now_s, out);                         // send `out`
+//   every frame of the table's bus: m->on_frame(frame, t_s, out);
+//   the main loop, at least every heartbeat period: m->tick(now_s, out);
+//   a sequencer TableCommand: m->command(code, seq, target_rad, rate_rps,
+//     now_s, out) -- an error means nothing was sent;
+//   after each: m->take_samples(samples) -> EncoderEvents (t_s, angle_rad),
+//     and m->status() -> a TableStatusEvent when it changed
+//     (state, ack, int(fault), fault_name, rate_rps).
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "turncal/can/dbc.hpp"
+#include "turncal/can/frame.hpp"
+#include "turncal/drivers/canopen.hpp"
+#include "turncal/icd.hpp"
+#include "turncal/result.hpp"
+
+namespace turncal::cia402 {
+
+// ---- CiA 402 objects ----
+namespace obj {
+inline constexpr std::uint16_t kAbortConnectionOption = 0x6007;
+inline constexpr std::uint16_t kErrorCode = 0x603F;
+inline constexpr std::uint16_t kControlword = 0x6040;
+inline constexpr std::uint16_t kStatusword = 0x6041;
+inline constexpr std::uint16_t kQuickStopOption = 0x605A;
+inline constexpr std::uint16_t kModesOfOperation = 0x6060;
+inline constexpr std::uint16_t kModesDisplay = 0x6061;
+inline constexpr std::uint16_t kPositionActual = 0x6064;
+inline constexpr std::uint16_t kVelocityActual = 0x606C;
+inline constexpr std::uint16_t kTargetPosition = 0x607A;
+inline constexpr std::uint16_t kMaxProfileVelocity = 0x607F;
+inline constexpr std::uint16_t kProfileVelocity = 0x6081;
+inline constexpr std::uint16_t kProfileAcceleration = 0x6083;
+inline constexpr std::uint16_t kProfileDeceleration = 0x6084;
+inline constexpr std::uint16_t kQuickStopDeceleration = 0x6085;
+inline constexpr std::uint16_t kDeviceName = 0x1008;
+inline constexpr std::uint16_t kConsumerHeartbeat = 0x1016;
+inline constexpr std::uint16_t kProducerHeartbeat = 0x1017;
+inline constexpr std::uint16_t kRpdo1Comm = 0x1400;
+inline constexpr std::uint16_t kRpdo1Map = 0x1600;
+inline constexpr std::uint16_t kTpdo1Comm = 0x1800;
+inline constexpr std::uint16_t kTpdo1Map = 0x1A00;
+inline constexpr std::uint16_t kTpdo2Comm = 0x1801;
+inline constexpr std::uint16_t kTpdo2Map = 0x1A01;
+}  // namespace obj
+/// A name for the objects above ("profile velocity"), nullptr for others.
+[[nodiscard]] const char* object_name(std::uint16_t index);
+
+/// Statusword 0x6041 bits.
+namespace sw {
+inline constexpr std::uint16_t kReadyToSwitchOn = 1u << 0;
+inline constexpr std::uint16_t kSwitchedOn = 1u << 1;
+inline constexpr std::uint16_t kOperationEnabled = 1u << 2;
+inline constexpr std::uint16_t kFault = 1u << 3;
+inline constexpr std::uint16_t kVoltageEnabled = 1u << 4;
+inline constexpr std::uint16_t kQuickStop = 1u << 5;  ///< 0: quick stop active
+inline constexpr std::uint16_t kSwitchOnDisabled = 1u << 6;
+inline constexpr std::uint16_t kWarning = 1u << 7;
+inline constexpr std::uint16_t kRemote = 1u << 9;
+inline constexpr std::uint16_t kTargetReached = 1u << 10;
+inline constexpr std::uint16_t kInternalLimit = 1u << 11;
+inline constexpr std::uint16_t kSetPointAcknowledge = 1u << 12;  ///< profile position
+inline constexpr std::uint16_t kFollowingError = 1u << 13;       ///< profile position
+}  // namespace sw
+
+/// Controlword 0x6040 bits and the standard's commands.
+namespace cw {
+inline constexpr std::uint16_t kSwitchOn = 1u << 0;
+inline constexpr std::uint16_t kEnableVoltage = 1u << 1;
+inline constexpr std::uint16_t kQuickStop = 1u << 2;  ///< 0: quick stop
+inline constexpr std::uint16_t kEnableOperation = 1u << 3;
+inline constexpr std::uint16_t kNewSetPoint = 1u << 4;        ///< profile position
+inline constexpr std::uint16_t kChangeImmediately = 1u << 5;  ///< profile position
+inline constexpr std::uint16_t kRelative = 1u << 6;           ///< profile position
+inline constexpr std::uint16_t kFaultReset = 1u << 7;
+inline constexpr std::uint16_t kHalt = 1u << 8;
+/// The low byte of the standard's device control commands.
+inline constexpr std::uint16_t kCmdShutdown = 0x06;
+inline constexpr std::uint16_t kCmdSwitchOn = 0x07;
+inline constexpr std::uint16_t kCmdDisableOperation = 0x07;
+inline constexpr std::uint16_t kCmdEnableOperation = 0x0F;
+inline constexpr std::uint16_t kCmdDisableVoltage = 0x00;
+inline constexpr std::uint16_t kCmdQuickStop = 0x02;
+inline constexpr std::uint16_t kCmdFaultReset = 0x80;
+/// The bits a device control command occupies (0..3 and 7).
+inline constexpr std::uint16_t kCommandMask = 0x8F;
+}  // namespace cw
+
+/// The drive's states (CiA 402 figure "state machine").
+enum class State : std::uint8_t {
+  NotReadyToSwitchOn,
+  SwitchOnDisabled,
+  ReadyToSwitchOn,
+  SwitchedOn,
+  OperationEnabled,
+  QuickStopActive,
+  FaultReactionActive,
+  Fault,
+  Unknown,  ///< a statusword matching no state
+};
+const char* to_string(State s);
+/// The state a statusword shows (masks 0x4F and 0x6F, CiA 402 table).
+[[nodiscard]] State decode_state(std::uint16_t statusword);
+/// The state's bits (the 0x6F part) as a drive sets them.
+[[nodiscard]] std::uint16_t state_bits(State s);
+
+/// A controlword's device control command, as the drive decodes it
+/// (CiA 402 table "command coding"); the fault reset is a rising edge of
+/// bit 7, so the previous controlword is needed.
+enum class Command : std::uint8_t {
+  Shutdown,
+  SwitchOn,  ///< also "disable operation" from Operation enabled
+  EnableOperation,
+  DisableVoltage,
+  QuickStop,
+  FaultReset,
+  None,  ///< bit 7 held high: no command
+};
+const char* to_string(Command c);
+[[nodiscard]] Command decode_command(std::uint16_t controlword, std::uint16_t previous);
+
+// ---- PDO layouts ----
+
+/// Where one object sits in a PDO: a byte offset and a length in bytes
+/// (0: not in the PDO). CANopen PDOs carry objects little-endian.
+struct PdoField {
+  std::uint8_t offset = 0;
+  std::uint8_t length = 0;
+  [[nodiscard]] bool present() const { return length != 0; }
+};
+
+/// RPDO1: what the master sends.
+struct RpdoLayout {
+  std::uint32_t cob_id = 0;  ///< 11-bit identifier
+  std::uint8_t size = 6;     ///< payload bytes
+  PdoField controlword{0, 2};
+  PdoField target_position{2, 4};
+  /// CiA 402's: 0x200 + node, controlword u16 then target position s32.
+  [[nodiscard]] static RpdoLayout defaults(std::uint8_t node);
+  /// From the stand's DBC: the message's ID and length, and where the named
+  /// signals are. They must be little-endian, byte aligned, unscaled, of
+  /// the object's size (16 and 32 bits).
+  [[nodiscard]] static Result<RpdoLayout> from_dbc(const can::Message& msg,
+                                                   std::string_view controlword,
+                                                   std::string_view target_position);
+  /// Fields inside the payload, not overlapping, of the objects' sizes.
+  [[nodiscard]] Status check() const;
+  /// The mapping entries (index << 16 | sub << 8 | bits), by offset; an
+  /// error when the fields leave gaps (a mapping cannot say that).
+  [[nodiscard]] Result<std::vector<std::uint32_t>> mapping() const;
+};
+
+/// TPDO1: what the drive sends. Velocity actual (s32) does not fit beside
+/// the statusword and position actual in 8 bytes: it goes in TPDO2
+/// (VelocityPdoLayout) when the settings ask.
+struct TpdoLayout {
+  std::uint32_t cob_id = 0;
+  std::uint8_t size = 6;
+  PdoField statusword{0, 2};
+  PdoField position_actual{2, 4};
+  /// 0x180 + node, statusword u16 then position actual s32.
+  [[nodiscard]] static TpdoLayout defaults(std::uint8_t node);
+  /// From the DBC, as RpdoLayout::from_dbc.
+  [[nodiscard]] static Result<TpdoLayout> from_dbc(const can::Message& msg,
+                                                   std::string_view statusword,
+                                                   std::string_view position_actual);
+  [[nodiscard]] Status check() const;
+  [[nodiscard]] Result<std::vector<std::uint32_t>> mapping() const;
+};
+
+/// TPDO2, optional: velocity actual (0x606C, s32).
+struct VelocityPdoLayout {
+  std::uint32_t cob_id = 0;
+  std::uint8_t size = 4;
+  PdoField velocity_actual{0, 4};
+  /// 0x280 + node, velocity actual s32.
+  [[nodiscard]] static VelocityPdoLayout defaults(std::uint8_t node);
+  [[nodiscard]] static Result<VelocityPdoLayout> from_dbc(const can::Message& msg,
+                                                          std::string_view velocity_actual);
+  [[nodiscard]] Status check() const;
+  [[nodiscard]] Result<std::vector<std::uint32_t>> mapping() const;
+};
+
+// ---- the master ----
+
+struct MasterSettings {
+  std::uint8_t node_id = 1;         ///< the drive's
+  std::uint8_t host_node_id = 127;  ///< ours, for our heartbeat (0x700 + host)
+  double host_heartbeat_period_s = 0.1;
+  /// The drive watches our heartbeat (0x1016:01) with this timeout.
+  double host_heartbeat_timeout_s = 0.5;
+  /// The drive's own heartbeat (0x1017), and how long we wait for it.
+  double drive_heartbeat_period_s = 0.1;
+  double drive_heartbeat_timeout_s = 0.3;
+  double sdo_timeout_s = 0.5;
+  double boot_timeout_s = 2.0;  ///< from NMT reset to the boot-up message
+  /// Scale: encoder counts per motor revolution, motor turns per table turn.
+  double counts_per_rev = 131072;
+  double gear_ratio = 1;
+  /// The profile written at configuration, table rad/s and rad/s^2.
+  double profile_velocity_rps = 10 * 0.017453292519943295;
+  double profile_acceleration_rps2 = 10 * 0.017453292519943295;
+  double profile_deceleration_rps2 = 10 * 0.017453292519943295;
+  double quick_stop_deceleration_rps2 = 90 * 0.017453292519943295;
+  /// 0x605A: 6 = stop on the quick stop ramp and stay in Quick stop active.
+  std::int16_t quick_stop_option = 6;
+  /// 0x6007 on a lost host heartbeat: 1 fault, 2 disable voltage, 3 quick stop.
+  std::int16_t abort_connection_option = 3;
+  /// Controlword bit 5 with every set-point.
+  bool change_set_immediately = false;
+  /// Write the PDO mappings (0x1600, 0x1A00) and TPDO1's transmission;
+  /// otherwise the drive's own mapping must be the layouts below.
+  bool configure_mapping = false;
+  /// The layouts; empty: CiA 402's defaults for node_id (velocity not mapped).
+  std::optional<RpdoLayout> rpdo;
+  std::optional<TpdoLayout> tpdo;
+  /// Velocity actual from TPDO2 (written with the mappings when
+  /// configure_mapping): the table's rate in status() is then the drive's
+  /// own; otherwise it comes from the position samples.
+  bool velocity_pdo = false;
+  std::optional<VelocityPdoLayout> tpdo2;  ///< empty: defaults for node_id
+  /// > 0: we produce SYNC at this period, TPDO1 is synchronous (transmission
+  /// type 1, written) and an encoder sample's time is its SYNC's.
+  double sync_period_s = 0;
+  /// TPDO1's event timer when the mapping is written without SYNC.
+  double tpdo_event_timer_s = 0.01;
+
+  [[nodiscard]] double counts_per_rad() const {
+    return counts_per_rev * gear_ratio / (2 * 3.14159265358979323846);
+  }
+  [[nodiscard]] RpdoLayout rpdo_layout() const {
+    return rpdo ? *rpdo : RpdoLayout::defaults(node_id);
+  }
+  [[nodiscard]] TpdoLayout tpdo_layout() const {
+    return tpdo ? *tpdo : TpdoLayout::defaults(node_id);
+  }
+  [[nodiscard]] VelocityPdoLayout velocity_layout() const {
+    return tpdo2 ? *tpdo2 : VelocityPdoLayout::defaults(node_id);
+  }
+  /// Every value in range and every configured value fits its object
+  /// (u32 counts/s and counts/s^2, u16 ms), or why not.
+  [[nodiscard]] Status check() const;
+};
+
+/// Why the master is in fault (status().fault).
+enum class FaultCode : std::uint8_t {
+  None = 0,
+  Emcy = 1,                ///< an EMCY with a non-zero error code
+  DriveHeartbeatLost = 2,  ///< "drive heartbeat lost"
+  DriveNmtState = 3,       ///< the drive left operational, or booted again
+  FollowingError = 4,      ///< statusword bit 13
+  DriveFault = 5,          ///< statusword Fault without an EMCY
+  Configuration = 6,       ///< an SDO abort (or timeout) during configuration
+  NoBootUp = 7,            ///< no boot-up message after the NMT reset
+  Sdo = 8,                 ///< the SDO a move needed (profile velocity) failed
+};
+
+/// What the sequencer's TableStatusEvent carries (icd.hpp, can-icd.md).
+struct TableView {
+  TableState state = TableState::Disabled;
+  std::uint8_t ack = 0;  ///< seq of the last command the drive accepted
+  FaultCode fault = FaultCode::None;
+  std::string fault_name;
+  /// The table's, from velocity actual (TPDO2) or else encoder steps;
+  /// NaN: unknown, or older than the drive heartbeat timeout.
+  double rate_rps = NAN;
+};
+
+/// One position actual from TPDO1, as a table angle.
+struct EncoderSample {
+  double t_s = 0;           ///< its SYNC's time, else the TPDO's receive time
+  double angle_rad = 0;     ///< multi-turn (the drive's s32 unwrapped)
+  std::int64_t counts = 0;  ///< the unwrapped position actual
+  std::uint16_t statusword = 0;
+};
+
+/// Frames the master could not use (counted and skipped) and what it saw.
+struct MasterCounts {
+  std::uint64_t tpdo = 0;
+  std::uint64_t velocity_pdo = 0;
+  std::uint64_t emcy = 0;
+  std::uint64_t heartbeats = 0;
+  std::uint64_t malformed = 0;       ///< a TPDO, EMCY or heartbeat of a wrong length
+  std::uint64_t nmt_resets = 0;      ///< reset communication sent
+  std::uint64_t configurations = 0;  ///< configurations completed
+};
+
+/// The master's own progress through NMT and configuration.
+enum class CommPhase : std::uint8_t {
+  Idle,         ///< start() not called
+  WaitBootUp,   ///< reset communication sent
+  Configuring,  ///< SDOs under way
+  Running,      ///< configured, NMT start sent
+  Failed,       ///< configuration failed; an Enable starts again
+};
+const char* to_string(CommPhase p);
+
+class Master {
+ public:
+  /// Settings that fail check() leave the master inert: start() latches a
+  /// configuration fault with the reason and sends nothing, command()
+  /// returns it (create() refuses them up front).
+  explicit Master(MasterSettings s);
+  [[nodiscard]] static Result<std::unique_ptr<Master>> create(MasterSettings s);
+  Master(const Master&) = delete;
+  Master& operator=(const Master&) = delete;
+
+  /// Resets the drive's communication and goes through boot-up,
+  /// configuration and start; the heartbeat (and SYNC) begin.
+  void start(double now_s, std::vector<can::Frame>& out);
+  /// Timeouts, our heartbeat and SYNC. Call often (at least every
+  /// heartbeat period), with non-decreasing time.
+  void tick(double now_s, std::vector<can::Frame>& out);
+  /// A frame from the bus at t_s. Frames of other nodes are ignored; ours
+  /// of a wrong length are counted and skipped.
+  void on_frame(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
+
+  /// A sequencer command. target_rad: MoveAbsolute's angle, MoveRelative's
+  /// delta; rate_rps: a move's profile velocity (written by SDO first when
+  /// it differs from the last written). An error, and no frame, when it
+  /// cannot be sent: a target or rate that does not fit the drive's s32/u32
+  /// counts, a non-positive rate, a move while the drive is not enabled.
+  Status command(TableCommandCode code, std::uint8_t seq, double target_rad, double rate_rps,
+                 double now_s, std::vector<can::Frame>& out);
+
+  [[nodiscard]] TableView status() const;
+  /// The drive's 402 state as its last statusword showed it.
+  [[nodiscard]] State drive_state() const { return state_; }
+  [[nodiscard]] std::optional<std::uint16_t> statusword() const { return sw_; }
+  [[nodiscard]] CommPhase phase() const { return phase_; }
+  /// True when the configuration wrote the PDO mappings.
+  [[nodiscard]] bool configured_mapping() const { return configured_mapping_; }
+  /// Every EMCY received, with its time and text.
+  [[nodiscard]] const std::vector<canopen::Emcy>& emergencies() const { return emcy_; }
+  /// Moves the encoder samples received since the last call to `out`.
+  void take_samples(std::vector<EncoderSample>& out);
+  /// The last position actual, as a table angle (NaN before any).
+  [[nodiscard]] double angle_rad() const { return angle_; }
+  /// The last velocity actual (TPDO2) as a table rate, rad/s; NaN before any.
+  [[nodiscard]] double velocity_rps() const { return velocity_; }
+  [[nodiscard]] const MasterCounts& counts() const { return counts_; }
+  [[nodiscard]] const canopen::SdoCounts& sdo_counts() const { return sdo_.counts(); }
+  [[nodiscard]] const MasterSettings& settings() const { return s_; }
+
+  /// Our heartbeat on or off (on after start()). Off: the drive's consumer
+  /// times out and it acts per 0x6007.
+  void set_host_heartbeat(bool on) { host_hb_on_ = on; }
+  /// Any SDO access, queued behind the others; `done` gets its outcome.
+  void read(std::uint16_t index, std::uint8_t sub, canopen::SdoClient::Callback done);
+  void write(std::uint16_t index, std::uint8_t sub, std::vector<std::uint8_t> data,
+             canopen::SdoClient::Callback done);
+
+ private:
+  enum class Goal : std::uint8_t { Disabled, Enabled, QuickStop };
+  enum class MoveStep : std::uint8_t {
+    None,     ///< no move since enable
+    WaitSdo,  ///< the profile velocity is being written
+    Ready,    ///< the set-point goes out with the next controlword
+    Sent,     ///< bit 4 set, waiting for bit 12
+    Acked,    ///< bit 4 cleared, moving until bit 10
+    Halting,  ///< halt set, decelerating until bit 10
+    Done,     ///< target reached (or halted at rest)
+  };
+  enum class Recovery : std::uint8_t { None, AfterComm, SendReset, WaitFresh };
+  enum class AckOn : std::uint8_t { None, Enabled, Disabled, Stopped, Halted };
+  struct PendingMove {
+    std::uint8_t seq = 0;
+    bool relative = false;
+    std::int32_t target = 0;
+    std::uint32_t velocity = 0;
+  };
+
+  void reset_comm(double now_s, std::vector<can::Frame>& out);
+  void configure(double now_s, std::vector<can::Frame>& out);
+  void config_done(double now_s, std::vector<can::Frame>& out);
+  void latch(FaultCode code, std::string name, bool needs_comm_reset = false);
+  void on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
+  void on_heartbeat(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
+  void on_emcy(const can::Frame& f, double t_s);
+  /// Acks, the set-point handshake, the fault latch and the controlword
+  /// towards the goal, from what is known now.
+  void evaluate(double now_s, std::vector<can::Frame>& out);
+  void send_rpdo(std::uint16_t controlword, std::vector<can::Frame>& out);
+  [[nodiscard]] std::uint16_t motion_bits() const;
+
+  MasterSettings s_;
+  std::string invalid_;  // why the settings fail check(); empty: they pass
+  RpdoLayout rpdo_;
+  TpdoLayout tpdo_;
+  VelocityPdoLayout tpdo2_;
+  double cpr_;  // counts per table rad
+  canopen::SdoClient sdo_;
+  CommPhase phase_ = CommPhase::Idle;
+  double now_ = 0;
+  double boot_deadline_ = 0;
+  std::uint64_t config_generation_ = 0;
+  bool configured_mapping_ = false;
+  // heartbeats
+  bool host_hb_on_ = false;
+  double next_host_hb_ = 0;
+  double last_drive_hb_ = 0;
+  double started_at_ = 0;  // NMT start sent
+  bool drive_seen_operational_ = false;
+  double next_sync_ = 0;
+  double last_sync_ = NAN;
+  // the drive
+  std::optional<std::uint16_t> sw_;
+  std::uint64_t sw_seq_ = 0;  // statuswords received
+  State state_ = State::Unknown;
+  std::uint16_t cw_ = 0;
+  bool cw_sent_ = false;
+  std::int32_t target_ = 0;
+  // fault latch
+  FaultCode fault_ = FaultCode::None;
+  std::string fault_name_;
+  bool needs_comm_reset_ = false;
+  Recovery recovery_ = Recovery::None;
+  std::uint64_t reset_seq_ = 0;  // sw_seq_ when the fault reset went out
+  // commands
+  Goal goal_ = Goal::Disabled;
+  bool quick_stopped_ = false;  // our quick stop is the last command
+  std::uint8_t ack_ = 0;
+  AckOn ack_on_ = AckOn::None;
+  std::uint8_t ack_seq_ = 0;
+  std::uint64_t ack_after_ = 0;  // a statusword after this one
+  MoveStep move_ = MoveStep::None;
+  PendingMove pending_;
+  std::uint64_t move_sent_seq_ = 0;
+  std::uint32_t velocity_written_ = 0;
+  std::uint64_t move_generation_ = 0;
+  std::uint16_t move_flags_ = 0;  // relative, change immediately
+  bool halted_ = false;           // controlword bit 8 (controlled stop)
+  bool config_complete_ = false;  // the last configuration SDO is done
+  bool drive_hb_lost_ = false;
+  // encoder
+  bool have_pos_ = false;
+  std::int32_t last_raw_ = 0;
+  std::int64_t pos_counts_ = 0;
+  double angle_ = NAN;
+  double last_sample_t_ = NAN;
+  double last_tpdo_t_ = -1e300;
+  double velocity_ = NAN;
+  double velocity_t_ = -1e300;
+  double rate_ = NAN;
+  std::vector<EncoderSample> samples_;
+  std::vector<canopen::Emcy> emcy_;
+  MasterCounts counts_;
+};
+
+}  // namespace turncal::cia402

@@ -1,0 +1,228 @@
+// The virtual stand's CiA 402 servo drive on CANopen: a node with an
+// object dictionary (SDO server, expedited and segmented, with the
+// standard's abort codes), NMT (boot-up after a reset, pre-operational,
+// operational, stopped), RPDO1 and TPDO1 with the default or an SDO-written
+// mapping, the CiA 402 state machine driven by the controlword, profile
+// position moves (a trapezoid at 0x6081/0x6083/0x6084, the set-point
+// handshake, target reached, relative or absolute), quick stop (0x6085,
+// then per 0x605A), halt, its heartbeat (0x1017) and its watch of the
+// host's (0x1016, the action of 0x6007 and EMCY 0x8130 when it is lost),
+// EMCY on faults, TPDO1 on change and event timer or on SYNC (TPDO2, for
+// velocity actual when a master maps it, goes with TPDO1), a writable
+// string 0x2001 (a label, up to 64 bytes) for segmented downloads; and faults
+// to inject. Pure and deterministic, in the stand's time (seconds), like
+// VirtualTable: advance(t) emits what is due, receive(t, frame) answers.
+//
+// Emulation choices where CiA 402 leaves room or the stand needs less:
+// * a set-point while moving with "change set immediately" brakes at the
+//   profile deceleration and then sets off to the new target (a real drive
+//   blends); without it the set-point waits for the move under way;
+// * a relative target counts from where the drive is (at rest), or from
+//   the target of the move under way;
+// * releasing halt does not resume the move: a new set-point is needed;
+// * disable voltage, shutdown and disable operation while moving stop at
+//   the quick stop deceleration (a motor let go would coast);
+// * a lost host heartbeat does not change the NMT state (0x1029 absent);
+// * an event-driven TPDO1 goes on every statusword change and at its event
+//   timer (position changes alone wait for the timer).
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <map>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "turncal/can/frame.hpp"
+#include "turncal/drivers/canopen.hpp"
+#include "turncal/drivers/cia402.hpp"
+#include "turncal/profile.hpp"
+
+namespace turncal::stand {
+
+struct Drive402Setup {
+  std::uint8_t node_id = 1;
+  double counts_per_rev = 131072;  ///< encoder counts per motor revolution
+  double gear_ratio = 1;           ///< motor turns per table turn
+  double angle0_rad = 0;           ///< table angle at power-on
+  double power_on_s = 0;           ///< the boot-up message comes boot_delay_s later
+  double boot_delay_s = 0.005;     ///< from a reset to the boot-up message
+  std::string device_name = "turncal virtual CiA 402 drive";  ///< 0x1008
+  std::uint32_t max_profile_velocity = 0x7FFFFFFF;            ///< 0x607F, counts/s
+  /// RPDO1 and TPDO1 mapped as CiA 402's defaults after a reset; false:
+  /// no objects mapped until the master writes a mapping.
+  bool default_mapping = true;
+  std::uint16_t tpdo_event_timer_ms = 10;   ///< 0x1800:05 after a reset
+  std::uint16_t producer_heartbeat_ms = 0;  ///< 0x1017 after a reset
+};
+
+/// What TPDO1 does while the drive is in fault (the stale-PDO trap).
+enum class StalePdo : std::uint8_t {
+  None,    ///< TPDO1 as usual: the statusword shows the fault
+  Silent,  ///< no TPDO1 while in fault reaction or fault
+  Frozen,  ///< the last TPDO1 from before the fault, repeated
+};
+
+/// Faults to inject, each once.
+struct Drive402Faults {
+  double fault_at_s = NAN;  ///< a drive fault with EMCY fault_code
+  std::uint16_t fault_code = 0x2310;
+  StalePdo stale = StalePdo::None;
+  double silent_at_s = NAN;  ///< the drive neither sends nor hears anything from then ...
+  double silent_until_s = std::numeric_limits<double>::infinity();  ///< ... to then
+  double following_error_at_s = NAN;  ///< statusword bit 13, EMCY 0x8611, fault
+  bool refuse_moves = false;          ///< new set-points are never acknowledged
+  int resets_ignored = 0;  ///< the first fault resets leave it in fault (the cause persists)
+  /// (index << 8 | sub) -> abort code for any SDO access to that object.
+  std::map<std::uint32_t, std::uint32_t> refuse_objects;
+};
+
+struct DriveFrame {
+  double t_s;
+  can::Frame frame;
+};
+
+struct Drive402Counts {
+  std::uint64_t nmt_resets = 0;  ///< reset communication or node
+  std::uint64_t sdo_aborts = 0;  ///< sent by the drive
+  std::uint64_t rpdo = 0;
+  std::uint64_t tpdo = 0;
+  std::uint64_t sync = 0;
+  std::uint64_t malformed = 0;  ///< frames of ours of a wrong length: counted, skipped
+  std::uint64_t host_heartbeats = 0;
+  std::uint64_t host_heartbeat_lost = 0;
+  std::uint64_t quick_stops = 0;  ///< entries into quick stop active
+  std::uint64_t set_points = 0;   ///< acknowledged
+  std::uint64_t fault_resets = 0;
+};
+
+class VirtualDrive402 {
+ public:
+  explicit VirtualDrive402(const Drive402Setup& setup = {}, const Drive402Faults& faults = {});
+
+  /// Runs the drive's own events up to t (boot-up, heartbeat, the host
+  /// heartbeat watch, motion ending, TPDO event timer, injected faults) and
+  /// emits their frames. Non-decreasing t.
+  void advance(double t, std::vector<DriveFrame>& out);
+  /// A frame from the bus at t (after advance(t)); answers go to `out`.
+  void receive(double t, const can::Frame& f, std::vector<DriveFrame>& out);
+
+  [[nodiscard]] cia402::State state() const { return state_; }
+  [[nodiscard]] std::uint16_t statusword() const;
+  [[nodiscard]] std::uint16_t controlword() const { return cw_; }
+  [[nodiscard]] canopen::NmtState nmt() const { return nmt_; }
+  [[nodiscard]] bool booted() const { return !booting_; }
+  /// True multi-turn table angle, rad, and the motion the INS turns by.
+  [[nodiscard]] double angle(double t) const { return motion_.at(t).angle; }
+  [[nodiscard]] double rate(double t) const { return motion_.at(t).rate; }
+  [[nodiscard]] const TableMotion& motion() const { return motion_; }
+  /// Position actual, counts (not wrapped to s32).
+  [[nodiscard]] std::int64_t position_counts(double t) const;
+  [[nodiscard]] bool moving(double t) const { return t < rest_at_; }
+  /// An object's value as an integer (signed where its type is), if it exists.
+  [[nodiscard]] std::optional<std::int64_t> value(std::uint16_t index, std::uint8_t sub) const;
+  /// Successful SDO writes, in order: (index, sub).
+  [[nodiscard]] const std::vector<std::pair<std::uint16_t, std::uint8_t>>& sdo_writes() const {
+    return writes_;
+  }
+  /// EMCY codes sent, in order.
+  [[nodiscard]] const std::vector<std::uint16_t>& emcy_sent() const { return emcy_sent_; }
+  [[nodiscard]] const Drive402Counts& counts() const { return counts_; }
+  [[nodiscard]] double counts_per_rad() const { return cpr_; }
+
+ private:
+  struct Entry {
+    std::uint8_t size = 0;  // bytes; 0: a string
+    bool writable = false;
+    bool mappable = false;
+    bool is_signed = false;
+    std::int64_t min = 0, max = 0;
+    std::vector<std::uint8_t> value;
+  };
+  enum class Motion : std::uint8_t { Rest, Move, Halt, QuickStop, FaultStop, Stop };
+  struct SetPoint {
+    std::int64_t target = 0;  // absolute counts
+  };
+
+  void build_dictionary();
+  void reset_communication(double t);
+  void add(std::uint16_t index, std::uint8_t sub, Entry e);
+  [[nodiscard]] std::uint32_t u32(std::uint16_t index, std::uint8_t sub = 0) const;
+  [[nodiscard]] std::int64_t integer(const Entry& e) const;
+  void set(std::uint16_t index, std::uint8_t sub, std::int64_t v);
+  [[nodiscard]] bool silent(double t) const;
+  void emit(double t, const can::Frame& f, std::vector<DriveFrame>& out);
+  void emcy(double t, std::uint16_t code, std::uint8_t reg, std::vector<DriveFrame>& out);
+
+  void on_nmt(double t, const can::Frame& f, std::vector<DriveFrame>& out);
+  void on_sdo(double t, const can::Frame& f, std::vector<DriveFrame>& out);
+  void on_rpdo(double t, const can::Frame& f, std::vector<DriveFrame>& out);
+  void on_sync(double t, std::vector<DriveFrame>& out);
+  /// 0: written; else the abort code.
+  std::uint32_t write(double t, std::uint32_t key, const std::vector<std::uint8_t>& data,
+                      std::vector<DriveFrame>& out);
+  std::uint32_t read(double t, std::uint32_t key, std::vector<std::uint8_t>& data);
+  void sdo_abort(double t, std::uint32_t key, std::uint32_t code, std::vector<DriveFrame>& out);
+
+  void on_controlword(double t, std::uint16_t c, std::vector<DriveFrame>& out);
+  void take_set_point(double t, std::uint16_t c);
+  void start_move(double t, std::int64_t target);
+  void stop_motion(double t, double decel_counts, Motion why);
+  void fault(double t, std::uint16_t code, std::vector<DriveFrame>& out);
+  void host_heartbeat_lost(double t, std::vector<DriveFrame>& out);
+  void at_rest(double t, std::vector<DriveFrame>& out);
+  void enter(cia402::State s);
+
+  void refresh(double t);
+  [[nodiscard]] bool tpdo_valid() const;
+  [[nodiscard]] bool event_driven() const;
+  void send_tpdo(double t, std::vector<DriveFrame>& out);
+  void tpdo_on_change(double t, std::vector<DriveFrame>& out);
+
+  Drive402Setup setup_;
+  Drive402Faults faults_;
+  double cpr_;
+  std::map<std::uint32_t, Entry> od_;
+  std::map<std::uint32_t, Entry> comm_defaults_;  // 0x1000..0x1FFF after a reset
+  double now_ = -std::numeric_limits<double>::infinity();
+  // NMT
+  canopen::NmtState nmt_ = canopen::NmtState::PreOperational;
+  bool booting_ = true;
+  double boot_at_ = 0;
+  double next_hb_ = std::numeric_limits<double>::infinity();
+  double host_last_hb_ = NAN;  // the consumer is armed by the first one
+  // SDO server
+  struct Transfer {
+    bool active = false;
+    bool upload = false;
+    std::uint32_t key = 0;
+    std::vector<std::uint8_t> buf;
+    std::size_t offset = 0;
+    std::uint32_t expected = 0;
+    bool size_known = false;
+    bool toggle = false;
+  } sdo_;
+  // CiA 402
+  cia402::State state_ = cia402::State::SwitchOnDisabled;
+  std::uint16_t cw_ = 0;
+  bool target_reached_ = true;
+  bool set_point_ack_ = false;
+  bool following_error_ = false;
+  TableMotion motion_;
+  Motion motion_kind_ = Motion::Rest;
+  double rest_at_ = -std::numeric_limits<double>::infinity();
+  std::int64_t demand_ = 0;  // counts the drive is headed for (or holds)
+  std::optional<SetPoint> buffered_;
+  // TPDO
+  double next_tpdo_ = std::numeric_limits<double>::infinity();
+  std::optional<std::uint16_t> last_sent_sw_;
+  std::optional<can::Frame> frozen_;
+  std::uint32_t sync_count_ = 0;
+  std::vector<std::pair<std::uint16_t, std::uint8_t>> writes_;
+  std::vector<std::uint16_t> emcy_sent_;
+  Drive402Counts counts_;
+};
+
+}  // namespace turncal::stand

@@ -1,0 +1,841 @@
+#include "turncal/drivers/virtual_drive402.hpp"
+
+#include <algorithm>
+
+namespace turncal::stand {
+
+using canopen::get_le;
+using canopen::put_le;
+using cia402::State;
+namespace ac = canopen::abort_code;
+namespace obj = cia402::obj;
+
+namespace {
+
+constexpr std::uint32_t key_of(std::uint16_t index, std::uint8_t sub) {
+  return static_cast<std::uint32_t>(index) << 8 | sub;
+}
+constexpr std::uint16_t index_of(std::uint32_t key) {
+  return static_cast<std::uint16_t>(key >> 8);
+}
+constexpr std::uint8_t sub_of(std::uint32_t key) {
+  return static_cast<std::uint8_t>(key & 0xFF);
+}
+
+constexpr double kTwoPi = 6.283185307179586;
+constexpr double kDeg = 0.017453292519943295;
+constexpr std::size_t kMaxString = 64;
+
+can::Frame frame8(std::uint32_t id) {
+  can::Frame f;
+  f.id = id;
+  f.len = 8;
+  return f;
+}
+
+}  // namespace
+
+VirtualDrive402::VirtualDrive402(const Drive402Setup& setup, const Drive402Faults& faults)
+    : setup_(setup),
+      faults_(faults),
+      cpr_(setup.counts_per_rev * setup.gear_ratio / kTwoPi),
+      motion_(setup.angle0_rad) {
+  build_dictionary();
+  booting_ = true;
+  boot_at_ = setup_.power_on_s + setup_.boot_delay_s;
+  demand_ = position_counts(setup_.power_on_s);
+}
+
+void VirtualDrive402::add(std::uint16_t index, std::uint8_t sub, Entry e) {
+  od_[key_of(index, sub)] = std::move(e);
+}
+
+void VirtualDrive402::build_dictionary() {
+  auto uns = [](std::uint8_t size, bool w, std::uint64_t v, bool map = false, std::int64_t lo = 0,
+                std::int64_t hi = -1) {
+    Entry e;
+    e.size = size;
+    e.writable = w;
+    e.mappable = map;
+    e.min = lo;
+    e.max = hi >= 0 ? hi : static_cast<std::int64_t>((std::uint64_t{1} << (8 * size)) - 1);
+    e.value = canopen::le_bytes(v, size);
+    return e;
+  };
+  auto sgn = [](std::uint8_t size, bool w, std::int64_t v, bool map, std::int64_t lo,
+                std::int64_t hi) {
+    Entry e;
+    e.size = size;
+    e.writable = w;
+    e.mappable = map;
+    e.is_signed = true;
+    e.min = lo;
+    e.max = hi;
+    e.value = canopen::le_bytes(static_cast<std::uint64_t>(v), size);
+    return e;
+  };
+  auto str = [](const std::string& s) {
+    Entry e;
+    e.value.assign(s.begin(), s.end());
+    return e;
+  };
+  const std::uint8_t node = setup_.node_id;
+  add(0x1000, 0, uns(4, false, 0x00020192));  // CiA 402, servo drive
+  add(0x1001, 0, uns(1, false, 0));
+  add(obj::kDeviceName, 0, str(setup_.device_name));
+  add(0x100A, 0, str("1.0"));
+  Entry label = str("");
+  label.writable = true;
+  add(0x2001, 0, label);  // a stand label, written and read by segmented SDO
+  add(obj::kConsumerHeartbeat, 0, uns(1, false, 1));
+  add(obj::kConsumerHeartbeat, 1, uns(4, true, 0));
+  add(obj::kProducerHeartbeat, 0, uns(2, true, setup_.producer_heartbeat_ms));
+  add(0x1018, 0, uns(1, false, 4));
+  add(0x1018, 1, uns(4, false, 0));
+  add(0x1018, 2, uns(4, false, 0x402));
+  add(0x1018, 3, uns(4, false, 1));
+  add(0x1018, 4, uns(4, false, 1));
+  const bool map = setup_.default_mapping;
+  add(obj::kRpdo1Comm, 0, uns(1, false, 2));
+  add(obj::kRpdo1Comm, 1, uns(4, true, canopen::kRpdo1Base + node));
+  add(obj::kRpdo1Comm, 2, uns(1, true, 0xFF));
+  add(obj::kRpdo1Map, 0, uns(1, true, map ? 2 : 0, false, 0, 8));
+  for (std::uint8_t i = 1; i <= 8; ++i) add(obj::kRpdo1Map, i, uns(4, true, 0));
+  add(obj::kTpdo1Comm, 0, uns(1, false, 5));
+  add(obj::kTpdo1Comm, 1, uns(4, true, canopen::kTpdo1Base + node));
+  add(obj::kTpdo1Comm, 2, uns(1, true, 0xFF));
+  add(obj::kTpdo1Comm, 3, uns(2, true, 0));
+  add(obj::kTpdo1Comm, 5, uns(2, true, setup_.tpdo_event_timer_ms));
+  add(obj::kTpdo1Map, 0, uns(1, true, map ? 2 : 0, false, 0, 8));
+  for (std::uint8_t i = 1; i <= 8; ++i) add(obj::kTpdo1Map, i, uns(4, true, 0));
+  // TPDO2: not valid and empty until a master maps it (velocity actual)
+  add(obj::kTpdo2Comm, 0, uns(1, false, 5));
+  add(obj::kTpdo2Comm, 1, uns(4, true, 0x80000000u | (canopen::kTpdo2Base + node)));
+  add(obj::kTpdo2Comm, 2, uns(1, true, 0xFF));
+  add(obj::kTpdo2Comm, 3, uns(2, true, 0));
+  add(obj::kTpdo2Comm, 5, uns(2, true, 0));
+  add(obj::kTpdo2Map, 0, uns(1, true, 0, false, 0, 8));
+  for (std::uint8_t i = 1; i <= 8; ++i) add(obj::kTpdo2Map, i, uns(4, true, 0));
+  if (map) {
+    set(obj::kRpdo1Map, 1, 0x60400010);
+    set(obj::kRpdo1Map, 2, 0x607A0020);
+    set(obj::kTpdo1Map, 1, 0x60410010);
+    set(obj::kTpdo1Map, 2, 0x60640020);
+  }
+  add(obj::kAbortConnectionOption, 0, sgn(2, true, 1, false, 0, 3));
+  add(obj::kErrorCode, 0, uns(2, false, 0));
+  add(obj::kControlword, 0, uns(2, true, 0, true));
+  add(obj::kStatusword, 0, uns(2, false, 0, true));
+  add(obj::kQuickStopOption, 0, sgn(2, true, 2, false, 0, 8));
+  add(obj::kModesOfOperation, 0, sgn(1, true, 0, false, -128, 127));
+  add(obj::kModesDisplay, 0, sgn(1, false, 0, false, -128, 127));
+  constexpr std::int64_t kS32Min = -2147483648LL, kS32Max = 2147483647LL;
+  add(obj::kPositionActual, 0, sgn(4, false, 0, true, kS32Min, kS32Max));
+  add(obj::kVelocityActual, 0, sgn(4, false, 0, true, kS32Min, kS32Max));
+  add(obj::kTargetPosition, 0, sgn(4, true, 0, true, kS32Min, kS32Max));
+  add(obj::kMaxProfileVelocity, 0, uns(4, true, setup_.max_profile_velocity));
+  auto counts = [&](double per_s) {
+    return static_cast<std::uint64_t>(std::max(1.0, std::round(per_s * cpr_)));
+  };
+  add(obj::kProfileVelocity, 0, uns(4, true, counts(10 * kDeg), false, 1));
+  add(obj::kProfileAcceleration, 0, uns(4, true, counts(10 * kDeg), false, 1));
+  add(obj::kProfileDeceleration, 0, uns(4, true, counts(10 * kDeg), false, 1));
+  add(obj::kQuickStopDeceleration, 0, uns(4, true, counts(90 * kDeg), false, 1));
+  for (const auto& [k, e] : od_)
+    if (index_of(k) < 0x2000) comm_defaults_[k] = e;
+}
+
+std::int64_t VirtualDrive402::integer(const Entry& e) const {
+  std::uint64_t raw = 0;
+  for (std::size_t i = 0; i < e.value.size() && i < 8; ++i)
+    raw |= static_cast<std::uint64_t>(e.value[i]) << (8 * i);
+  if (e.is_signed && e.size > 0 && e.size < 8) {
+    const std::uint64_t sign = std::uint64_t{1} << (8 * e.size - 1);
+    if ((raw & sign) != 0) raw |= ~((sign << 1) - 1);
+  }
+  return static_cast<std::int64_t>(raw);
+}
+
+std::uint32_t VirtualDrive402::u32(std::uint16_t index, std::uint8_t sub) const {
+  const auto it = od_.find(key_of(index, sub));
+  return it == od_.end() ? 0 : static_cast<std::uint32_t>(integer(it->second));
+}
+
+void VirtualDrive402::set(std::uint16_t index, std::uint8_t sub, std::int64_t v) {
+  Entry& e = od_.at(key_of(index, sub));
+  put_le(e.value, 0, e.size, static_cast<std::uint64_t>(v));
+}
+
+std::optional<std::int64_t> VirtualDrive402::value(std::uint16_t index, std::uint8_t sub) const {
+  const auto it = od_.find(key_of(index, sub));
+  if (it == od_.end() || it->second.size == 0) return std::nullopt;
+  return integer(it->second);
+}
+
+std::int64_t VirtualDrive402::position_counts(double t) const {
+  return std::llround(motion_.at(t).angle * cpr_);
+}
+
+std::uint16_t VirtualDrive402::statusword() const {
+  std::uint16_t s = cia402::state_bits(state_) | cia402::sw::kRemote;
+  if (state_ == State::ReadyToSwitchOn || state_ == State::SwitchedOn ||
+      state_ == State::OperationEnabled || state_ == State::QuickStopActive ||
+      state_ == State::FaultReactionActive)
+    s |= cia402::sw::kVoltageEnabled;
+  if (target_reached_ && (state_ == State::OperationEnabled || state_ == State::QuickStopActive))
+    s |= cia402::sw::kTargetReached;
+  if (set_point_ack_ && state_ == State::OperationEnabled) s |= cia402::sw::kSetPointAcknowledge;
+  if (following_error_) s |= cia402::sw::kFollowingError;
+  return s;
+}
+
+bool VirtualDrive402::silent(double t) const {
+  return t >= faults_.silent_at_s && t < faults_.silent_until_s;
+}
+
+void VirtualDrive402::emit(double t, const can::Frame& f, std::vector<DriveFrame>& out) {
+  if (!silent(t)) out.push_back({t, f});
+}
+
+void VirtualDrive402::emcy(double t, std::uint16_t code, std::uint8_t reg,
+                           std::vector<DriveFrame>& out) {
+  set(0x1001, 0, reg);
+  if (code != 0) set(obj::kErrorCode, 0, code);
+  emcy_sent_.push_back(code);
+  if (!booting_ && nmt_ != canopen::NmtState::Stopped)
+    emit(t, canopen::emcy_frame(setup_.node_id, code, reg), out);
+}
+
+void VirtualDrive402::reset_communication(double t) {
+  for (const auto& [k, e] : comm_defaults_) od_[k] = e;
+  booting_ = true;
+  boot_at_ = t + setup_.boot_delay_s;
+  next_hb_ = std::numeric_limits<double>::infinity();
+  host_last_hb_ = NAN;
+  sdo_ = Transfer{};
+  next_tpdo_ = std::numeric_limits<double>::infinity();
+  last_sent_sw_.reset();
+  sync_count_ = 0;
+  ++counts_.nmt_resets;
+}
+
+// ---- time ----
+
+void VirtualDrive402::advance(double t, std::vector<DriveFrame>& out) {
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  for (;;) {
+    double when = t;
+    int which = -1;
+    auto consider = [&](double at, int id) {
+      if (!std::isnan(at) && at <= when) {
+        when = at;
+        which = id;
+      }
+    };
+    if (booting_) consider(boot_at_, 0);
+    if (!booting_) consider(next_hb_, 1);
+    const std::uint32_t consumer = u32(obj::kConsumerHeartbeat, 1);
+    if ((consumer & 0xFFFF) != 0 && !std::isnan(host_last_hb_))
+      consider(host_last_hb_ + (consumer & 0xFFFF) / 1000.0, 2);
+    consider(faults_.fault_at_s, 3);
+    consider(faults_.following_error_at_s, 4);
+    if (motion_kind_ != Motion::Rest) consider(rest_at_, 5);
+    if (nmt_ == canopen::NmtState::Operational && !booting_) consider(next_tpdo_, 6);
+    const std::uint16_t hb_ms = static_cast<std::uint16_t>(u32(obj::kProducerHeartbeat));
+    switch (which) {
+      case 0:
+        booting_ = false;
+        nmt_ = canopen::NmtState::PreOperational;
+        emit(when, canopen::heartbeat_frame(setup_.node_id, canopen::NmtState::BootUp), out);
+        next_hb_ = hb_ms > 0 ? when + hb_ms / 1000.0 : kInf;
+        break;
+      case 1:
+        emit(when, canopen::heartbeat_frame(setup_.node_id, nmt_), out);
+        next_hb_ = hb_ms > 0 ? next_hb_ + hb_ms / 1000.0 : kInf;
+        break;
+      case 2:
+        host_heartbeat_lost(when, out);
+        break;
+      case 3:
+        faults_.fault_at_s = NAN;
+        fault(when, faults_.fault_code, out);
+        break;
+      case 4:
+        faults_.following_error_at_s = NAN;
+        if (state_ == State::OperationEnabled) {
+          following_error_ = true;
+          fault(when, 0x8611, out);
+        }
+        break;
+      case 5:
+        at_rest(when, out);
+        break;
+      case 6: {
+        send_tpdo(when, out);
+        const std::uint16_t timer = static_cast<std::uint16_t>(u32(obj::kTpdo1Comm, 5));
+        next_tpdo_ = event_driven() && timer > 0 ? when + timer / 1000.0 : kInf;
+        break;
+      }
+      default:
+        now_ = std::max(now_, t);
+        return;
+    }
+    now_ = std::max(now_, when);
+    tpdo_on_change(when, out);
+  }
+}
+
+void VirtualDrive402::receive(double t, const can::Frame& f, std::vector<DriveFrame>& out) {
+  advance(t, out);
+  if (silent(t) || f.extended || f.error || f.remote || f.fd) return;
+  const std::uint8_t node = setup_.node_id;
+  const std::uint32_t consumer = u32(obj::kConsumerHeartbeat, 1);
+  const std::uint32_t rpdo = u32(obj::kRpdo1Comm, 1);
+  if (f.id == canopen::kNmtId) {
+    on_nmt(t, f, out);
+  } else if (f.id == canopen::kSyncId) {
+    on_sync(t, out);
+  } else if (f.id == canopen::kSdoRxBase + node) {
+    on_sdo(t, f, out);
+  } else if ((rpdo & 0x80000000u) == 0 && f.id == (rpdo & 0x7FF)) {
+    on_rpdo(t, f, out);
+  } else if ((consumer & 0xFFFF) != 0 &&
+             f.id == canopen::kHeartbeatBase + ((consumer >> 16) & 0x7F)) {
+    if (f.len != 1) {
+      ++counts_.malformed;
+    } else {
+      ++counts_.host_heartbeats;
+      host_last_hb_ = t;
+    }
+  }
+  advance(t, out);  // what the frame made due at once
+  tpdo_on_change(t, out);
+}
+
+// ---- NMT, SYNC ----
+
+void VirtualDrive402::on_nmt(double t, const can::Frame& f, std::vector<DriveFrame>& out) {
+  if (f.len != 2) {
+    ++counts_.malformed;
+    return;
+  }
+  if (f.data[1] != 0 && f.data[1] != setup_.node_id) return;
+  if (booting_) return;
+  switch (static_cast<canopen::NmtCommand>(f.data[0])) {
+    case canopen::NmtCommand::Start:
+      nmt_ = canopen::NmtState::Operational;
+      sync_count_ = 0;
+      if (event_driven()) send_tpdo(t, out);
+      break;
+    case canopen::NmtCommand::Stop:
+      nmt_ = canopen::NmtState::Stopped;
+      break;
+    case canopen::NmtCommand::EnterPreOperational:
+      nmt_ = canopen::NmtState::PreOperational;
+      break;
+    case canopen::NmtCommand::ResetNode:
+      if (state_ == State::OperationEnabled || state_ == State::QuickStopActive)
+        stop_motion(t, u32(obj::kQuickStopDeceleration), Motion::Stop);
+      enter(State::SwitchOnDisabled);
+      reset_communication(t);
+      break;
+    case canopen::NmtCommand::ResetCommunication:
+      reset_communication(t);
+      break;
+    default:
+      ++counts_.malformed;
+      break;
+  }
+}
+
+void VirtualDrive402::on_sync(double t, std::vector<DriveFrame>& out) {
+  if (nmt_ != canopen::NmtState::Operational) return;
+  ++counts_.sync;
+  const std::uint32_t type = u32(obj::kTpdo1Comm, 2);
+  if (type >= 1 && type <= 240 && ++sync_count_ % type == 0) send_tpdo(t, out);
+}
+
+// ---- SDO server ----
+
+void VirtualDrive402::sdo_abort(double t, std::uint32_t key, std::uint32_t code,
+                                std::vector<DriveFrame>& out) {
+  can::Frame r = frame8(canopen::kSdoTxBase + setup_.node_id);
+  r.data[0] = 0x80;
+  put_le(r.data, 1, 2, index_of(key));
+  r.data[3] = sub_of(key);
+  put_le(r.data, 4, 4, code);
+  emit(t, r, out);
+  ++counts_.sdo_aborts;
+  sdo_.active = false;
+}
+
+std::uint32_t VirtualDrive402::read(double t, std::uint32_t key, std::vector<std::uint8_t>& data) {
+  refresh(t);
+  const auto it = od_.find(key);
+  if (it == od_.end()) {
+    const auto lo = od_.lower_bound(key & ~0xFFu);
+    return lo != od_.end() && index_of(lo->first) == index_of(key) ? ac::kNoSubindex
+                                                                   : ac::kNoObject;
+  }
+  data = it->second.value;
+  return 0;
+}
+
+std::uint32_t VirtualDrive402::write(double t, std::uint32_t key,
+                                     const std::vector<std::uint8_t>& data,
+                                     std::vector<DriveFrame>& out) {
+  const auto it = od_.find(key);
+  if (it == od_.end()) {
+    const auto lo = od_.lower_bound(key & ~0xFFu);
+    return lo != od_.end() && index_of(lo->first) == index_of(key) ? ac::kNoSubindex
+                                                                   : ac::kNoObject;
+  }
+  Entry& e = it->second;
+  if (!e.writable) return ac::kReadOnly;
+  if (e.size == 0) {  // a string
+    if (data.size() > kMaxString) return ac::kLengthHigh;
+    e.value = data;
+    writes_.emplace_back(index_of(key), sub_of(key));
+    return 0;
+  }
+  if (data.size() > e.size) return ac::kLengthHigh;
+  if (data.size() < e.size) return ac::kLengthLow;
+  Entry probe = e;
+  probe.value = data;
+  const std::int64_t v = integer(probe);
+  if (v < e.min) return ac::kValueLow;
+  if (v > e.max) return ac::kValueHigh;
+  const std::uint16_t index = index_of(key);
+  const std::uint8_t sub = sub_of(key);
+  if (index == obj::kModesOfOperation && v != 1) return ac::kValueRange;  // profile position only
+  if (index == obj::kProfileVelocity && v > u32(obj::kMaxProfileVelocity)) return ac::kValueHigh;
+  if (index == obj::kRpdo1Map || index == obj::kTpdo1Map || index == obj::kTpdo2Map) {
+    if (nmt_ == canopen::NmtState::Operational) return ac::kDeviceState;
+    const std::uint16_t comm = static_cast<std::uint16_t>(index - 0x200);  // 0x1A0n -> 0x180n
+    if ((u32(comm, 1) & 0x80000000u) == 0) return ac::kUnsupportedAccess;  // PDO valid
+    auto mappable = [&](std::uint32_t entry) {
+      const auto o = od_.find(entry >> 8 & 0xFFFFFF);
+      if (o == od_.end() || !o->second.mappable) return false;
+      if (o->second.size * 8u != (entry & 0xFF)) return false;
+      return index == obj::kRpdo1Map ? o->second.writable : true;
+    };
+    if (sub == 0) {
+      std::uint32_t bits = 0;
+      for (std::uint8_t i = 1; i <= v; ++i) {
+        const std::uint32_t entry = u32(index, i);
+        if (!mappable(entry)) return ac::kNotMappable;
+        bits += entry & 0xFF;
+      }
+      if (bits > 64) return ac::kPdoLength;
+    } else {
+      if (u32(index, 0) != 0) return ac::kUnsupportedAccess;
+      if (v != 0 && !mappable(static_cast<std::uint32_t>(v))) return ac::kNotMappable;
+    }
+  }
+  e.value = data;
+  writes_.emplace_back(index, sub);
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  if (index == obj::kProducerHeartbeat)
+    next_hb_ = v > 0 && !booting_ ? t + static_cast<double>(v) / 1000.0 : kInf;
+  if (index == obj::kTpdo1Comm) {
+    const std::uint32_t timer = u32(obj::kTpdo1Comm, 5);
+    next_tpdo_ = event_driven() && timer > 0 ? t + timer / 1000.0 : kInf;
+  }
+  if (index == obj::kModesOfOperation) set(obj::kModesDisplay, 0, v);
+  if (index == obj::kControlword) on_controlword(t, static_cast<std::uint16_t>(v), out);
+  return 0;
+}
+
+void VirtualDrive402::on_sdo(double t, const can::Frame& f, std::vector<DriveFrame>& out) {
+  if (f.len != 8) {
+    ++counts_.malformed;
+    return;
+  }
+  if (booting_ || nmt_ == canopen::NmtState::Stopped) return;
+  const std::uint8_t b0 = f.data[0];
+  const std::uint8_t ccs = b0 >> 5;
+  const std::uint32_t key =
+      key_of(static_cast<std::uint16_t>(get_le(f.payload(), 1, 2)), f.data[3]);
+  can::Frame r = frame8(canopen::kSdoTxBase + setup_.node_id);
+  auto respond_initiate = [&](std::uint8_t cmd) {
+    r.data[0] = cmd;
+    r.data[1] = f.data[1];
+    r.data[2] = f.data[2];
+    r.data[3] = f.data[3];
+  };
+  const auto refused = faults_.refuse_objects.find(key);
+  switch (ccs) {
+    case 4:  // abort from the client
+      sdo_.active = false;
+      return;
+    case 1: {  // initiate download
+      if (refused != faults_.refuse_objects.end()) return sdo_abort(t, key, refused->second, out);
+      if ((b0 & 0x02) != 0) {  // expedited
+        const std::size_t n = (b0 & 0x01) != 0 ? 4 - ((b0 >> 2) & 0x03) : 4;
+        const std::vector<std::uint8_t> data(f.data.begin() + 4,
+                                             f.data.begin() + 4 + static_cast<std::ptrdiff_t>(n));
+        if (const std::uint32_t code = write(t, key, data, out); code != 0)
+          return sdo_abort(t, key, code, out);
+        respond_initiate(0x60);
+        emit(t, r, out);
+        return;
+      }
+      const auto it = od_.find(key);
+      if (it == od_.end()) return sdo_abort(t, key, ac::kNoObject, out);
+      if (!it->second.writable) return sdo_abort(t, key, ac::kReadOnly, out);
+      sdo_ = Transfer{};
+      sdo_.active = true;
+      sdo_.key = key;
+      sdo_.size_known = (b0 & 0x01) != 0;
+      sdo_.expected = sdo_.size_known ? get_le(f.payload(), 4, 4) : 0;
+      respond_initiate(0x60);
+      emit(t, r, out);
+      return;
+    }
+    case 0: {  // download segment
+      if (!sdo_.active || sdo_.upload) return sdo_abort(t, key, ac::kCommandSpecifier, out);
+      const bool toggle = (b0 & 0x10) != 0;
+      if (toggle != sdo_.toggle) return sdo_abort(t, sdo_.key, ac::kToggle, out);
+      const std::size_t n = 7 - ((b0 >> 1) & 0x07);
+      sdo_.buf.insert(sdo_.buf.end(), f.data.begin() + 1,
+                      f.data.begin() + 1 + static_cast<std::ptrdiff_t>(n));
+      r.data[0] = static_cast<std::uint8_t>(0x20 | (toggle ? 0x10 : 0));
+      if ((b0 & 0x01) != 0) {
+        sdo_.active = false;
+        if (sdo_.size_known && sdo_.buf.size() != sdo_.expected)
+          return sdo_abort(t, sdo_.key, ac::kLength, out);
+        if (const std::uint32_t code = write(t, sdo_.key, sdo_.buf, out); code != 0)
+          return sdo_abort(t, sdo_.key, code, out);
+      }
+      sdo_.toggle = !sdo_.toggle;
+      emit(t, r, out);
+      return;
+    }
+    case 2: {  // initiate upload
+      if (refused != faults_.refuse_objects.end()) return sdo_abort(t, key, refused->second, out);
+      std::vector<std::uint8_t> data;
+      if (const std::uint32_t code = read(t, key, data); code != 0)
+        return sdo_abort(t, key, code, out);
+      if (!data.empty() && data.size() <= 4) {
+        respond_initiate(static_cast<std::uint8_t>(0x43 | ((4 - data.size()) << 2)));
+        std::copy(data.begin(), data.end(), r.data.begin() + 4);
+      } else {
+        respond_initiate(0x41);
+        put_le(r.data, 4, 4, data.size());
+        sdo_ = Transfer{};
+        sdo_.active = true;
+        sdo_.upload = true;
+        sdo_.key = key;
+        sdo_.buf = std::move(data);
+      }
+      emit(t, r, out);
+      return;
+    }
+    case 3: {  // upload segment
+      if (!sdo_.active || !sdo_.upload) return sdo_abort(t, key, ac::kCommandSpecifier, out);
+      const bool toggle = (b0 & 0x10) != 0;
+      if (toggle != sdo_.toggle) return sdo_abort(t, sdo_.key, ac::kToggle, out);
+      const std::size_t n = std::min<std::size_t>(7, sdo_.buf.size() - sdo_.offset);
+      const bool last = sdo_.offset + n == sdo_.buf.size();
+      r.data[0] = static_cast<std::uint8_t>((toggle ? 0x10 : 0) | ((7 - n) << 1) | (last ? 1 : 0));
+      std::copy_n(sdo_.buf.begin() + static_cast<std::ptrdiff_t>(sdo_.offset), n,
+                  r.data.begin() + 1);
+      sdo_.offset += n;
+      sdo_.toggle = !sdo_.toggle;
+      if (last) sdo_.active = false;
+      emit(t, r, out);
+      return;
+    }
+    default:
+      return sdo_abort(t, key, ac::kCommandSpecifier, out);
+  }
+}
+
+// ---- PDOs ----
+
+void VirtualDrive402::refresh(double t) {
+  set(obj::kStatusword, 0, statusword());
+  const std::int64_t pos = position_counts(t);
+  set(obj::kPositionActual, 0, static_cast<std::int32_t>(static_cast<std::uint32_t>(pos)));
+  set(obj::kVelocityActual, 0,
+      static_cast<std::int32_t>(
+          std::clamp<double>(std::round(motion_.at(t).rate * cpr_), -2147483648.0, 2147483647.0)));
+}
+
+bool VirtualDrive402::tpdo_valid() const {
+  return (u32(obj::kTpdo1Comm, 1) & 0x80000000u) == 0 && u32(obj::kTpdo1Map, 0) > 0;
+}
+
+bool VirtualDrive402::event_driven() const {
+  return u32(obj::kTpdo1Comm, 2) >= 0xFE;
+}
+
+void VirtualDrive402::send_tpdo(double t, std::vector<DriveFrame>& out) {
+  if (nmt_ != canopen::NmtState::Operational || booting_ || !tpdo_valid()) return;
+  const bool in_fault = state_ == State::Fault || state_ == State::FaultReactionActive;
+  if (in_fault && faults_.stale == StalePdo::Silent) return;
+  if (in_fault && faults_.stale == StalePdo::Frozen && frozen_) {
+    emit(t, *frozen_, out);
+    ++counts_.tpdo;
+    last_sent_sw_ = statusword();
+    return;
+  }
+  refresh(t);
+  can::Frame f;
+  f.id = u32(obj::kTpdo1Comm, 1) & 0x7FF;
+  const std::uint32_t n = u32(obj::kTpdo1Map, 0);
+  std::size_t at = 0;
+  for (std::uint8_t i = 1; i <= n; ++i) {
+    const std::uint32_t entry = u32(obj::kTpdo1Map, i);
+    const Entry& e = od_.at(entry >> 8 & 0xFFFFFF);
+    std::copy(e.value.begin(), e.value.end(), f.data.begin() + static_cast<std::ptrdiff_t>(at));
+    at += e.value.size();
+  }
+  f.len = static_cast<std::uint8_t>(at);
+  emit(t, f, out);
+  ++counts_.tpdo;
+  last_sent_sw_ = statusword();
+  if (!in_fault) frozen_ = f;
+  // TPDO2 goes with TPDO1, after it (its identifier loses arbitration)
+  const std::uint32_t cob2 = u32(obj::kTpdo2Comm, 1);
+  const std::uint32_t n2 = u32(obj::kTpdo2Map, 0);
+  if ((cob2 & 0x80000000u) == 0 && n2 > 0) {
+    can::Frame g;
+    g.id = cob2 & 0x7FF;
+    std::size_t at2 = 0;
+    for (std::uint8_t i = 1; i <= n2; ++i) {
+      const Entry& e = od_.at(u32(obj::kTpdo2Map, i) >> 8 & 0xFFFFFF);
+      std::copy(e.value.begin(), e.value.end(), g.data.begin() + static_cast<std::ptrdiff_t>(at2));
+      at2 += e.value.size();
+    }
+    g.len = static_cast<std::uint8_t>(at2);
+    emit(t, g, out);
+  }
+  const std::uint32_t timer = u32(obj::kTpdo1Comm, 5);
+  if (event_driven() && timer > 0) next_tpdo_ = t + timer / 1000.0;
+}
+
+void VirtualDrive402::tpdo_on_change(double t, std::vector<DriveFrame>& out) {
+  if (event_driven() && statusword() != last_sent_sw_) send_tpdo(t, out);
+}
+
+void VirtualDrive402::on_rpdo(double t, const can::Frame& f, std::vector<DriveFrame>& out) {
+  if (nmt_ != canopen::NmtState::Operational) return;
+  const std::uint32_t n = u32(obj::kRpdo1Map, 0);
+  if (n == 0) return;
+  std::size_t total = 0;
+  for (std::uint8_t i = 1; i <= n; ++i) total += (u32(obj::kRpdo1Map, i) & 0xFF) / 8;
+  if (f.len < total) {
+    ++counts_.malformed;
+    emcy(t, 0x8210, 0x11, out);  // PDO not processed due to length error
+    return;
+  }
+  ++counts_.rpdo;
+  std::size_t at = 0;
+  std::optional<std::uint16_t> control;
+  for (std::uint8_t i = 1; i <= n; ++i) {
+    const std::uint32_t entry = u32(obj::kRpdo1Map, i);
+    Entry& e = od_.at(entry >> 8 & 0xFFFFFF);
+    std::copy_n(f.data.begin() + static_cast<std::ptrdiff_t>(at), e.size, e.value.begin());
+    at += e.size;
+    if (entry >> 16 == obj::kControlword) control = static_cast<std::uint16_t>(integer(e));
+  }
+  if (control) on_controlword(t, *control, out);
+}
+
+// ---- CiA 402 ----
+
+void VirtualDrive402::enter(State s) {
+  if (s == State::QuickStopActive && state_ != State::QuickStopActive) ++counts_.quick_stops;
+  state_ = s;
+}
+
+void VirtualDrive402::stop_motion(double t, double decel_counts, Motion why) {
+  buffered_.reset();
+  rest_at_ = motion_.stop(t, std::max(decel_counts, 1.0) / cpr_);
+  motion_kind_ = why;
+  demand_ = std::llround(motion_.at(rest_at_).angle * cpr_);
+}
+
+void VirtualDrive402::start_move(double t, std::int64_t target) {
+  demand_ = target;
+  const double t0 = std::max(t, motion_.rest_time());
+  const double delta = static_cast<double>(target) / cpr_ - motion_.at(t0).angle;
+  const double v = u32(obj::kProfileVelocity) / cpr_;
+  const double a = u32(obj::kProfileAcceleration) / cpr_;
+  const double d = u32(obj::kProfileDeceleration) / cpr_;
+  motion_kind_ = Motion::Move;
+  const double dist = std::fabs(delta);
+  if (dist * cpr_ < 0.5) {  // already there
+    rest_at_ = t0;
+    return;
+  }
+  // A trapezoid with acceleration a and deceleration d: peak w (the
+  // profile velocity, or lower when the move is too short to reach it),
+  // decelerating from t_dec. TableMotion plans symmetric moves, so the
+  // move is planned at a past the target and cut at t_dec by a stop at d.
+  double w = v;
+  if (dist < v * v / (2 * a) + v * v / (2 * d)) w = std::sqrt(2 * dist * a * d / (a + d));
+  const double sign = delta < 0 ? -1.0 : 1.0;
+  motion_.move_by(t0, sign * (dist + w * w / (2 * a)), w, a);
+  const double cruise = std::max(0.0, (dist - w * w / (2 * a) - w * w / (2 * d)) / w);
+  rest_at_ = motion_.stop(t0 + w / a + cruise, d);
+}
+
+void VirtualDrive402::take_set_point(double t, std::uint16_t c) {
+  if (faults_.refuse_moves || set_point_ack_) return;
+  const auto target = static_cast<std::int32_t>(u32(obj::kTargetPosition));
+  const bool relative = (c & cia402::cw::kRelative) != 0;
+  const bool in_motion = motion_kind_ == Motion::Move && t < rest_at_;
+  const std::int64_t base = in_motion ? demand_ : position_counts(t);
+  const std::int64_t abs = relative ? base + target : target;
+  set_point_ack_ = true;
+  target_reached_ = false;
+  ++counts_.set_points;
+  if (in_motion && (c & cia402::cw::kChangeImmediately) == 0) {
+    buffered_ = SetPoint{abs};
+    return;
+  }
+  if (in_motion || (motion_kind_ != Motion::Rest && t < rest_at_))
+    stop_motion(t, u32(obj::kProfileDeceleration), Motion::Stop);
+  start_move(t, abs);
+}
+
+void VirtualDrive402::on_controlword(double t, std::uint16_t c, std::vector<DriveFrame>& out) {
+  namespace cw = cia402::cw;
+  const std::uint16_t prev = cw_;
+  cw_ = c;
+  set(obj::kControlword, 0, c);
+  const cia402::Command cmd = cia402::decode_command(c, prev);
+  using C = cia402::Command;
+  const State before = state_;
+  const std::uint32_t quick = u32(obj::kQuickStopDeceleration);
+  switch (state_) {
+    case State::SwitchOnDisabled:
+      if (cmd == C::Shutdown) enter(State::ReadyToSwitchOn);  // 2
+      break;
+    case State::ReadyToSwitchOn:
+      if (cmd == C::SwitchOn) enter(State::SwitchedOn);                                     // 3
+      if (cmd == C::EnableOperation) enter(State::OperationEnabled);                        // 3 + 4
+      if (cmd == C::DisableVoltage || cmd == C::QuickStop) enter(State::SwitchOnDisabled);  // 7
+      break;
+    case State::SwitchedOn:
+      if (cmd == C::EnableOperation) enter(State::OperationEnabled);                        // 4
+      if (cmd == C::Shutdown) enter(State::ReadyToSwitchOn);                                // 6
+      if (cmd == C::DisableVoltage || cmd == C::QuickStop) enter(State::SwitchOnDisabled);  // 10
+      break;
+    case State::OperationEnabled:
+      if (cmd == C::SwitchOn) {  // 5: disable operation
+        stop_motion(t, u32(obj::kProfileDeceleration), Motion::Stop);
+        enter(State::SwitchedOn);
+      } else if (cmd == C::Shutdown) {  // 8
+        stop_motion(t, quick, Motion::Stop);
+        enter(State::ReadyToSwitchOn);
+      } else if (cmd == C::DisableVoltage) {  // 9
+        stop_motion(t, quick, Motion::Stop);
+        enter(State::SwitchOnDisabled);
+      } else if (cmd == C::QuickStop) {  // 11
+        const auto option = static_cast<std::int16_t>(u32(obj::kQuickStopOption));
+        set_point_ack_ = false;
+        if (option == 0) {  // disable drive function
+          stop_motion(t, quick, Motion::Stop);
+          enter(State::SwitchOnDisabled);
+        } else {
+          const bool slow = option == 1 || option == 5;
+          stop_motion(t, slow ? u32(obj::kProfileDeceleration) : quick, Motion::QuickStop);
+          enter(State::QuickStopActive);
+        }
+      }
+      break;
+    case State::QuickStopActive:
+      if (cmd == C::DisableVoltage) enter(State::SwitchOnDisabled);  // 12
+      if (cmd == C::EnableOperation && u32(obj::kQuickStopOption) >= 5 && t >= rest_at_)
+        enter(State::OperationEnabled);  // 16
+      break;
+    case State::Fault:
+      if (cmd == C::FaultReset && faults_.resets_ignored > 0) {
+        --faults_.resets_ignored;
+      } else if (cmd == C::FaultReset) {  // 15
+        enter(State::SwitchOnDisabled);
+        following_error_ = false;
+        set(obj::kErrorCode, 0, 0);
+        ++counts_.fault_resets;
+        emcy(t, 0x0000, 0, out);
+      }
+      break;
+    default:
+      break;
+  }
+  if (state_ != State::OperationEnabled) return;
+  if (before != State::OperationEnabled) {
+    demand_ = position_counts(t);
+    target_reached_ = true;
+    set_point_ack_ = false;
+  }
+  if (u32(obj::kModesOfOperation) != 1) return;  // profile position only
+  const bool halt = (c & cw::kHalt) != 0;
+  if (halt && (prev & cw::kHalt) == 0) stop_motion(t, u32(obj::kProfileDeceleration), Motion::Halt);
+  if ((c & cw::kNewSetPoint) != 0 && (prev & cw::kNewSetPoint) == 0 && !halt) take_set_point(t, c);
+  if ((c & cw::kNewSetPoint) == 0) set_point_ack_ = false;
+}
+
+void VirtualDrive402::fault(double t, std::uint16_t code, std::vector<DriveFrame>& out) {
+  if (state_ == State::Fault || state_ == State::FaultReactionActive) return;
+  emcy(t, code, static_cast<std::uint8_t>(code == 0x8130 ? 0x11 : 0x01), out);
+  set_point_ack_ = false;
+  enter(State::FaultReactionActive);
+  stop_motion(t, u32(obj::kQuickStopDeceleration), Motion::FaultStop);
+}
+
+void VirtualDrive402::host_heartbeat_lost(double t, std::vector<DriveFrame>& out) {
+  ++counts_.host_heartbeat_lost;
+  host_last_hb_ = NAN;  // watched again from the next heartbeat
+  const auto option = static_cast<std::int16_t>(u32(obj::kAbortConnectionOption));
+  if (option == 1) return fault(t, 0x8130, out);
+  emcy(t, 0x8130, 0x11, out);
+  const std::uint32_t quick = u32(obj::kQuickStopDeceleration);
+  if (option == 2 && (state_ == State::ReadyToSwitchOn || state_ == State::SwitchedOn ||
+                      state_ == State::OperationEnabled || state_ == State::QuickStopActive)) {
+    stop_motion(t, quick, Motion::Stop);
+    enter(State::SwitchOnDisabled);
+  } else if (option == 3 && state_ == State::OperationEnabled) {
+    // the quick stop command, as from the controlword
+    const std::uint16_t c = cw_ & static_cast<std::uint16_t>(~cia402::cw::kQuickStop);
+    on_controlword(t, c, out);
+  }
+}
+
+void VirtualDrive402::at_rest(double t, std::vector<DriveFrame>& out) {
+  (void)out;
+  const Motion kind = motion_kind_;
+  motion_kind_ = Motion::Rest;
+  switch (kind) {
+    case Motion::Move:
+      if (buffered_) {
+        const std::int64_t next = buffered_->target;
+        buffered_.reset();
+        start_move(t, next);
+      } else {
+        target_reached_ = true;
+      }
+      break;
+    case Motion::Halt:
+      target_reached_ = true;
+      break;
+    case Motion::QuickStop: {
+      target_reached_ = true;
+      const auto option = static_cast<std::int16_t>(u32(obj::kQuickStopOption));
+      if (state_ == State::QuickStopActive && option >= 1 && option <= 4)
+        enter(State::SwitchOnDisabled);
+      break;
+    }
+    case Motion::FaultStop:
+      if (state_ == State::FaultReactionActive) enter(State::Fault);  // 14
+      break;
+    case Motion::Stop:
+    case Motion::Rest:
+      break;
+  }
+}
+
+}  // namespace turncal::stand

@@ -1,0 +1,1067 @@
+#include "turncal/drivers/cia402.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cstdio>
+#include <limits>
+#include <utility>
+
+namespace turncal::cia402 {
+
+using canopen::get_le;
+using canopen::le_bytes;
+using canopen::put_le;
+
+namespace {
+
+std::string hex(std::uint32_t v, int digits) {
+  char buf[16];
+  std::snprintf(buf, sizeof buf, "0x%0*X", digits, v);
+  return buf;
+}
+
+std::string num(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.6g", v);
+  return buf;
+}
+
+constexpr double kRadToDeg = 57.29577951308232;
+
+/// A physical value in counts (rounded), or an error when it is not a
+/// positive u32: never clamped.
+Result<std::uint32_t> to_u32_counts(double value, double counts_per_unit, const char* what,
+                                    std::uint16_t index, const char* unit) {
+  const double c = std::round(value * counts_per_unit);
+  if (!std::isfinite(c) || c < 1 || c > 4294967295.0)
+    return make_error(std::string(what) + " " + num(value) + " " + unit + " is " + num(c) +
+                      " counts, outside the drive's u32 range 1 to 4294967295 (" + hex(index, 4) +
+                      ")");
+  return static_cast<std::uint32_t>(c);
+}
+
+Status field_in(const PdoField& f, std::uint8_t size, std::uint8_t length, const char* what) {
+  if (!f.present()) return make_error(std::string("PDO layout: no ") + what);
+  if (f.length != length)
+    return make_error(std::string("PDO layout: ") + what + " of " + std::to_string(f.length) +
+                      " bytes (" + std::to_string(length) + " expected)");
+  if (f.offset + f.length > size)
+    return make_error(std::string("PDO layout: ") + what + " at byte " + std::to_string(f.offset) +
+                      " runs past the payload of " + std::to_string(size) + " bytes");
+  return Ok{};
+}
+
+bool overlap(const PdoField& a, const PdoField& b) {
+  return a.present() && b.present() && a.offset < b.offset + b.length &&
+         b.offset < a.offset + a.length;
+}
+
+Result<PdoField> field_from_signal(const can::Message& msg, std::string_view name,
+                                   std::uint32_t bits) {
+  const can::Signal* s = msg.find_signal(name);
+  if (s == nullptr)
+    return make_error("DBC message " + msg.name + " has no signal " + std::string(name));
+  const std::string who = msg.name + "." + s->name;
+  if (s->order != can::ByteOrder::LittleEndian)
+    return make_error(who + ": a PDO carries its objects little-endian (@1)");
+  if (s->start_bit % 8 != 0) return make_error(who + ": not byte aligned");
+  if (s->length != bits)
+    return make_error(who + ": " + std::to_string(s->length) + " bits, the object has " +
+                      std::to_string(bits));
+  if (s->type != can::ValueType::Integer || s->factor != 1 || s->offset != 0 ||
+      s->mux != can::MuxRole::None)
+    return make_error(who + ": must be the object's raw integer (factor 1, offset 0)");
+  return PdoField{static_cast<std::uint8_t>(s->start_bit / 8), static_cast<std::uint8_t>(bits / 8)};
+}
+
+Status message_fits(const can::Message& msg) {
+  if (msg.extended || msg.id > 0x7FF)
+    return make_error("DBC message " + msg.name + ": a PDO has an 11-bit identifier");
+  if (msg.size > 8) return make_error("DBC message " + msg.name + ": a PDO has at most 8 bytes");
+  return Ok{};
+}
+
+struct MapEntry {
+  PdoField field;
+  std::uint16_t index;
+};
+
+Result<std::vector<std::uint32_t>> mapping_of(std::vector<MapEntry> entries, std::uint8_t size) {
+  std::sort(entries.begin(), entries.end(),
+            [](const MapEntry& a, const MapEntry& b) { return a.field.offset < b.field.offset; });
+  std::vector<std::uint32_t> out;
+  std::uint32_t at = 0;
+  for (const MapEntry& e : entries) {
+    if (e.field.offset != at)
+      return make_error("PDO layout: a gap at byte " + std::to_string(at) +
+                        " cannot be written as a mapping");
+    out.push_back(static_cast<std::uint32_t>(e.index) << 16 | (8u * e.field.length));
+    at += e.field.length;
+  }
+  if (at != size)
+    return make_error("PDO layout: the objects fill " + std::to_string(at) + " of " +
+                      std::to_string(size) + " bytes");
+  return out;
+}
+
+}  // namespace
+
+const char* object_name(std::uint16_t index) {
+  switch (index) {
+    case obj::kAbortConnectionOption:
+      return "abort connection option code";
+    case obj::kErrorCode:
+      return "error code";
+    case obj::kControlword:
+      return "controlword";
+    case obj::kStatusword:
+      return "statusword";
+    case obj::kQuickStopOption:
+      return "quick stop option code";
+    case obj::kModesOfOperation:
+      return "modes of operation";
+    case obj::kModesDisplay:
+      return "modes of operation display";
+    case obj::kPositionActual:
+      return "position actual value";
+    case obj::kVelocityActual:
+      return "velocity actual value";
+    case obj::kTargetPosition:
+      return "target position";
+    case obj::kMaxProfileVelocity:
+      return "max profile velocity";
+    case obj::kProfileVelocity:
+      return "profile velocity";
+    case obj::kProfileAcceleration:
+      return "profile acceleration";
+    case obj::kProfileDeceleration:
+      return "profile deceleration";
+    case obj::kQuickStopDeceleration:
+      return "quick stop deceleration";
+    case obj::kDeviceName:
+      return "manufacturer device name";
+    case obj::kConsumerHeartbeat:
+      return "consumer heartbeat time";
+    case obj::kProducerHeartbeat:
+      return "producer heartbeat time";
+    case obj::kRpdo1Comm:
+      return "RPDO1 communication parameter";
+    case obj::kRpdo1Map:
+      return "RPDO1 mapping";
+    case obj::kTpdo1Comm:
+      return "TPDO1 communication parameter";
+    case obj::kTpdo1Map:
+      return "TPDO1 mapping";
+    case obj::kTpdo2Comm:
+      return "TPDO2 communication parameter";
+    case obj::kTpdo2Map:
+      return "TPDO2 mapping";
+    default:
+      return nullptr;
+  }
+}
+
+const char* to_string(State s) {
+  switch (s) {
+    case State::NotReadyToSwitchOn:
+      return "not ready to switch on";
+    case State::SwitchOnDisabled:
+      return "switch on disabled";
+    case State::ReadyToSwitchOn:
+      return "ready to switch on";
+    case State::SwitchedOn:
+      return "switched on";
+    case State::OperationEnabled:
+      return "operation enabled";
+    case State::QuickStopActive:
+      return "quick stop active";
+    case State::FaultReactionActive:
+      return "fault reaction active";
+    case State::Fault:
+      return "fault";
+    case State::Unknown:
+      break;
+  }
+  return "unknown";
+}
+
+// CiA 402, statusword coding of the states: masks 0x4F and 0x6F.
+State decode_state(std::uint16_t s) {
+  struct Row {
+    std::uint16_t mask, value;
+    State state;
+  };
+  static constexpr std::array<Row, 8> kTable{{
+      {0x4F, 0x00, State::NotReadyToSwitchOn},
+      {0x4F, 0x40, State::SwitchOnDisabled},
+      {0x6F, 0x21, State::ReadyToSwitchOn},
+      {0x6F, 0x23, State::SwitchedOn},
+      {0x6F, 0x27, State::OperationEnabled},
+      {0x6F, 0x07, State::QuickStopActive},
+      {0x4F, 0x0F, State::FaultReactionActive},
+      {0x4F, 0x08, State::Fault},
+  }};
+  for (const Row& r : kTable)
+    if ((s & r.mask) == r.value) return r.state;
+  return State::Unknown;
+}
+
+std::uint16_t state_bits(State s) {
+  switch (s) {
+    case State::NotReadyToSwitchOn:
+      return 0x00;
+    case State::SwitchOnDisabled:
+      return 0x40;
+    case State::ReadyToSwitchOn:
+      return 0x21;
+    case State::SwitchedOn:
+      return 0x23;
+    case State::OperationEnabled:
+      return 0x27;
+    case State::QuickStopActive:
+      return 0x07;
+    case State::FaultReactionActive:
+      return 0x0F;
+    case State::Fault:
+      return 0x08;
+    case State::Unknown:
+      break;
+  }
+  return 0x00;
+}
+
+const char* to_string(Command c) {
+  switch (c) {
+    case Command::Shutdown:
+      return "shutdown";
+    case Command::SwitchOn:
+      return "switch on";
+    case Command::EnableOperation:
+      return "enable operation";
+    case Command::DisableVoltage:
+      return "disable voltage";
+    case Command::QuickStop:
+      return "quick stop";
+    case Command::FaultReset:
+      return "fault reset";
+    case Command::None:
+      break;
+  }
+  return "none";
+}
+
+// CiA 402, command coding (bits 7, 3, 2, 1, 0):
+//   shutdown          0 x 1 1 0      switch on         0 0 1 1 1
+//   disable voltage   0 x x 0 x      quick stop        0 x 0 1 x
+//   enable operation  0 1 1 1 1      fault reset       0->1 x x x x
+Command decode_command(std::uint16_t c, std::uint16_t previous) {
+  if ((c & cw::kFaultReset) != 0)
+    return (previous & cw::kFaultReset) == 0 ? Command::FaultReset : Command::None;
+  if ((c & cw::kEnableVoltage) == 0) return Command::DisableVoltage;
+  if ((c & cw::kQuickStop) == 0) return Command::QuickStop;
+  if ((c & cw::kSwitchOn) == 0) return Command::Shutdown;
+  return (c & cw::kEnableOperation) != 0 ? Command::EnableOperation : Command::SwitchOn;
+}
+
+// ---- layouts ----
+
+RpdoLayout RpdoLayout::defaults(std::uint8_t node) {
+  RpdoLayout l;
+  l.cob_id = canopen::kRpdo1Base + node;
+  return l;
+}
+
+Result<RpdoLayout> RpdoLayout::from_dbc(const can::Message& msg, std::string_view controlword,
+                                        std::string_view target_position) {
+  TURNCAL_TRY(message_fits(msg));
+  RpdoLayout l;
+  l.cob_id = msg.id;
+  l.size = static_cast<std::uint8_t>(msg.size);
+  TURNCAL_ASSIGN(c, field_from_signal(msg, controlword, 16));
+  TURNCAL_ASSIGN(t, field_from_signal(msg, target_position, 32));
+  l.controlword = c;
+  l.target_position = t;
+  TURNCAL_TRY(l.check());
+  return l;
+}
+
+Status RpdoLayout::check() const {
+  if (cob_id == 0 || cob_id > 0x7FF) return make_error("RPDO layout: COB-ID " + hex(cob_id, 3));
+  if (size > 8) return make_error("RPDO layout: more than 8 bytes");
+  TURNCAL_TRY(field_in(controlword, size, 2, "controlword"));
+  TURNCAL_TRY(field_in(target_position, size, 4, "target position"));
+  if (overlap(controlword, target_position))
+    return make_error("RPDO layout: controlword and target position overlap");
+  return Ok{};
+}
+
+Result<std::vector<std::uint32_t>> RpdoLayout::mapping() const {
+  TURNCAL_TRY(check());
+  return mapping_of({{controlword, obj::kControlword}, {target_position, obj::kTargetPosition}},
+                    size);
+}
+
+TpdoLayout TpdoLayout::defaults(std::uint8_t node) {
+  TpdoLayout l;
+  l.cob_id = canopen::kTpdo1Base + node;
+  return l;
+}
+
+Result<TpdoLayout> TpdoLayout::from_dbc(const can::Message& msg, std::string_view statusword,
+                                        std::string_view position_actual) {
+  TURNCAL_TRY(message_fits(msg));
+  TpdoLayout l;
+  l.cob_id = msg.id;
+  l.size = static_cast<std::uint8_t>(msg.size);
+  TURNCAL_ASSIGN(s, field_from_signal(msg, statusword, 16));
+  TURNCAL_ASSIGN(p, field_from_signal(msg, position_actual, 32));
+  l.statusword = s;
+  l.position_actual = p;
+  TURNCAL_TRY(l.check());
+  return l;
+}
+
+Status TpdoLayout::check() const {
+  if (cob_id == 0 || cob_id > 0x7FF) return make_error("TPDO layout: COB-ID " + hex(cob_id, 3));
+  if (size > 8) return make_error("TPDO layout: more than 8 bytes");
+  TURNCAL_TRY(field_in(statusword, size, 2, "statusword"));
+  TURNCAL_TRY(field_in(position_actual, size, 4, "position actual"));
+  if (overlap(statusword, position_actual))
+    return make_error("TPDO layout: statusword and position actual overlap");
+  return Ok{};
+}
+
+Result<std::vector<std::uint32_t>> TpdoLayout::mapping() const {
+  TURNCAL_TRY(check());
+  return mapping_of({{statusword, obj::kStatusword}, {position_actual, obj::kPositionActual}},
+                    size);
+}
+
+VelocityPdoLayout VelocityPdoLayout::defaults(std::uint8_t node) {
+  VelocityPdoLayout l;
+  l.cob_id = canopen::kTpdo2Base + node;
+  return l;
+}
+
+Result<VelocityPdoLayout> VelocityPdoLayout::from_dbc(const can::Message& msg,
+                                                      std::string_view velocity_actual) {
+  TURNCAL_TRY(message_fits(msg));
+  VelocityPdoLayout l;
+  l.cob_id = msg.id;
+  l.size = static_cast<std::uint8_t>(msg.size);
+  TURNCAL_ASSIGN(v, field_from_signal(msg, velocity_actual, 32));
+  l.velocity_actual = v;
+  TURNCAL_TRY(l.check());
+  return l;
+}
+
+Status VelocityPdoLayout::check() const {
+  if (cob_id == 0 || cob_id > 0x7FF) return make_error("TPDO2 layout: COB-ID " + hex(cob_id, 3));
+  if (size > 8) return make_error("TPDO2 layout: more than 8 bytes");
+  return field_in(velocity_actual, size, 4, "velocity actual");
+}
+
+Result<std::vector<std::uint32_t>> VelocityPdoLayout::mapping() const {
+  TURNCAL_TRY(check());
+  return mapping_of({{velocity_actual, obj::kVelocityActual}}, size);
+}
+
+// ---- settings ----
+
+Status MasterSettings::check() const {
+  if (!canopen::valid_node(node_id))
+    return make_error("drive node id " + std::to_string(node_id) + " is not 1..127");
+  if (!canopen::valid_node(host_node_id) || host_node_id == node_id)
+    return make_error("host node id " + std::to_string(host_node_id) +
+                      " is not 1..127 or is the drive's");
+  auto positive = [](double v) { return std::isfinite(v) && v > 0; };
+  if (!positive(counts_per_rev) || !positive(gear_ratio))
+    return make_error("counts per revolution and gear ratio must be positive");
+  if (!positive(host_heartbeat_period_s) || !positive(drive_heartbeat_period_s) ||
+      !positive(sdo_timeout_s) || !positive(boot_timeout_s))
+    return make_error("heartbeat periods and timeouts must be positive");
+  if (!(host_heartbeat_timeout_s > host_heartbeat_period_s))
+    return make_error("the host heartbeat timeout must exceed its period");
+  if (!(drive_heartbeat_timeout_s > drive_heartbeat_period_s))
+    return make_error("the drive heartbeat timeout must exceed its period");
+  const double host_ms = std::round(host_heartbeat_timeout_s * 1000);
+  const double drive_ms = std::round(drive_heartbeat_period_s * 1000);
+  if (host_ms > 65535 || drive_ms < 1 || drive_ms > 65535)
+    return make_error("heartbeat times must be 1 to 65535 ms (0x1016, 0x1017)");
+  if (!(sync_period_s >= 0) || !std::isfinite(sync_period_s))
+    return make_error("SYNC period must be 0 (none) or positive");
+  const double cpr = counts_per_rad();
+  const double per_deg = cpr / kRadToDeg;
+  TURNCAL_TRY(to_u32_counts(profile_velocity_rps * kRadToDeg, per_deg, "profile velocity",
+                            obj::kProfileVelocity, "deg/s"));
+  TURNCAL_TRY(to_u32_counts(profile_acceleration_rps2 * kRadToDeg, per_deg, "profile acceleration",
+                            obj::kProfileAcceleration, "deg/s^2"));
+  TURNCAL_TRY(to_u32_counts(profile_deceleration_rps2 * kRadToDeg, per_deg, "profile deceleration",
+                            obj::kProfileDeceleration, "deg/s^2"));
+  TURNCAL_TRY(to_u32_counts(quick_stop_deceleration_rps2 * kRadToDeg, per_deg,
+                            "quick stop deceleration", obj::kQuickStopDeceleration, "deg/s^2"));
+  TURNCAL_TRY(rpdo_layout().check());
+  TURNCAL_TRY(tpdo_layout().check());
+  if (velocity_pdo) {
+    TURNCAL_TRY(velocity_layout().check());
+    const std::uint32_t ids[] = {rpdo_layout().cob_id, tpdo_layout().cob_id,
+                                 velocity_layout().cob_id};
+    if (ids[2] == ids[0] || ids[2] == ids[1])
+      return make_error("TPDO2's COB-ID " + hex(ids[2], 3) + " is another PDO's");
+    if (configure_mapping) TURNCAL_TRY(velocity_layout().mapping());
+  }
+  if (configure_mapping) {
+    TURNCAL_TRY(rpdo_layout().mapping());
+    TURNCAL_TRY(tpdo_layout().mapping());
+    const double ms = std::round(tpdo_event_timer_s * 1000);
+    if (sync_period_s == 0 && !(ms >= 1 && ms <= 65535))
+      return make_error("TPDO event timer must be 1 to 65535 ms (0x1800:05)");
+  }
+  return Ok{};
+}
+
+const char* to_string(CommPhase p) {
+  switch (p) {
+    case CommPhase::Idle:
+      return "idle";
+    case CommPhase::WaitBootUp:
+      return "waiting for boot-up";
+    case CommPhase::Configuring:
+      return "configuring";
+    case CommPhase::Running:
+      return "running";
+    case CommPhase::Failed:
+      return "configuration failed";
+  }
+  return "unknown";
+}
+
+// ---- the master ----
+
+Master::Master(MasterSettings s)
+    : s_(std::move(s)),
+      rpdo_(s_.rpdo_layout()),
+      tpdo_(s_.tpdo_layout()),
+      tpdo2_(s_.velocity_layout()),
+      cpr_(s_.counts_per_rad()),
+      sdo_(s_.node_id, s_.sdo_timeout_s) {
+  if (const Status ok = s_.check(); !ok) invalid_ = ok.error().message;
+}
+
+Result<std::unique_ptr<Master>> Master::create(MasterSettings s) {
+  TURNCAL_TRY(s.check());
+  return std::make_unique<Master>(std::move(s));
+}
+
+void Master::start(double now_s, std::vector<can::Frame>& out) {
+  now_ = now_s;
+  if (!invalid_.empty()) {  // nothing goes to the drive
+    phase_ = CommPhase::Failed;
+    latch(FaultCode::Configuration, "invalid settings: " + invalid_);
+    return;
+  }
+  host_hb_on_ = true;
+  next_host_hb_ = now_s;
+  next_sync_ = now_s;
+  reset_comm(now_s, out);
+  tick(now_s, out);
+}
+
+void Master::reset_comm(double now_s, std::vector<can::Frame>& out) {
+  // the configuration's and a waiting move's transfers end here: their
+  // callbacks see a stale generation or no move waiting, and do nothing
+  ++config_generation_;
+  move_ = MoveStep::None;
+  sdo_.cancel_all(out);
+  out.push_back(canopen::nmt_frame(canopen::NmtCommand::ResetCommunication, s_.node_id));
+  ++counts_.nmt_resets;
+  phase_ = CommPhase::WaitBootUp;
+  boot_deadline_ = now_s + s_.boot_timeout_s;
+  drive_seen_operational_ = false;
+  drive_hb_lost_ = false;
+  configured_mapping_ = false;
+  sw_.reset();
+  state_ = State::Unknown;
+  cw_sent_ = false;
+}
+
+void Master::configure(double now_s, std::vector<can::Frame>& out) {
+  phase_ = CommPhase::Configuring;
+  const std::uint64_t gen = ++config_generation_;
+  struct Step {
+    std::uint16_t index;
+    std::uint8_t sub;
+    std::vector<std::uint8_t> data;
+  };
+  const double per_deg = cpr_ / kRadToDeg;
+  auto u32 = [&](double v_rad, const char* what, std::uint16_t index) {
+    // the constructor's check() has proved these fit (start() and
+    // command() go no further when it failed)
+    return to_u32_counts(v_rad * kRadToDeg, per_deg, what, index, "deg").value();
+  };
+  std::vector<Step> steps;
+  steps.push_back({obj::kModesOfOperation, 0, le_bytes(1, 1)});  // profile position
+  const std::uint32_t vel = u32(s_.profile_velocity_rps, "v", obj::kProfileVelocity);
+  steps.push_back({obj::kProfileVelocity, 0, le_bytes(vel, 4)});
+  steps.push_back({obj::kProfileAcceleration, 0,
+                   le_bytes(u32(s_.profile_acceleration_rps2, "a", obj::kProfileAcceleration), 4)});
+  steps.push_back({obj::kProfileDeceleration, 0,
+                   le_bytes(u32(s_.profile_deceleration_rps2, "d", obj::kProfileDeceleration), 4)});
+  steps.push_back(
+      {obj::kQuickStopDeceleration, 0,
+       le_bytes(u32(s_.quick_stop_deceleration_rps2, "q", obj::kQuickStopDeceleration), 4)});
+  steps.push_back(
+      {obj::kQuickStopOption, 0, le_bytes(static_cast<std::uint16_t>(s_.quick_stop_option), 2)});
+  steps.push_back({obj::kAbortConnectionOption, 0,
+                   le_bytes(static_cast<std::uint16_t>(s_.abort_connection_option), 2)});
+  const auto host_ms = static_cast<std::uint32_t>(std::round(s_.host_heartbeat_timeout_s * 1000));
+  steps.push_back({obj::kConsumerHeartbeat, 1,
+                   le_bytes(static_cast<std::uint32_t>(s_.host_node_id) << 16 | host_ms, 4)});
+  const auto drive_ms = static_cast<std::uint32_t>(std::round(s_.drive_heartbeat_period_s * 1000));
+  steps.push_back({obj::kProducerHeartbeat, 0, le_bytes(drive_ms, 2)});
+  auto pdo = [&](std::uint16_t comm, std::uint16_t map, std::uint32_t cob,
+                 const std::vector<std::uint32_t>& entries, bool tpdo) {
+    steps.push_back({comm, 1, le_bytes(cob | 0x80000000u, 4)});  // PDO not valid
+    steps.push_back({map, 0, le_bytes(0, 1)});
+    for (std::size_t i = 0; i < entries.size(); ++i)
+      steps.push_back({map, static_cast<std::uint8_t>(i + 1), le_bytes(entries[i], 4)});
+    steps.push_back({map, 0, le_bytes(entries.size(), 1)});
+    if (tpdo) {
+      const bool sync = s_.sync_period_s > 0;
+      steps.push_back({comm, 2, le_bytes(sync ? 1 : 0xFF, 1)});
+      if (!sync)
+        steps.push_back(
+            {comm, 5,
+             le_bytes(static_cast<std::uint32_t>(std::round(s_.tpdo_event_timer_s * 1000)), 2)});
+    } else {
+      steps.push_back({comm, 2, le_bytes(0xFF, 1)});
+    }
+    steps.push_back({comm, 1, le_bytes(cob, 4)});  // valid again
+  };
+  if (s_.configure_mapping) {
+    pdo(obj::kRpdo1Comm, obj::kRpdo1Map, rpdo_.cob_id, rpdo_.mapping().value(), false);
+    pdo(obj::kTpdo1Comm, obj::kTpdo1Map, tpdo_.cob_id, tpdo_.mapping().value(), true);
+    if (s_.velocity_pdo)
+      pdo(obj::kTpdo2Comm, obj::kTpdo2Map, tpdo2_.cob_id, tpdo2_.mapping().value(), true);
+  } else if (s_.sync_period_s > 0) {
+    steps.push_back({obj::kTpdo1Comm, 2, le_bytes(1, 1)});
+  }
+  const std::size_t n = steps.size();
+  for (std::size_t i = 0; i < n; ++i) {
+    const bool last = i + 1 == n;
+    sdo_.download(steps[i].index, steps[i].sub, std::move(steps[i].data),
+                  [this, gen, last, vel](const canopen::SdoResult& r) {
+                    if (gen != config_generation_) return;
+                    if (!r.ok()) {
+                      sdo_.drop_queued();
+                      ++config_generation_;
+                      phase_ = CommPhase::Failed;
+                      const char* name = object_name(r.index);
+                      latch(FaultCode::Configuration,
+                            "SDO abort during configuration: " + r.describe() +
+                                (name != nullptr ? std::string(" [") + name + "]" : ""),
+                            true);
+                      return;
+                    }
+                    if (last) {
+                      velocity_written_ = vel;
+                      config_complete_ = true;
+                    }
+                  });
+  }
+  sdo_.tick(now_s, out);
+}
+
+void Master::config_done(double now_s, std::vector<can::Frame>& out) {
+  config_complete_ = false;
+  out.push_back(canopen::nmt_frame(canopen::NmtCommand::Start, s_.node_id));
+  phase_ = CommPhase::Running;
+  started_at_ = now_s;
+  last_drive_hb_ = now_s;
+  drive_hb_lost_ = false;
+  configured_mapping_ = s_.configure_mapping;
+  ++counts_.configurations;
+  cw_sent_ = false;
+  if (recovery_ == Recovery::AfterComm) recovery_ = Recovery::SendReset;
+}
+
+void Master::latch(FaultCode code, std::string name, bool needs_comm_reset) {
+  if (needs_comm_reset) needs_comm_reset_ = true;
+  if (fault_ != FaultCode::None) return;  // the first cause stays
+  fault_ = code;
+  fault_name_ = std::move(name);
+  recovery_ = Recovery::None;
+}
+
+void Master::tick(double now_s, std::vector<can::Frame>& out) {
+  now_ = std::max(now_, now_s);
+  if (host_hb_on_ && phase_ != CommPhase::Idle && now_s >= next_host_hb_) {
+    out.push_back(canopen::heartbeat_frame(s_.host_node_id, canopen::NmtState::Operational));
+    next_host_hb_ += s_.host_heartbeat_period_s;
+    if (next_host_hb_ <= now_s) next_host_hb_ = now_s + s_.host_heartbeat_period_s;
+  }
+  if (s_.sync_period_s > 0 && phase_ == CommPhase::Running && now_s >= next_sync_) {
+    out.push_back(canopen::sync_frame());
+    last_sync_ = now_s;
+    next_sync_ += s_.sync_period_s;
+    if (next_sync_ <= now_s) next_sync_ = now_s + s_.sync_period_s;
+  }
+  if (phase_ == CommPhase::WaitBootUp && now_s >= boot_deadline_) {
+    latch(FaultCode::NoBootUp,
+          "no boot-up from drive node " + std::to_string(s_.node_id) + " within " +
+              num(s_.boot_timeout_s) + " s of the NMT reset",
+          true);
+    reset_comm(now_s, out);  // and try again
+  }
+  sdo_.tick(now_s, out);
+  if (phase_ == CommPhase::Running && !drive_hb_lost_ &&
+      now_s - last_drive_hb_ > s_.drive_heartbeat_timeout_s) {
+    drive_hb_lost_ = true;
+    latch(FaultCode::DriveHeartbeatLost, "drive heartbeat lost", true);
+  }
+  evaluate(now_s, out);
+}
+
+void Master::on_frame(const can::Frame& f, double t_s, std::vector<can::Frame>& out) {
+  now_ = std::max(now_, t_s);
+  if (f.extended || f.error || f.remote || f.fd) return;
+  const std::uint32_t node = s_.node_id;
+  if (f.id == canopen::kSdoTxBase + node) {
+    sdo_.on_frame(f, t_s, out);
+  } else if (f.id == canopen::kHeartbeatBase + node) {
+    on_heartbeat(f, t_s, out);
+  } else if (f.id == canopen::kEmcyBase + node) {
+    on_emcy(f, t_s);
+  } else if (f.id == tpdo_.cob_id) {
+    on_tpdo(f, t_s, out);
+  } else if (s_.velocity_pdo && f.id == tpdo2_.cob_id) {
+    const auto& v = tpdo2_.velocity_actual;
+    if (f.len < v.offset + v.length) {
+      ++counts_.malformed;
+      return;
+    }
+    ++counts_.velocity_pdo;
+    velocity_ = static_cast<std::int32_t>(get_le(f.payload(), v.offset, 4)) / cpr_;
+    velocity_t_ = t_s;
+    return;
+  } else {
+    return;
+  }
+  evaluate(t_s, out);
+}
+
+void Master::on_heartbeat(const can::Frame& f, double t_s, std::vector<can::Frame>& out) {
+  if (f.len != 1) {
+    ++counts_.malformed;
+    return;
+  }
+  ++counts_.heartbeats;
+  const auto st = static_cast<canopen::NmtState>(f.data[0]);
+  if (st == canopen::NmtState::BootUp) {
+    if (phase_ == CommPhase::WaitBootUp) {
+      out.push_back(canopen::nmt_frame(canopen::NmtCommand::EnterPreOperational, s_.node_id));
+      configure(t_s, out);
+    } else if (phase_ == CommPhase::Running || phase_ == CommPhase::Configuring) {
+      latch(FaultCode::DriveNmtState, "drive booted again (boot-up while running)", true);
+    }
+    return;
+  }
+  last_drive_hb_ = t_s;
+  if (phase_ != CommPhase::Running) return;
+  if (st == canopen::NmtState::Operational) {
+    drive_seen_operational_ = true;
+  } else if (drive_seen_operational_ || t_s - started_at_ > 2 * s_.drive_heartbeat_period_s) {
+    latch(FaultCode::DriveNmtState,
+          std::string("drive NMT state ") + canopen::to_string(st) + " while running", true);
+  }
+}
+
+void Master::on_emcy(const can::Frame& f, double t_s) {
+  auto e = canopen::decode_emcy(f, t_s);
+  if (!e) {
+    ++counts_.malformed;
+    return;
+  }
+  ++counts_.emcy;
+  emcy_.push_back(*e);
+  if (e->code == 0) return;  // error reset or no error
+  if (fault_ == FaultCode::DriveFault) {
+    // the statusword said fault first; the EMCY says why
+    fault_ = FaultCode::Emcy;
+    fault_name_ = e->text;
+    return;
+  }
+  latch(FaultCode::Emcy, e->text);
+}
+
+void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& out) {
+  (void)out;
+  auto end = [](const PdoField& p) { return p.present() ? p.offset + p.length : 0; };
+  const int need = std::max(end(tpdo_.statusword), end(tpdo_.position_actual));
+  if (f.len < need) {
+    ++counts_.malformed;
+    return;
+  }
+  ++counts_.tpdo;
+  const auto p = f.payload();
+  const auto word = static_cast<std::uint16_t>(get_le(p, tpdo_.statusword.offset, 2));
+  sw_ = word;
+  ++sw_seq_;
+  state_ = decode_state(word);
+  const auto raw = static_cast<std::int32_t>(get_le(p, tpdo_.position_actual.offset, 4));
+  if (have_pos_) {
+    // the drive's s32 wraps; the step between two samples does not
+    pos_counts_ += static_cast<std::int32_t>(static_cast<std::uint32_t>(raw) -
+                                             static_cast<std::uint32_t>(last_raw_));
+  } else {
+    pos_counts_ = raw;
+  }
+  const double prev_angle = angle_;
+  have_pos_ = true;
+  last_raw_ = raw;
+  angle_ = static_cast<double>(pos_counts_) / cpr_;
+  EncoderSample smp;
+  smp.t_s = s_.sync_period_s > 0 && !std::isnan(last_sync_) ? last_sync_ : t_s;
+  smp.angle_rad = angle_;
+  smp.counts = pos_counts_;
+  smp.statusword = word;
+  if (!std::isnan(last_sample_t_) && smp.t_s > last_sample_t_) {
+    rate_ = (angle_ - prev_angle) / (smp.t_s - last_sample_t_);
+  }
+  last_sample_t_ = smp.t_s;
+  last_tpdo_t_ = t_s;
+  samples_.push_back(smp);
+  if ((word & sw::kFollowingError) != 0 &&
+      (state_ == State::OperationEnabled || state_ == State::FaultReactionActive ||
+       state_ == State::Fault || state_ == State::QuickStopActive))
+    latch(FaultCode::FollowingError, "following error (statusword bit 13)");
+  if (state_ == State::Fault || state_ == State::FaultReactionActive)
+    latch(FaultCode::DriveFault, "drive in fault (statusword " + hex(word, 4) + ", no EMCY)");
+}
+
+void Master::send_rpdo(std::uint16_t controlword, std::vector<can::Frame>& out) {
+  can::Frame f;
+  f.id = rpdo_.cob_id;
+  f.len = rpdo_.size;
+  put_le(f.data, rpdo_.controlword.offset, 2, controlword);
+  put_le(f.data, rpdo_.target_position.offset, 4, static_cast<std::uint32_t>(target_));
+  out.push_back(f);
+  cw_ = controlword;
+  cw_sent_ = true;
+}
+
+std::uint16_t Master::motion_bits() const {
+  std::uint16_t b = move_flags_;
+  if (halted_) b |= cw::kHalt;
+  return b;
+}
+
+void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
+  if (config_complete_) config_done(now_s, out);
+  if (phase_ != CommPhase::Running) return;
+  const std::uint16_t word = sw_.value_or(0);
+  const bool fresh_after_ack = sw_ && sw_seq_ > ack_after_;
+  // A quick stop is acknowledged whatever else: the drive stopped (quick
+  // stop active, or not enabled at all).
+  if (ack_on_ == AckOn::Stopped && fresh_after_ack && state_ != State::OperationEnabled &&
+      state_ != State::FaultReactionActive && state_ != State::Unknown) {
+    ack_ = ack_seq_;
+    ack_on_ = AckOn::None;
+  }
+  switch (recovery_) {
+    case Recovery::AfterComm:
+      return;  // config_done moves it on
+    case Recovery::SendReset:
+      // a rising edge of bit 7
+      if ((cw_ & cw::kFaultReset) != 0) send_rpdo(cw::kCmdDisableVoltage, out);
+      send_rpdo(cw::kCmdFaultReset, out);
+      reset_seq_ = sw_seq_;
+      recovery_ = Recovery::WaitFresh;
+      return;
+    case Recovery::WaitFresh:
+      if (sw_ && sw_seq_ > reset_seq_ && (word & (sw::kFault | sw::kFollowingError)) == 0 &&
+          state_ != State::FaultReactionActive && state_ != State::Unknown) {
+        fault_ = FaultCode::None;
+        fault_name_.clear();
+        needs_comm_reset_ = false;
+        recovery_ = Recovery::None;
+      } else {
+        return;
+      }
+      break;
+    case Recovery::None:
+      break;
+  }
+  if (fault_ != FaultCode::None || !sw_) return;
+  switch (ack_on_) {
+    case AckOn::Enabled:
+      if (state_ == State::OperationEnabled) ack_on_ = AckOn::None, ack_ = ack_seq_;
+      break;
+    case AckOn::Disabled:
+      if (state_ == State::SwitchOnDisabled || state_ == State::NotReadyToSwitchOn)
+        ack_on_ = AckOn::None, ack_ = ack_seq_;
+      break;
+    case AckOn::Halted:
+      if (fresh_after_ack) ack_on_ = AckOn::None, ack_ = ack_seq_;
+      break;
+    case AckOn::Stopped:
+    case AckOn::None:
+      break;
+  }
+  // the set-point handshake (profile position)
+  if (state_ != State::OperationEnabled) {
+    if (move_ == MoveStep::Sent || move_ == MoveStep::Acked || move_ == MoveStep::Halting)
+      move_ = MoveStep::None;
+  } else if (move_ == MoveStep::Sent && sw_seq_ > move_sent_seq_ &&
+             (word & sw::kSetPointAcknowledge) != 0) {
+    ack_ = pending_.seq;
+    move_ = MoveStep::Acked;
+  } else if (move_ == MoveStep::Acked && (word & sw::kSetPointAcknowledge) == 0 &&
+             (word & sw::kTargetReached) != 0) {
+    move_ = MoveStep::Done;
+  } else if (move_ == MoveStep::Halting && fresh_after_ack && (word & sw::kTargetReached) != 0) {
+    move_ = MoveStep::Done;
+  }
+  // the controlword towards the goal (CiA 402 transitions)
+  std::uint16_t want = cw_;
+  bool set_point = false;
+  switch (goal_) {
+    case Goal::Disabled:
+      want = cw::kCmdDisableVoltage;
+      break;
+    case Goal::QuickStop:
+      want = cw::kCmdQuickStop;
+      break;
+    case Goal::Enabled:
+      switch (state_) {
+        case State::SwitchOnDisabled:
+          want = cw::kCmdShutdown;  // transition 2
+          break;
+        case State::ReadyToSwitchOn:
+          want = cw::kCmdSwitchOn;  // 3
+          break;
+        case State::SwitchedOn:
+          want = cw::kCmdEnableOperation;  // 4
+          break;
+        case State::OperationEnabled:
+          want = cw::kCmdEnableOperation | motion_bits();
+          if (move_ == MoveStep::Ready && (word & sw::kSetPointAcknowledge) == 0) {
+            want |= cw::kNewSetPoint;
+            set_point = true;
+          }
+          break;
+        case State::QuickStopActive:
+          want = cw::kCmdDisableVoltage;  // 12, then up again
+          break;
+        default:
+          break;  // not ready, fault reaction, fault: the drive moves on by itself
+      }
+      break;
+  }
+  if (set_point) {
+    target_ = pending_.target;
+    send_rpdo(want, out);
+    move_ = MoveStep::Sent;
+    move_sent_seq_ = sw_seq_;
+  } else if (!cw_sent_ || want != cw_) {
+    send_rpdo(want, out);
+  }
+}
+
+Status Master::command(TableCommandCode code, std::uint8_t seq, double target_rad, double rate_rps,
+                       double now_s, std::vector<can::Frame>& out) {
+  now_ = std::max(now_, now_s);
+  if (!invalid_.empty()) return make_error("invalid CANopen master settings: " + invalid_);
+  if (phase_ == CommPhase::Idle) return make_error("the CANopen master has not been started");
+  const bool running = phase_ == CommPhase::Running;
+  switch (code) {
+    case TableCommandCode::Enable:
+      goal_ = Goal::Enabled;
+      quick_stopped_ = false;
+      halted_ = false;
+      move_ = MoveStep::None;
+      ack_on_ = AckOn::Enabled;
+      ack_seq_ = seq;
+      // a fault reset already tried and still no statusword without fault:
+      // this Enable tries again
+      if (fault_ != FaultCode::None &&
+          (recovery_ == Recovery::None || recovery_ == Recovery::WaitFresh)) {
+        if (needs_comm_reset_ || phase_ == CommPhase::Failed) {
+          recovery_ = Recovery::AfterComm;
+          reset_comm(now_s, out);
+        } else {
+          recovery_ = Recovery::SendReset;
+        }
+      } else if (phase_ == CommPhase::Failed) {
+        reset_comm(now_s, out);
+      }
+      break;
+    case TableCommandCode::Disable:
+      goal_ = Goal::Disabled;
+      quick_stopped_ = false;
+      move_ = MoveStep::None;
+      ack_seq_ = seq;
+      ack_on_ = AckOn::Disabled;
+      if (!running) ack_ = seq, ack_on_ = AckOn::None;
+      break;
+    case TableCommandCode::QuickStop:
+      goal_ = Goal::QuickStop;
+      quick_stopped_ = true;
+      move_ = MoveStep::None;
+      ack_seq_ = seq;
+      ack_on_ = AckOn::Stopped;
+      ack_after_ = sw_seq_;
+      if (!running) {
+        ack_ = seq, ack_on_ = AckOn::None;
+      } else {
+        // at once, whatever the fault latch: the drive is told to stop
+        send_rpdo(cw::kCmdQuickStop, out);
+        if (fault_ == FaultCode::Emcy || fault_ == FaultCode::DriveFault ||
+            fault_ == FaultCode::FollowingError) {
+          // a drive in fault has stopped itself (its fault reaction)
+          ack_ = seq, ack_on_ = AckOn::None;
+        }
+      }
+      return Ok{};
+    case TableCommandCode::ControlledStop:
+      ack_seq_ = seq;
+      if (running && fault_ == FaultCode::None && state_ == State::OperationEnabled &&
+          goal_ == Goal::Enabled) {
+        halted_ = true;
+        move_ = MoveStep::Halting;
+        ack_on_ = AckOn::Halted;
+        ack_after_ = sw_seq_;
+        send_rpdo(cw::kCmdEnableOperation | motion_bits(), out);
+      } else {
+        ack_ = seq;  // nothing moves
+        ack_on_ = AckOn::None;
+      }
+      break;
+    case TableCommandCode::MoveAbsolute:
+    case TableCommandCode::MoveRelative: {
+      const bool relative = code == TableCommandCode::MoveRelative;
+      if (!(std::isfinite(rate_rps) && rate_rps > 0))
+        return make_error("move rate " + num(rate_rps) + " rad/s must be positive");
+      TURNCAL_ASSIGN(vel, to_u32_counts(rate_rps * kRadToDeg, cpr_ / kRadToDeg, "move rate",
+                                        obj::kProfileVelocity, "deg/s"));
+      const double c = std::round(target_rad * cpr_);
+      const double lo = std::numeric_limits<std::int32_t>::min();
+      const double hi = std::numeric_limits<std::int32_t>::max();
+      const char* what = relative ? "move by" : "move to";
+      if (!(c >= lo && c <= hi))
+        return make_error(std::string(what) + " " + num(target_rad * kRadToDeg) + " deg is " +
+                          num(c) + " counts, beyond the drive's 32-bit target position (" +
+                          hex(obj::kTargetPosition, 4) + ")");
+      if (relative && have_pos_) {
+        const double end = static_cast<double>(pos_counts_) + c;
+        if (!(end >= lo && end <= hi))
+          return make_error("move by " + num(target_rad * kRadToDeg) + " deg ends at " + num(end) +
+                            " counts, beyond the drive's 32-bit position");
+      }
+      if (!running || fault_ != FaultCode::None || goal_ != Goal::Enabled ||
+          state_ != State::OperationEnabled)
+        return make_error(std::string("a move needs the drive enabled (CiA 402 state: ") +
+                          to_string(state_) +
+                          (fault_ != FaultCode::None ? ", fault: " + fault_name_ : "") + ")");
+      if (move_ == MoveStep::Sent)
+        return make_error("the last set-point is not yet acknowledged by the drive");
+      if ((move_ == MoveStep::Acked || move_ == MoveStep::Halting) && !s_.change_set_immediately)
+        return make_error("a move is under way (change set immediately is off)");
+      pending_ = {seq, relative, static_cast<std::int32_t>(c), vel};
+      move_flags_ =
+          static_cast<std::uint16_t>((relative ? cw::kRelative : 0) |
+                                     (s_.change_set_immediately ? cw::kChangeImmediately : 0));
+      halted_ = false;
+      if (vel != velocity_written_) {
+        move_ = MoveStep::WaitSdo;
+        const std::uint64_t gen = ++move_generation_;
+        sdo_.download(obj::kProfileVelocity, 0, le_bytes(vel, 4),
+                      [this, gen, vel](const canopen::SdoResult& r) {
+                        // what the drive holds, whether the move still waits or not
+                        if (r.ok()) velocity_written_ = vel;
+                        if (gen != move_generation_ || move_ != MoveStep::WaitSdo) return;
+                        if (r.ok()) {
+                          move_ = MoveStep::Ready;
+                        } else {
+                          move_ = MoveStep::None;
+                          latch(FaultCode::Sdo,
+                                "SDO abort writing the profile velocity: " + r.describe());
+                        }
+                      });
+        sdo_.tick(now_s, out);
+      } else {
+        move_ = MoveStep::Ready;
+      }
+      break;
+    }
+    default:
+      return make_error("unknown table command code " + std::to_string(static_cast<int>(code)));
+  }
+  evaluate(now_s, out);
+  return Ok{};
+}
+
+TableView Master::status() const {
+  TableView v;
+  v.ack = ack_;
+  // a rate older than the drive's heartbeat timeout is not known
+  if (s_.velocity_pdo)
+    v.rate_rps = now_ - velocity_t_ <= s_.drive_heartbeat_timeout_s ? velocity_ : std::nan("");
+  else
+    v.rate_rps = now_ - last_tpdo_t_ <= s_.drive_heartbeat_timeout_s ? rate_ : std::nan("");
+  if (fault_ != FaultCode::None) {
+    v.state = TableState::Fault;
+    v.fault = fault_;
+    v.fault_name = fault_name_;
+    return v;
+  }
+  if (phase_ != CommPhase::Running || !sw_) {
+    v.state = quick_stopped_ ? TableState::QuickStopped : TableState::Disabled;
+    return v;
+  }
+  switch (state_) {
+    case State::OperationEnabled:
+      switch (move_) {
+        case MoveStep::Acked:
+        case MoveStep::Halting:
+          v.state = TableState::Moving;
+          break;
+        case MoveStep::Done:
+          v.state = TableState::InPosition;
+          break;
+        default:
+          v.state = TableState::Holding;
+          break;
+      }
+      break;
+    case State::QuickStopActive:
+      v.state = TableState::QuickStopped;
+      break;
+    case State::FaultReactionActive:
+    case State::Fault:
+      v.state = TableState::Fault;
+      v.fault = FaultCode::DriveFault;
+      v.fault_name = "drive in fault";
+      break;
+    default:
+      v.state = quick_stopped_ ? TableState::QuickStopped : TableState::Disabled;
+      break;
+  }
+  return v;
+}
+
+void Master::take_samples(std::vector<EncoderSample>& out) {
+  out.insert(out.end(), samples_.begin(), samples_.end());
+  samples_.clear();
+}
+
+void Master::read(std::uint16_t index, std::uint8_t sub, canopen::SdoClient::Callback done) {
+  sdo_.upload(index, sub, std::move(done));
+}
+
+void Master::write(std::uint16_t index, std::uint8_t sub, std::vector<std::uint8_t> data,
+                   canopen::SdoClient::Callback done) {
+  sdo_.download(index, sub, std::move(data), std::move(done));
+}
+
+}  // namespace turncal::cia402

@@ -1,0 +1,1075 @@
+// The CiA 402 master against the virtual CiA 402 drive, in closed loop in
+// process: every frame passes both ways, time steps by 1 ms. Each test
+// checks the drive's own account as well as the master's.
+#include <doctest/doctest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "turncal/can/dbc.hpp"
+#include "turncal/drivers/canopen.hpp"
+#include "turncal/drivers/cia402.hpp"
+#include "turncal/drivers/virtual_drive402.hpp"
+
+using namespace turncal;
+using cia402::FaultCode;
+using cia402::State;
+using stand::VirtualDrive402;
+
+namespace {
+
+constexpr double kDeg = 0.017453292519943295;
+constexpr double kTwoPi = 6.283185307179586;
+
+/// 10000 counts per motor turn, 100 motor turns per table turn: 1e6
+/// counts per table revolution, one count 6.3e-6 rad.
+cia402::MasterSettings master_settings() {
+  cia402::MasterSettings s;
+  s.node_id = 5;
+  s.host_node_id = 127;
+  s.counts_per_rev = 10000;
+  s.gear_ratio = 100;
+  s.profile_velocity_rps = 30 * kDeg;
+  s.profile_acceleration_rps2 = 60 * kDeg;
+  s.profile_deceleration_rps2 = 40 * kDeg;  // unlike the acceleration: the trapezoid is asymmetric
+  s.quick_stop_deceleration_rps2 = 180 * kDeg;
+  return s;
+}
+
+stand::Drive402Setup drive_setup() {
+  stand::Drive402Setup d;
+  d.node_id = 5;
+  d.counts_per_rev = 10000;
+  d.gear_ratio = 100;
+  d.tpdo_event_timer_ms = 10;
+  return d;
+}
+
+/// The master and the drive on one bus.
+struct Loop {
+  explicit Loop(cia402::MasterSettings ms = master_settings(),
+                stand::Drive402Setup ds = drive_setup(), stand::Drive402Faults df = {})
+      : master(ms), drive(ds, df) {}
+
+  cia402::Master master;
+  VirtualDrive402 drive;
+  double t = 0;
+  std::vector<can::Frame> from_master;
+  std::vector<stand::DriveFrame> from_drive;
+  std::vector<double> sync_times;
+  std::vector<can::Frame> sent;  ///< everything the master sent
+  std::vector<cia402::EncoderSample> samples;
+  bool saw_moving = false;
+
+  void deliver() {
+    while (!from_master.empty() || !from_drive.empty()) {
+      std::vector<can::Frame> m;
+      m.swap(from_master);
+      for (const can::Frame& f : m) {
+        sent.push_back(f);
+        if (f.id == canopen::kSyncId) sync_times.push_back(t);
+        drive.receive(t, f, from_drive);
+      }
+      std::vector<stand::DriveFrame> d;
+      d.swap(from_drive);
+      for (const stand::DriveFrame& f : d) master.on_frame(f.frame, f.t_s, from_master);
+    }
+    if (master.status().state == TableState::Moving) saw_moving = true;
+  }
+  void step(double dt = 1e-3) {
+    t += dt;
+    drive.advance(t, from_drive);
+    deliver();
+    master.tick(t, from_master);
+    deliver();
+    master.take_samples(samples);
+  }
+  void start() {
+    master.start(t, from_master);
+    deliver();
+  }
+  void run_for(double seconds) {
+    const double end = t + seconds;
+    while (t < end - 1e-9) step();
+  }
+  /// Steps until `done` or `timeout` seconds pass; true when done.
+  template <class Pred>
+  bool run_until(Pred done, double timeout) {
+    const double end = t + timeout;
+    while (t < end) {
+      if (done()) return true;
+      step();
+    }
+    return done();
+  }
+  Status command(TableCommandCode c, std::uint8_t seq, double target = 0, double rate = 0) {
+    Status s = master.command(c, seq, target, rate, t, from_master);
+    deliver();
+    return s;
+  }
+  bool running() {
+    return run_until([&] { return master.phase() == cia402::CommPhase::Running; }, 2.0);
+  }
+  bool enabled(std::uint8_t seq) {
+    if (!command(TableCommandCode::Enable, seq)) return false;
+    return run_until(
+        [&] { return master.status().state == TableState::Holding && master.status().ack == seq; },
+        1.0);
+  }
+  bool in_position(std::uint8_t seq, double timeout) {
+    return run_until(
+        [&] {
+          return master.status().state == TableState::InPosition && master.status().ack == seq;
+        },
+        timeout);
+  }
+};
+
+/// The duration of a trapezoid of `dist` at peak v, acceleration a, deceleration d.
+double trapezoid_s(double dist, double v, double a, double d) {
+  if (dist < v * v / (2 * a) + v * v / (2 * d)) {
+    const double w = std::sqrt(2 * dist * a * d / (a + d));
+    return w / a + w / d;
+  }
+  return dist / v + v / (2 * a) + v / (2 * d);
+}
+
+}  // namespace
+
+TEST_SUITE("cia402") {
+  TEST_CASE("statusword states and controlword commands as CiA 402 codes them") {
+    CHECK(cia402::decode_state(0x0000) == State::NotReadyToSwitchOn);
+    CHECK(cia402::decode_state(0x0250) == State::SwitchOnDisabled);  // remote, voltage bits ignored
+    CHECK(cia402::decode_state(0x0231) == State::ReadyToSwitchOn);
+    CHECK(cia402::decode_state(0x0233) == State::SwitchedOn);
+    CHECK(cia402::decode_state(0x1637) == State::OperationEnabled);  // with bits 10, 12
+    CHECK(cia402::decode_state(0x0217) == State::QuickStopActive);
+    CHECK(cia402::decode_state(0x021F) == State::FaultReactionActive);
+    CHECK(cia402::decode_state(0x0218) == State::Fault);
+    CHECK(cia402::decode_state(0x0208) == State::Fault);
+    CHECK(cia402::decode_state(0x0061) ==
+          State::Unknown);  // switch on disabled with ready: no state
+    using C = cia402::Command;
+    CHECK(cia402::decode_command(0x06, 0) == C::Shutdown);
+    CHECK(cia402::decode_command(0x07, 0) == C::SwitchOn);
+    CHECK(cia402::decode_command(0x0F, 0) == C::EnableOperation);
+    CHECK(cia402::decode_command(0x1F, 0x0F) == C::EnableOperation);  // set-point bits aside
+    CHECK(cia402::decode_command(0x00, 0) == C::DisableVoltage);
+    CHECK(cia402::decode_command(0x0D, 0) == C::DisableVoltage);
+    CHECK(cia402::decode_command(0x02, 0) == C::QuickStop);
+    CHECK(cia402::decode_command(0x0B, 0) == C::QuickStop);
+    CHECK(cia402::decode_command(0x80, 0x00) == C::FaultReset);
+    CHECK(cia402::decode_command(0x80, 0x80) == C::None);  // held high: no edge
+  }
+
+  TEST_CASE("abort and EMCY codes decoded to the standard's text") {
+    CHECK(canopen::describe_sdo_abort(0x06020000) ==
+          "0x06020000 object does not exist in the object dictionary");
+    CHECK(canopen::describe_sdo_abort(0x05040000) == "0x05040000 SDO protocol timed out");
+    CHECK(canopen::describe_sdo_abort(0x06090011) == "0x06090011 sub-index does not exist");
+    CHECK(canopen::describe_sdo_abort(0x08000022).find("present device state") !=
+          std::string::npos);
+    CHECK(canopen::describe_sdo_abort(0x12345678) == "0x12345678 unknown abort code");
+    CHECK(canopen::emcy_text(0x2310) == "EMCY 0x2310 continuous over-current (device output side)");
+    CHECK(canopen::emcy_text(0x8611) == "EMCY 0x8611 following error");
+    CHECK(canopen::emcy_text(0x7305) == "EMCY 0x7305 incremental sensor 1 fault");
+    CHECK(canopen::emcy_text(0xABCD) == "EMCY 0xABCD");
+  }
+
+  TEST_CASE("SDO client: a wrong toggle bit and a silent server abort the transfer") {
+    canopen::SdoClient c(5, 0.5);
+    std::vector<can::Frame> out;
+    std::vector<canopen::SdoResult> done;
+    c.upload(0x1008, 0, [&](const canopen::SdoResult& r) { done.push_back(r); });
+    c.tick(0, out);
+    REQUIRE(out.size() == 1);
+    CHECK(out[0].id == 0x605);
+    CHECK(out[0].data[0] == 0x40);
+    // segmented upload response, 10 bytes
+    can::Frame r;
+    r.id = 0x585;
+    r.len = 8;
+    r.data = {0x41, 0x08, 0x10, 0x00, 10, 0, 0, 0};
+    out.clear();
+    CHECK(c.on_frame(r, 0.01, out));
+    REQUIRE(out.size() == 1);
+    CHECK(out[0].data[0] == 0x60);                       // first segment request, toggle 0
+    r.data = {0x10, 'a', 'b', 'c', 'd', 'e', 'f', 'g'};  // toggle 1: wrong
+    out.clear();
+    CHECK(c.on_frame(r, 0.02, out));
+    REQUIRE(out.size() == 1);
+    CHECK(out[0].data[0] == 0x80);
+    CHECK(canopen::get_le(out[0].payload(), 4, 4) == 0x05030000);
+    REQUIRE(done.size() == 1);
+    CHECK(done[0].abort == 0x05030000);
+    CHECK_FALSE(done[0].aborted_by_server);
+    // a download nobody answers: our abort 0x05040000 after the timeout
+    c.download(0x6081, 0, canopen::le_bytes(1000, 4),
+               [&](const canopen::SdoResult& res) { done.push_back(res); });
+    out.clear();
+    c.tick(1.0, out);
+    REQUIRE(out.size() == 1);
+    CHECK(out[0].data[0] == 0x23);  // expedited, 4 bytes
+    out.clear();
+    c.tick(1.49, out);
+    CHECK(out.empty());
+    c.tick(1.5, out);
+    REQUIRE(out.size() == 1);
+    CHECK(canopen::get_le(out[0].payload(), 4, 4) == 0x05040000);
+    REQUIRE(done.size() == 2);
+    CHECK(done[1].describe() ==
+          "write 0x6081:00: 0x05040000 SDO protocol timed out (aborted by the host)");
+    CHECK(c.counts().timeouts == 1);
+    // a response of the wrong length is counted and skipped
+    r.len = 5;
+    CHECK(c.on_frame(r, 1.6, out));
+    CHECK(c.counts().malformed == 1);
+    // cancelled transfers are not lost: each callback hears the abort
+    c.upload(0x6064, 0, [&](const canopen::SdoResult& res) { done.push_back(res); });
+    c.upload(0x6041, 0, [&](const canopen::SdoResult& res) { done.push_back(res); });
+    out.clear();
+    c.tick(2.0, out);
+    REQUIRE(out.size() == 1);  // the first under way
+    out.clear();
+    c.cancel_all(out, 0x08000000);
+    REQUIRE(out.size() == 1);  // its abort on the bus
+    CHECK(out[0].data[0] == 0x80);
+    REQUIRE(done.size() == 4);
+    CHECK(done[2].index == 0x6064);
+    CHECK(done[3].index == 0x6041);
+    CHECK(done[3].abort == 0x08000000);
+    CHECK(c.idle());
+  }
+
+  TEST_CASE("boot-up, configuration in order, start: the values written arrive") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    CHECK(l.drive.nmt() == canopen::NmtState::Operational);
+    using W = std::pair<std::uint16_t, std::uint8_t>;
+    const std::vector<W> order{{0x6060, 0}, {0x6081, 0}, {0x6083, 0}, {0x6084, 0}, {0x6085, 0},
+                               {0x605A, 0}, {0x6007, 0}, {0x1016, 1}, {0x1017, 0}};
+    CHECK(l.drive.sdo_writes() == order);
+    const double cpr = 1e6 / kTwoPi;
+    CHECK(*l.drive.value(0x6060, 0) == 1);
+    CHECK(*l.drive.value(0x6061, 0) == 1);
+    CHECK(*l.drive.value(0x6081, 0) == std::llround(30 * kDeg * cpr));
+    CHECK(*l.drive.value(0x6083, 0) == std::llround(60 * kDeg * cpr));
+    CHECK(*l.drive.value(0x6084, 0) == std::llround(40 * kDeg * cpr));
+    CHECK(*l.drive.value(0x6085, 0) == std::llround(180 * kDeg * cpr));
+    CHECK(*l.drive.value(0x605A, 0) == 6);
+    CHECK(*l.drive.value(0x6007, 0) == 3);
+    CHECK(*l.drive.value(0x1016, 1) == (127 << 16 | 500));
+    CHECK(*l.drive.value(0x1017, 0) == 100);
+    CHECK_FALSE(l.master.configured_mapping());
+    CHECK(l.master.counts().nmt_resets == 1);
+    // both heartbeats flow: 1 s of each at 0.1 s
+    const auto drive_hb = l.master.counts().heartbeats;
+    const auto host_hb = l.drive.counts().host_heartbeats;
+    l.run_for(1.0);
+    CHECK(l.master.counts().heartbeats - drive_hb == doctest::Approx(10).epsilon(0.11));
+    CHECK(l.drive.counts().host_heartbeats - host_hb == doctest::Approx(10).epsilon(0.11));
+    CHECK(l.master.status().state == TableState::Disabled);
+    CHECK(l.master.status().fault == FaultCode::None);
+    CHECK(l.drive.state() == State::SwitchOnDisabled);
+    // encoder samples from TPDO1 at the event timer, the table where it is
+    l.samples.clear();
+    l.run_for(0.1);
+    CHECK(l.samples.size() == doctest::Approx(10).epsilon(0.21));
+    REQUIRE_FALSE(l.samples.empty());
+    CHECK(l.samples.back().angle_rad == 0);
+  }
+
+  TEST_CASE("the PDO mappings written when asked, with SYNC: samples carry the SYNC's time") {
+    cia402::MasterSettings ms = master_settings();
+    ms.configure_mapping = true;
+    ms.sync_period_s = 0.02;
+    stand::Drive402Setup ds = drive_setup();
+    ds.default_mapping = false;  // the drive maps nothing until told
+    ds.angle0_rad = 1.0;
+    Loop l(ms, ds);
+    l.start();
+    REQUIRE(l.running());
+    CHECK(l.master.configured_mapping());
+    CHECK(*l.drive.value(0x1600, 0) == 2);
+    CHECK(*l.drive.value(0x1600, 1) == 0x60400010);
+    CHECK(*l.drive.value(0x1600, 2) == 0x607A0020);
+    CHECK(*l.drive.value(0x1A00, 0) == 2);
+    CHECK(*l.drive.value(0x1A00, 1) == 0x60410010);
+    CHECK(*l.drive.value(0x1A00, 2) == 0x60640020);
+    CHECK(*l.drive.value(0x1800, 2) == 1);      // synchronous
+    CHECK(*l.drive.value(0x1800, 1) == 0x185);  // valid again
+    CHECK(*l.drive.value(0x1400, 1) == 0x205);
+    // the PDO went invalid before its mapping was written
+    const auto& w = l.drive.sdo_writes();
+    const auto first_map =
+        std::find(w.begin(), w.end(), std::make_pair<std::uint16_t, std::uint8_t>(0x1600, 0));
+    const auto invalid =
+        std::find(w.begin(), w.end(), std::make_pair<std::uint16_t, std::uint8_t>(0x1400, 1));
+    CHECK(invalid < first_map);
+    l.samples.clear();
+    l.run_for(0.5);
+    REQUIRE(l.samples.size() >= 20);
+    for (const auto& s : l.samples)
+      CHECK(std::find(l.sync_times.begin(), l.sync_times.end(), s.t_s) != l.sync_times.end());
+    CHECK(l.samples.back().angle_rad == doctest::Approx(1.0).epsilon(1e-5));
+    CHECK(l.drive.counts().sync >= 25);
+    REQUIRE(l.enabled(3));
+    CHECK(l.drive.state() == State::OperationEnabled);
+  }
+
+  TEST_CASE("velocity actual in TPDO2: the table's rate is the drive's own") {
+    cia402::MasterSettings ms = master_settings();
+    ms.configure_mapping = true;
+    ms.velocity_pdo = true;
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    CHECK(*l.drive.value(0x1A01, 0) == 1);
+    CHECK(*l.drive.value(0x1A01, 1) == 0x606C0020);
+    CHECK(*l.drive.value(0x1801, 1) == 0x285);  // valid
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, -90 * kDeg, 30 * kDeg));
+    l.run_for(2.0);  // cruising
+    const double v = -static_cast<double>(*l.drive.value(0x6081, 0)) / l.drive.counts_per_rad();
+    CHECK(l.drive.rate(l.t) == doctest::Approx(v).epsilon(1e-12));
+    CHECK(l.master.status().rate_rps == doctest::Approx(v).epsilon(1e-12));
+    CHECK(l.master.velocity_rps() == doctest::Approx(v).epsilon(1e-12));
+    CHECK(l.master.counts().velocity_pdo >= 150);
+    REQUIRE(l.in_position(2, 5));
+    l.run_for(0.05);
+    CHECK(l.master.status().rate_rps == 0);
+  }
+
+  TEST_CASE("velocity PDO asked for but never sent: the rate is unknown, not zero") {
+    cia402::MasterSettings ms = master_settings();
+    ms.velocity_pdo = true;  // the drive's TPDO2 stays invalid: nobody maps it
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    CHECK(l.master.counts().velocity_pdo == 0);
+    CHECK(std::isnan(l.master.status().rate_rps));
+    CHECK(l.master.status().state == TableState::Moving);
+  }
+
+  TEST_CASE("segmented SDO: the device name read, a label written and read back") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    std::vector<canopen::SdoResult> done;
+    auto keep = [&](const canopen::SdoResult& r) { done.push_back(r); };
+    l.master.read(0x1008, 0, keep);
+    const std::string label = "bay 3 turntable, axis Z, serial 0042";
+    l.master.write(0x2001, 0, std::vector<std::uint8_t>(label.begin(), label.end()), keep);
+    l.master.read(0x2001, 0, keep);
+    l.master.write(0x1008, 0, {'x', 'y', 'z', 'w', 'v'}, keep);  // read only
+    l.master.read(0x2FFF, 0, keep);
+    l.master.read(0x1018, 9, keep);
+    l.master.write(0x6060, 0, {3}, keep);  // profile velocity mode: not this drive's
+    REQUIRE(l.run_until([&] { return done.size() == 7; }, 1.0));
+    CHECK(done[4].abort == 0x06020000);
+    CHECK(done[5].abort == 0x06090011);
+    CHECK(done[6].abort == 0x06090030);
+    CHECK(*l.drive.value(0x6060, 0) == 1);
+    REQUIRE(done[0].ok());
+    CHECK(std::string(done[0].data.begin(), done[0].data.end()) == "turncal virtual CiA 402 drive");
+    CHECK(done[1].ok());
+    REQUIRE(done[2].ok());
+    CHECK(std::string(done[2].data.begin(), done[2].data.end()) == label);
+    CHECK(done[3].abort == 0x06010002);
+    CHECK(done[3].aborted_by_server);
+    CHECK(done[3].describe().find("attempt to write a read only object") != std::string::npos);
+    CHECK(l.drive.sdo_writes().back() == std::make_pair<std::uint16_t, std::uint8_t>(0x2001, 0));
+    CHECK(l.drive.counts().sdo_aborts == 4);
+  }
+
+  TEST_CASE("an object the drive refuses: the abort's text, the configuration stops") {
+    SUBCASE("profile acceleration refused as out of range") {
+      stand::Drive402Faults df;
+      df.refuse_objects[0x608300] = 0x06090030;
+      Loop l(master_settings(), drive_setup(), df);
+      l.start();
+      REQUIRE(l.run_until([&] { return l.master.phase() == cia402::CommPhase::Failed; }, 2.0));
+      const auto st = l.master.status();
+      CHECK(st.state == TableState::Fault);
+      CHECK(st.fault == FaultCode::Configuration);
+      CHECK(st.fault_name.find("0x6083:00") != std::string::npos);
+      CHECK(st.fault_name.find("0x06090030 invalid value for parameter") != std::string::npos);
+      CHECK(st.fault_name.find("profile acceleration") != std::string::npos);
+      // the drive: what came before was written, nothing after, never started
+      using W = std::pair<std::uint16_t, std::uint8_t>;
+      CHECK(l.drive.sdo_writes() == std::vector<W>{{0x6060, 0}, {0x6081, 0}});
+      CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
+      // a move is refused with the reason, and sends nothing
+      l.from_master.clear();
+      const auto sent = l.sent.size();
+      const Status s = l.command(TableCommandCode::MoveRelative, 9, 0.1, 0.1);
+      CHECK_FALSE(s.ok());
+      CHECK(s.error().message.find("enabled") != std::string::npos);
+      CHECK(l.sent.size() == sent);
+    }
+    SUBCASE("a profile velocity above the drive's maximum") {
+      stand::Drive402Setup ds = drive_setup();
+      ds.max_profile_velocity = 1000;
+      Loop l(master_settings(), ds);
+      l.start();
+      REQUIRE(l.run_until([&] { return l.master.phase() == cia402::CommPhase::Failed; }, 2.0));
+      CHECK(l.master.status().fault_name.find("0x06090031 value of parameter written too high") !=
+            std::string::npos);
+      CHECK(l.drive.value(0x6081, 0) != std::llround(30 * kDeg * 1e6 / kTwoPi));
+    }
+  }
+
+  TEST_CASE("enable: the state machine to operation enabled, acknowledged") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.run_until([&] { return l.master.statusword().has_value(); }, 0.5));
+    CHECK(l.master.drive_state() == State::SwitchOnDisabled);
+    REQUIRE(l.enabled(42));
+    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.master.drive_state() == State::OperationEnabled);
+    CHECK((l.drive.controlword() & 0x8F) == 0x0F);
+    // disable: back to switch on disabled
+    REQUIRE(l.command(TableCommandCode::Disable, 43));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 43; }, 0.5));
+    CHECK(l.master.status().state == TableState::Disabled);
+    CHECK(l.drive.state() == State::SwitchOnDisabled);
+  }
+
+  TEST_CASE("relative and absolute moves: handshake, moving, in position within a count") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    const double cpr = 1e6 / kTwoPi;
+    // +90 deg relative at the configured 30 deg/s: no SDO before the set-point
+    const auto writes = l.drive.sdo_writes().size();
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
+    const double t0 = l.t;
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 2; }, 0.1));
+    CHECK(l.master.status().state == TableState::Moving);
+    CHECK(l.drive.moving(l.t));
+    REQUIRE(l.in_position(2, 10));
+    const double took = l.t - t0;
+    CHECK(took ==
+          doctest::Approx(trapezoid_s(90 * kDeg, 30 * kDeg, 60 * kDeg, 40 * kDeg)).epsilon(0.01));
+    CHECK(l.drive.sdo_writes().size() == writes);
+    CHECK(std::fabs(l.drive.angle(l.t) - 90 * kDeg) * cpr <= 1.0);
+    CHECK(std::fabs(l.master.angle_rad() - 90 * kDeg) * cpr <= 1.0);
+    CHECK(l.drive.position_counts(l.t) == 250000);
+    CHECK((l.drive.statusword() & 0x0400) != 0);
+    // the handshake is closed: bit 4 cleared by us, bit 12 by the drive
+    CHECK((l.drive.controlword() & 0x10) == 0);
+    CHECK((l.drive.controlword() & 0x40) != 0);  // it was relative
+    CHECK((l.drive.statusword() & 0x1000) == 0);
+    // absolute to -45 deg at 20 deg/s: the profile velocity goes first by SDO
+    REQUIRE(l.command(TableCommandCode::MoveAbsolute, 3, -45 * kDeg, 20 * kDeg));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.2));
+    CHECK(l.drive.sdo_writes().back() == std::make_pair<std::uint16_t, std::uint8_t>(0x6081, 0));
+    CHECK(*l.drive.value(0x6081, 0) == std::llround(20 * kDeg * cpr));
+    double peak = 0;
+    REQUIRE(l.run_until(
+        [&] {
+          peak = std::max(peak, std::fabs(l.drive.rate(l.t)));
+          return l.master.status().state == TableState::InPosition;
+        },
+        15));
+    CHECK(peak == doctest::Approx(20 * kDeg).epsilon(1e-3));
+    CHECK(std::fabs(l.drive.angle(l.t) + 45 * kDeg) * cpr <= 1.0);
+    CHECK(std::fabs(l.master.angle_rad() + 45 * kDeg) * cpr <= 1.0);
+    CHECK(l.drive.counts().set_points == 2);
+    // the master's encoder samples follow the drive within a count when at rest
+    l.samples.clear();
+    l.run_for(0.05);
+    REQUIRE_FALSE(l.samples.empty());
+    CHECK(l.samples.back().counts == -125000);
+    CHECK(l.master.status().rate_rps == 0);
+  }
+
+  TEST_CASE("quick stop by controlword: the drive decelerates at 0x6085, quick-stopped") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
+    l.run_for(3.0);                                                          // cruising at 30 deg/s
+    REQUIRE(l.drive.rate(l.t) == doctest::Approx(30 * kDeg).epsilon(1e-4));  // to a count/s
+    // without TPDO2 the master's rate comes from the encoder steps
+    CHECK(l.master.status().rate_rps == doctest::Approx(30 * kDeg).epsilon(2e-3));
+    const double from = l.drive.angle(l.t);
+    const double t_stop = l.t;
+    REQUIRE(l.command(TableCommandCode::QuickStop, 3));
+    CHECK(l.drive.state() == State::QuickStopActive);
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.1));
+    CHECK(l.master.status().state == TableState::QuickStopped);
+    l.run_for(0.5);
+    // 30 deg/s at 180 deg/s^2 (as the drive holds them, in counts): at rest
+    // after 1/6 s, 2.5 deg further
+    const double cpr = l.drive.counts_per_rad();
+    const double v = static_cast<double>(*l.drive.value(0x6081, 0)) / cpr;
+    const double q = static_cast<double>(*l.drive.value(0x6085, 0)) / cpr;
+    REQUIRE(v == doctest::Approx(30 * kDeg).epsilon(1e-4));
+    REQUIRE(q == doctest::Approx(180 * kDeg).epsilon(1e-4));
+    CHECK_FALSE(l.drive.moving(l.t));
+    CHECK(l.drive.rate(t_stop + v / q + 1e-9) == 0);
+    CHECK(l.drive.rate(t_stop + v / q / 2) == doctest::Approx(v / 2).epsilon(1e-9));
+    CHECK(l.drive.angle(l.t) - from == doctest::Approx(v * v / (2 * q)).epsilon(1e-9));
+    CHECK(l.drive.state() == State::QuickStopActive);  // 0x605A = 6: stays
+    CHECK(l.master.status().state == TableState::QuickStopped);
+    CHECK(l.drive.counts().quick_stops == 1);
+    // enable again from quick stop active
+    REQUIRE(l.enabled(4));
+    CHECK(l.drive.state() == State::OperationEnabled);
+  }
+
+  TEST_CASE("controlled stop by halt: decelerates at 0x6084, in position where it stopped") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
+    l.run_for(3.0);
+    const double from = l.drive.angle(l.t);
+    REQUIRE(l.command(TableCommandCode::ControlledStop, 3));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.1));
+    CHECK(l.master.status().state == TableState::Moving);
+    REQUIRE(l.in_position(3, 2));
+    // 30 deg/s at 40 deg/s^2: 11.25 deg
+    CHECK(l.drive.angle(l.t) - from == doctest::Approx(11.25 * kDeg).epsilon(1e-3));
+    CHECK((l.drive.controlword() & 0x100) != 0);
+    CHECK(l.drive.state() == State::OperationEnabled);
+    // a new move clears halt and goes, relative to where the table stopped
+    const std::int64_t stopped = l.drive.position_counts(l.t);
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 4, -10 * kDeg, 30 * kDeg));
+    REQUIRE(l.in_position(4, 5));
+    CHECK((l.drive.controlword() & 0x100) == 0);
+    CHECK(l.drive.position_counts(l.t) == stopped - 27778);  // 10 deg: 27777.8 counts
+  }
+
+  TEST_CASE("a drive fault with EMCY: fault with its text; fault reset brings it back") {
+    stand::Drive402Faults df;
+    df.fault_at_s = 2.0;
+    df.fault_code = 0x2310;
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 180 * kDeg, 30 * kDeg));
+    REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 3));
+    CHECK(l.t == doctest::Approx(2.0).epsilon(0.01));
+    const auto st = l.master.status();
+    CHECK(st.fault == FaultCode::Emcy);
+    CHECK(st.fault_name == "EMCY 0x2310 continuous over-current (device output side)");
+    REQUIRE_FALSE(l.master.emergencies().empty());
+    CHECK(l.master.emergencies().front().code == 0x2310);
+    CHECK(l.master.emergencies().front().t_s == doctest::Approx(2.0).epsilon(0.01));
+    l.run_for(1.0);
+    CHECK(l.drive.state() == State::Fault);
+    CHECK_FALSE(l.drive.moving(l.t));
+    CHECK(*l.drive.value(0x603F, 0) == 0x2310);
+    // a move is refused while in fault
+    CHECK_FALSE(l.command(TableCommandCode::MoveRelative, 3, 0.1, 0.1).ok());
+    REQUIRE(l.enabled(4));
+    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.counts().fault_resets == 1);
+    CHECK(l.master.status().fault == FaultCode::None);
+    CHECK(l.master.emergencies().back().code == 0x0000);  // the drive's error reset
+    CHECK(l.master.counts().nmt_resets == 1);             // no communication reset needed
+  }
+
+  TEST_CASE("a fault that outlives the first reset: the next Enable resets again") {
+    stand::Drive402Faults df;
+    df.fault_at_s = 0.5;
+    df.fault_code = 0x3210;
+    df.resets_ignored = 1;
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    l.run_for(1.0);
+    REQUIRE(l.master.status().fault_name == "EMCY 0x3210 DC link over-voltage");
+    CHECK_FALSE(l.enabled(2));
+    CHECK(l.drive.state() == State::Fault);
+    CHECK(l.master.status().state == TableState::Fault);
+    CHECK(l.master.status().ack == 1);
+    REQUIRE(l.enabled(3));
+    CHECK(l.drive.counts().fault_resets == 1);
+    CHECK(l.drive.state() == State::OperationEnabled);
+  }
+
+  TEST_CASE("a profile velocity written for a move that was quick-stopped is remembered") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    // the move's SDO and the quick stop go out before the drive answers
+    REQUIRE(l.master.command(TableCommandCode::MoveRelative, 2, 10 * kDeg, 20 * kDeg, l.t,
+                             l.from_master));
+    REQUIRE(l.master.command(TableCommandCode::QuickStop, 3, 0, 0, l.t, l.from_master));
+    l.deliver();
+    l.run_for(0.1);
+    CHECK(*l.drive.value(0x6081, 0) == std::llround(20 * kDeg * l.drive.counts_per_rad()));
+    CHECK(l.drive.counts().set_points == 0);
+    REQUIRE(l.enabled(4));
+    // 30 deg/s again: the drive holds 20, so the SDO must go first
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 5, 90 * kDeg, 30 * kDeg));
+    double peak = 0;
+    REQUIRE(l.run_until(
+        [&] {
+          peak = std::max(peak, std::fabs(l.drive.rate(l.t)));
+          return l.master.status().state == TableState::InPosition;
+        },
+        10));
+    CHECK(peak == doctest::Approx(30 * kDeg).epsilon(1e-4));
+  }
+
+  TEST_CASE("stale PDO: a drive in fault whose TPDO says operation enabled") {
+    stand::Drive402Faults df;
+    df.fault_at_s = 0.5;
+    df.fault_code = 0x4310;
+    SUBCASE("TPDO silent in fault") {
+      df.stale = stand::StalePdo::Silent;
+    }
+    SUBCASE("TPDO frozen at its last value") {
+      df.stale = stand::StalePdo::Frozen;
+    }
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    l.run_for(1.0);
+    const auto tpdo_before = l.master.counts().tpdo;
+    CHECK(l.drive.state() == State::Fault);
+    // the last (or every) statusword the master has says operation enabled ...
+    CHECK(l.master.drive_state() == State::OperationEnabled);
+    if (df.stale == stand::StalePdo::Frozen) {
+      l.run_for(0.2);
+      CHECK(l.master.counts().tpdo > tpdo_before);
+      CHECK(l.master.drive_state() == State::OperationEnabled);
+    } else {
+      l.run_for(0.2);
+      CHECK(l.master.counts().tpdo == tpdo_before);
+    }
+    // ... but the EMCY is fresher
+    CHECK(l.master.status().state == TableState::Fault);
+    CHECK(l.master.status().fault_name == "EMCY 0x4310 excess temperature drive");
+    CHECK_FALSE(l.command(TableCommandCode::MoveAbsolute, 2, 0.5, 0.1).ok());
+    // only the fault reset and a statusword after it clear it
+    REQUIRE(l.enabled(3));
+    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.counts().fault_resets == 1);
+  }
+
+  TEST_CASE("the drive goes silent: heartbeat lost, then NMT reset, reconfiguration, fault reset") {
+    stand::Drive402Faults df;
+    df.silent_at_s = 2.0;
+    df.silent_until_s = 4.0;
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 180 * kDeg, 30 * kDeg));
+    REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 3));
+    CHECK(l.master.status().fault == FaultCode::DriveHeartbeatLost);
+    CHECK(l.master.status().fault_name == "drive heartbeat lost");
+    // the last heartbeat before 2.0 s, then 0.3 s
+    CHECK(l.t == doctest::Approx(2.3).epsilon(0.05));
+    // the drive heard nothing either: its consumer quick-stopped it (0x6007 = 3)
+    l.run_for(0.5);
+    CHECK(l.drive.counts().host_heartbeat_lost == 1);
+    CHECK(l.drive.state() == State::QuickStopActive);
+    CHECK_FALSE(l.drive.moving(l.t));
+    CHECK(l.drive.emcy_sent().back() == 0x8130);
+    l.run_for(1.5);                                       // the drive talks again
+    CHECK(l.master.status().state == TableState::Fault);  // still: nothing reset it
+    const auto configs = l.master.counts().configurations;
+    const auto writes = l.drive.sdo_writes().size();
+    REQUIRE(l.enabled(3));
+    CHECK(l.master.counts().nmt_resets == 2);
+    CHECK(l.drive.counts().nmt_resets == 1);
+    CHECK(l.master.counts().configurations == configs + 1);
+    CHECK(l.drive.sdo_writes().size() == writes + 9);
+    CHECK(*l.drive.value(0x1016, 1) == (127 << 16 | 500));  // watched again
+    CHECK(*l.drive.value(0x1017, 0) == 100);
+    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.nmt() == canopen::NmtState::Operational);
+    // and it moves again
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 4, 10 * kDeg, 30 * kDeg));
+    REQUIRE(l.in_position(4, 3));
+  }
+
+  TEST_CASE("the host heartbeat stops: the drive quick-stops per 0x6007, EMCY 0x8130") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 180 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    l.master.set_host_heartbeat(false);
+    const double stopped_at = l.t;
+    REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 1));
+    // the last heartbeat at most 0.1 s before, then 0.5 s of the drive's watch
+    CHECK(l.t - stopped_at > 0.39);
+    CHECK(l.t - stopped_at < 0.51);
+    CHECK(l.master.status().fault_name == "EMCY 0x8130 life guard error or heartbeat error");
+    CHECK(l.drive.state() == State::QuickStopActive);
+    CHECK(l.drive.emcy_sent().back() == 0x8130);
+    CHECK(l.drive.counts().quick_stops == 1);
+    // the sequencer's quick stop is acknowledged: the drive stopped itself
+    REQUIRE(l.command(TableCommandCode::QuickStop, 3));
+    l.run_for(0.5);
+    CHECK(l.master.status().ack == 3);
+    CHECK_FALSE(l.drive.moving(l.t));
+  }
+
+  TEST_CASE("the host heartbeat stops with 0x6007 = 1: the drive goes to fault") {
+    cia402::MasterSettings ms = master_settings();
+    ms.abort_connection_option = 1;
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    CHECK(*l.drive.value(0x6007, 0) == 1);
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 180 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    l.master.set_host_heartbeat(false);
+    REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 1));
+    l.run_for(0.5);
+    CHECK(l.drive.state() == State::Fault);
+    CHECK(*l.drive.value(0x603F, 0) == 0x8130);
+    CHECK_FALSE(l.drive.moving(l.t));
+    CHECK(l.master.status().fault_name == "EMCY 0x8130 life guard error or heartbeat error");
+    l.master.set_host_heartbeat(true);
+    REQUIRE(l.enabled(3));
+    CHECK(l.drive.state() == State::OperationEnabled);
+  }
+
+  TEST_CASE("the drive leaves operational or boots again: a fault, and a new configuration") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    std::string why;
+    SUBCASE("another node sends it to pre-operational") {
+      l.drive.receive(l.t, canopen::nmt_frame(canopen::NmtCommand::EnterPreOperational, 5),
+                      l.from_drive);
+      why = "drive NMT state pre-operational while running";
+    }
+    SUBCASE("another node resets it") {
+      l.drive.receive(l.t, canopen::nmt_frame(canopen::NmtCommand::ResetNode, 5), l.from_drive);
+      why = "drive booted again (boot-up while running)";
+    }
+    REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 0.5));
+    CHECK(l.master.status().fault == FaultCode::DriveNmtState);
+    CHECK(l.master.status().fault_name == why);
+    CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
+    REQUIRE(l.enabled(2));
+    CHECK(l.master.counts().nmt_resets == 2);
+    CHECK(l.master.counts().configurations == 2);
+    CHECK(l.drive.nmt() == canopen::NmtState::Operational);
+    CHECK(l.drive.state() == State::OperationEnabled);
+  }
+
+  TEST_CASE("change set immediately: a new target while moving is taken at once") {
+    cia402::MasterSettings ms = master_settings();
+    ms.change_set_immediately = true;
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveAbsolute, 2, 180 * kDeg, 30 * kDeg));
+    l.run_for(2.0);
+    REQUIRE(l.master.status().state == TableState::Moving);
+    REQUIRE(l.command(TableCommandCode::MoveAbsolute, 3, 20 * kDeg, 30 * kDeg));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.1));
+    CHECK((l.drive.controlword() & 0x20) != 0);
+    REQUIRE(l.in_position(3, 10));
+    CHECK(std::fabs(l.drive.angle(l.t) - 20 * kDeg) * l.drive.counts_per_rad() <= 1.0);
+    CHECK(l.drive.counts().set_points == 2);
+  }
+
+  TEST_CASE("without change set immediately a move under way is not replaced") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveAbsolute, 2, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    const Status s = l.command(TableCommandCode::MoveAbsolute, 3, 20 * kDeg, 30 * kDeg);
+    REQUIRE_FALSE(s.ok());
+    CHECK(s.error().message.find("under way") != std::string::npos);
+    REQUIRE(l.in_position(2, 10));
+    CHECK(l.drive.position_counts(l.t) == 250000);
+  }
+
+  TEST_CASE("quick stop option 2: the drive ends switch on disabled, still quick-stopped to us") {
+    cia402::MasterSettings ms = master_settings();
+    ms.quick_stop_option = 2;
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    REQUIRE(l.command(TableCommandCode::QuickStop, 3));
+    l.run_for(0.5);
+    CHECK(l.drive.state() == State::SwitchOnDisabled);
+    CHECK_FALSE(l.drive.moving(l.t));
+    CHECK(l.master.status().ack == 3);
+    CHECK(l.master.status().state == TableState::QuickStopped);
+    REQUIRE(l.enabled(4));
+  }
+
+  TEST_CASE("following error: statusword bit 13 and EMCY 0x8611, the master in fault") {
+    stand::Drive402Faults df;
+    df.following_error_at_s = 2.0;
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 180 * kDeg, 30 * kDeg));
+    REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 3));
+    CHECK(l.master.status().fault_name == "EMCY 0x8611 following error");
+    l.run_for(0.5);
+    CHECK(l.drive.state() == State::Fault);
+    CHECK((l.drive.statusword() & 0x2000) != 0);
+    REQUIRE(l.master.statusword().has_value());
+    CHECK((*l.master.statusword() & 0x2000) != 0);
+    REQUIRE(l.enabled(3));
+    CHECK((l.drive.statusword() & 0x2000) == 0);
+  }
+
+  TEST_CASE("a refused move is never acknowledged") {
+    stand::Drive402Faults df;
+    df.refuse_moves = true;
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 10 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    CHECK(l.master.status().ack == 1);
+    CHECK(l.master.status().state == TableState::Holding);
+    CHECK(l.drive.counts().set_points == 0);
+    CHECK(l.drive.angle(l.t) == 0);
+  }
+
+  TEST_CASE("targets and rates that do not fit the drive's counts: an error, no frame") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    const auto sent = l.sent.size();
+    auto refused = [&](TableCommandCode c, double target, double rate, const char* why) {
+      const Status s = l.command(c, 7, target, rate);
+      REQUIRE_FALSE(s.ok());
+      CHECK(s.error().message.find(why) != std::string::npos);
+    };
+    // 2148 revolutions are 2.148e9 counts, beyond s32
+    refused(TableCommandCode::MoveAbsolute, 2148 * kTwoPi, 0.1, "32-bit");
+    refused(TableCommandCode::MoveRelative, -2148 * kTwoPi, 0.1, "32-bit");
+    refused(TableCommandCode::MoveRelative, 1.0, 1e5, "u32");
+    refused(TableCommandCode::MoveRelative, 1.0, 0, "positive");
+    refused(TableCommandCode::MoveRelative, 1.0, NAN, "positive");
+    refused(TableCommandCode::MoveRelative, NAN, 0.1, "32-bit");
+    CHECK(l.sent.size() == sent);
+    CHECK(l.master.status().ack == 1);
+    CHECK(l.drive.counts().set_points == 0);
+    // within the range: 2147 revolutions fit
+    CHECK(l.command(TableCommandCode::MoveAbsolute, 8, 2147 * kTwoPi, 0.1).ok());
+  }
+
+  TEST_CASE("settings whose values do not fit the drive's objects are refused") {
+    cia402::MasterSettings s = master_settings();
+    CHECK(s.check().ok());
+    s.profile_acceleration_rps2 = 1e-9;  // rounds to 0 counts/s^2
+    CHECK_FALSE(cia402::Master::create(s).ok());
+    s = master_settings();
+    s.profile_velocity_rps = 1e5;
+    const auto r = cia402::Master::create(s);
+    REQUIRE_FALSE(r.ok());
+    CHECK(r.error().message.find("0x6081") != std::string::npos);
+    s = master_settings();
+    s.host_node_id = s.node_id;
+    CHECK_FALSE(s.check().ok());
+    s = master_settings();
+    s.host_heartbeat_timeout_s = 70;  // 70000 ms > u16
+    CHECK_FALSE(s.check().ok());
+    // constructed anyway: inert, it says why and sends nothing
+    cia402::Master m(s);
+    std::vector<can::Frame> out;
+    m.start(0, out);
+    m.tick(1, out);
+    CHECK(out.empty());
+    CHECK(m.status().state == TableState::Fault);
+    CHECK(m.status().fault_name.find("invalid settings: heartbeat times") == 0);
+    const Status c = m.command(TableCommandCode::Enable, 1, 0, 0, 1, out);
+    REQUIRE_FALSE(c.ok());
+    CHECK(c.error().message.find("invalid CANopen master settings") == 0);
+    CHECK(out.empty());
+  }
+
+  TEST_CASE("frames of a wrong length are counted and skipped") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    can::Frame f;
+    f.id = 0x185;  // TPDO1, 3 bytes
+    f.len = 3;
+    const auto tpdo = l.master.counts().tpdo;
+    l.master.on_frame(f, l.t, l.from_master);
+    f.id = 0x85;  // EMCY, 4 bytes
+    f.len = 4;
+    l.master.on_frame(f, l.t, l.from_master);
+    f.id = 0x705;  // heartbeat, 2 bytes
+    f.len = 2;
+    l.master.on_frame(f, l.t, l.from_master);
+    CHECK(l.master.counts().malformed == 3);
+    CHECK(l.master.counts().tpdo == tpdo);
+    CHECK(l.master.emergencies().empty());
+    CHECK(l.master.status().state == TableState::Holding);
+    // the drive counts a short RPDO and says so by EMCY 0x8210
+    f.id = 0x205;
+    f.len = 2;
+    l.drive.receive(l.t, f, l.from_drive);
+    l.deliver();
+    CHECK(l.drive.counts().malformed == 1);
+    CHECK(l.master.status().fault_name == "EMCY 0x8210 PDO not processed due to length error");
+  }
+
+  TEST_CASE("garbage on the bus: counted and skipped, nothing thrown") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    std::mt19937 rng(7);
+    const std::uint32_t master_ids[] = {0x585, 0x705, 0x085, 0x185, 0x123, 0x7FF};
+    std::uint64_t wrong_length = 0;
+    const auto malformed = l.master.counts().malformed;
+    for (int i = 0; i < 5000; ++i) {
+      can::Frame f;
+      f.id = master_ids[rng() % 6];
+      f.len = static_cast<std::uint8_t>(rng() % 9);
+      for (std::size_t k = 0; k < f.len; ++k) f.data[k] = static_cast<std::uint8_t>(rng());
+      if ((f.id == 0x185 && f.len < 6) || (f.id == 0x705 && f.len != 1) ||
+          (f.id == 0x085 && f.len != 8))
+        ++wrong_length;
+      CHECK_NOTHROW(l.master.on_frame(f, l.t, l.from_master));
+    }
+    CHECK(l.master.counts().malformed - malformed == wrong_length);
+    CHECK(l.master.sdo_counts().malformed > 0);
+    // the random EMCYs and statuswords leave it in fault, with a name
+    CHECK(l.master.status().state == TableState::Fault);
+    CHECK_FALSE(l.master.status().fault_name.empty());
+    // the drive takes garbage too: NMT, SYNC, SDO, RPDO, a heartbeat
+    const std::uint32_t drive_ids[] = {0x000, 0x080, 0x605, 0x205, 0x77F};
+    for (int i = 0; i < 5000; ++i) {
+      can::Frame f;
+      f.id = drive_ids[rng() % 5];
+      f.len = static_cast<std::uint8_t>(rng() % 9);
+      for (std::size_t k = 0; k < f.len; ++k) f.data[k] = static_cast<std::uint8_t>(rng());
+      CHECK_NOTHROW(l.drive.receive(l.t, f, l.from_drive));
+      l.from_drive.clear();
+    }
+    CHECK(l.drive.counts().malformed > 0);
+    CHECK(l.drive.counts().sdo_aborts > 0);
+    // and both go on: time passes without a throw
+    CHECK_NOTHROW(l.run_for(1.0));
+  }
+
+  TEST_CASE("position actual unwrapped across the drive's 32-bit wrap") {
+    cia402::Master m(master_settings());
+    std::vector<can::Frame> out;
+    auto tpdo = [&](std::uint32_t raw, double t) {
+      can::Frame f;
+      f.id = 0x185;
+      f.len = 6;
+      canopen::put_le(f.data, 0, 2, 0x0250);
+      canopen::put_le(f.data, 2, 4, raw);
+      m.on_frame(f, t, out);
+    };
+    tpdo(0x7FFFFFF0u, 0.00);
+    tpdo(0x80000010u, 0.01);  // +32 counts through the wrap
+    tpdo(0x7FFFFFFFu, 0.02);  // and back, -17
+    std::vector<cia402::EncoderSample> smp;
+    m.take_samples(smp);
+    REQUIRE(smp.size() == 3);
+    CHECK(smp[0].counts == 0x7FFFFFF0LL);
+    CHECK(smp[1].counts == 0x80000010LL);
+    CHECK(smp[2].counts == 0x7FFFFFFFLL);
+    const double cpr = 1e6 / kTwoPi;
+    CHECK(smp[1].angle_rad - smp[0].angle_rad == doctest::Approx(32 / cpr).epsilon(1e-6));
+    CHECK(smp[1].t_s == 0.01);
+    CHECK(out.empty());  // not started: nothing to say
+  }
+
+  TEST_CASE("PDO layouts from the stand's DBC drive the mapping and the codec") {
+    const char* dbc =
+        "VERSION \"\"\n\nBU_: HOST DRV\n\n"
+        "BO_ 389 DRV_Status: 6 DRV\n"
+        " SG_ Position : 0|32@1- (1,0) [0|0] \"counts\" HOST\n"
+        " SG_ Statusword : 32|16@1+ (1,0) [0|0] \"\" HOST\n\n"
+        "BO_ 517 DRV_Command: 6 HOST\n"
+        " SG_ Target : 0|32@1- (1,0) [0|0] \"counts\" DRV\n"
+        " SG_ Controlword : 32|16@1+ (1,0) [0|0] \"\" DRV\n"
+        " SG_ Scaled : 0|32@1- (0.001,0) [0|0] \"deg\" DRV\n"
+        " SG_ Motorola : 39|16@0+ (1,0) [0|0] \"\" DRV\n";
+    auto db = can::parse_dbc(dbc);
+    REQUIRE(db.ok());
+    const can::Message* tx = db->find("DRV_Status");
+    const can::Message* rx = db->find("DRV_Command");
+    REQUIRE(tx != nullptr);
+    REQUIRE(rx != nullptr);
+    auto tpdo = cia402::TpdoLayout::from_dbc(*tx, "Statusword", "Position");
+    REQUIRE(tpdo.ok());
+    CHECK(tpdo->cob_id == 0x185);
+    CHECK(tpdo->statusword.offset == 4);
+    CHECK(tpdo->position_actual.offset == 0);
+    auto rpdo = cia402::RpdoLayout::from_dbc(*rx, "Controlword", "Target");
+    REQUIRE(rpdo.ok());
+    CHECK(rpdo->controlword.offset == 4);
+    CHECK(rpdo->target_position.offset == 0);
+    CHECK_FALSE(cia402::RpdoLayout::from_dbc(*rx, "Controlword", "Scaled").ok());
+    CHECK_FALSE(cia402::RpdoLayout::from_dbc(*rx, "Motorola", "Target").ok());
+    CHECK_FALSE(cia402::RpdoLayout::from_dbc(*rx, "Controlword", "Nothing").ok());
+    // the master writes that layout and speaks it
+    cia402::MasterSettings ms = master_settings();
+    ms.configure_mapping = true;
+    ms.rpdo = *rpdo;
+    ms.tpdo = *tpdo;
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    CHECK(*l.drive.value(0x1600, 1) == 0x607A0020);
+    CHECK(*l.drive.value(0x1600, 2) == 0x60400010);
+    CHECK(*l.drive.value(0x1A00, 1) == 0x60640020);
+    CHECK(*l.drive.value(0x1A00, 2) == 0x60410010);
+    CHECK(*l.drive.value(0x1800, 5) == 10);
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveAbsolute, 2, 30 * kDeg, 30 * kDeg));
+    REQUIRE(l.in_position(2, 5));
+    CHECK(std::fabs(l.master.angle_rad() - 30 * kDeg) * 1e6 / kTwoPi <= 1.0);
+    CHECK(std::fabs(l.drive.angle(l.t) - 30 * kDeg) * 1e6 / kTwoPi <= 1.0);
+  }
+
+  TEST_CASE("no boot-up: a fault that names it, and the reset is tried again") {
+    stand::Drive402Faults df;
+    df.silent_at_s = 0;  // never heard
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    l.run_for(2.5);
+    CHECK(l.master.status().state == TableState::Fault);
+    CHECK(l.master.status().fault == FaultCode::NoBootUp);
+    CHECK(l.master.status().fault_name.find("no boot-up from drive node 5") != std::string::npos);
+    CHECK(l.master.counts().nmt_resets == 2);
+    CHECK(l.drive.counts().nmt_resets == 0);
+  }
+}
