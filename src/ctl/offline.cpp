@@ -14,9 +14,11 @@
 #include "offline.hpp"
 
 #include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -450,6 +452,7 @@ int check(int argc, char** argv, int i, bool as_json) {
   }
   std::printf("%s\n", usable ? "usable" : "NOT usable");
   return usable ? kOk : kRefused;
+}
 
 namespace {
 
@@ -626,15 +629,21 @@ int decode(int argc, char** argv, int i, bool as_json) {
           const can::Signal& s = m->signals[k];
           std::printf(" %s=%s%s%s", s.display_name().c_str(), num(values[k]).c_str(),
                       s.unit.empty() ? "" : " ", s.unit.c_str());
-          if (auto v = s.values.find(static_cast<std::int64_t>(values[k]));
-              v != s.values.end() && s.factor == 1 && s.offset == 0)
-            std::printf(" (%s)", v->second.c_str());
+          // a value table's name, for an integer signal read as it is (and
+          // a value that an int64 holds: no cast beyond its range)
+          if (s.factor == 1 && s.offset == 0 && std::abs(values[k]) < 9.2e18)
+            if (auto v = s.values.find(static_cast<std::int64_t>(values[k])); v != s.values.end())
+              std::printf(" (%s)", v->second.c_str());
         }
       if (!error.empty()) std::printf(" [%s]", error.c_str());
       std::printf("\n");
     }
   }
-  std::fflush(stdout);
+  // what was decoded went out whole, or the run says it did not
+  if (std::fflush(stdout) != 0 || std::ferror(stdout) != 0) {
+    std::fprintf(stderr, "turncalctl: decode: cannot write the output: %s\n", std::strerror(errno));
+    return kRefused;
+  }
   if (malformed > 0)
     std::fprintf(
         stderr, "turncalctl: %s: %llu malformed line%s skipped (the first, line %llu: %s)\n",
