@@ -1395,4 +1395,66 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK((*slow)[0]["what"] == "rate");
     CHECK((*slow)[0]["text"].get<std::string>().find("without a sample") != std::string::npos);
   }
+
+  TEST_CASE("a reference-stand log replays to the report it gave before the drivers per device") {
+    // tests/data/golden: a short reference-stand run (the virtual stand,
+    // seed 5, 25 Hz, with garbage frames, velocity spikes and drops, device
+    // clocks off the host's) and the report its replay gave before the INS
+    // and the table went behind their drivers. Every value the report had
+    // is the same, bit for bit (JSON's shortest round trip of each double);
+    // keys added since are new. Paths are where the files are.
+    const std::string dir = std::string(TURNCAL_SOURCE_DIR) + "/tests/data/golden/";
+    auto cfg = load_config(dir + "turncal.toml");
+    REQUIRE(cfg.ok());
+    auto db = load_databases(cfg->can);
+    REQUIRE(db.ok());
+    auto roles = resolve_roles(cfg->can, *db);
+    REQUIRE(roles.ok());
+    run::ReplayOptions o;
+    o.profile = dir + "short.toml";
+    auto r = run::replay_log(*cfg, *db, *roles, dir + "reference-short.log", nullptr, o);
+    REQUIRE(r.ok());
+    std::ifstream in(dir + "golden-report.json");
+    const nlohmann::json golden = nlohmann::json::parse(in);
+    REQUIRE(golden["status"] == "done");
+    REQUIRE(golden["health"]["ins_velocity"]["implausible"].get<int>() > 0);  // it has teeth
+    int compared = 0;
+    std::function<void(const nlohmann::json&, const nlohmann::json&, const std::string&)> same =
+        [&](const nlohmann::json& want, const nlohmann::json& got, const std::string& at) {
+          CAPTURE(at);
+          if (want.is_object()) {
+            REQUIRE(got.is_object());
+            for (const auto& [k, v] : want.items()) {
+              if (k == "file") continue;  // a path, where the test runs
+              REQUIRE_MESSAGE(got.contains(k), (at + "/" + k + " is gone"));
+              same(v, got[k], at + "/" + k);
+            }
+          } else if (want.is_array()) {
+            REQUIRE(got.is_array());
+            REQUIRE(got.size() == want.size());
+            for (std::size_t k = 0; k < want.size(); ++k)
+              same(want[k], got[k], at + "/" + std::to_string(k));
+          } else {
+            CHECK(got == want);
+            ++compared;
+          }
+        };
+    same(golden, r->report, "");
+    // every value of the golden report, but its paths, was compared
+    std::function<int(const nlohmann::json&)> leaves = [&](const nlohmann::json& j) {
+      int n = 0;
+      if (j.is_object()) {
+        for (const auto& [k, v] : j.items())
+          if (k != "file") n += leaves(v);
+      } else if (j.is_array()) {
+        for (const auto& v : j) n += leaves(v);
+      } else {
+        n = 1;
+      }
+      return n;
+    };
+    MESSAGE(compared << " values of the golden report compared");
+    CHECK(compared == leaves(golden));
+    CHECK(golden["estimates"].size() == 22);
+  }
 }
