@@ -345,6 +345,16 @@ int check(int argc, char** argv, int i, bool as_json) {
         r.message->name + "." + r.signal->name +
         (r.signal->unit.empty() ? "" : " [" + r.signal->unit + "]");
   }
+  // a DBC without units: read as m/s and us, which the user should know
+  for (const Role r : {Role::InsVelEast, Role::InsVelNorth, Role::InsVelEastTimeTag,
+                       Role::InsVelNorthTimeTag, Role::InsStatusTimeTag, Role::InsTime}) {
+    const ResolvedRole& rr = (*roles)[r];
+    if (rr.signal == nullptr || !rr.signal->unit.empty()) continue;
+    const bool speed = r == Role::InsVelEast || r == Role::InsVelNorth;
+    out["dbc_warnings"].push_back(rr.message->name + "." + rr.signal->name + " (role " +
+                                  std::string(role_key(r)) + ") has no unit in the DBC: read as " +
+                                  (speed ? "m/s" : "microseconds"));
+  }
   const InsLayout& ins = cfg->can.ins;
   const char* time = ins.time == InsTimeSource::Tag         ? "tag"
                      : ins.time == InsTimeSource::TimeFrame ? "time-frame"
