@@ -465,6 +465,20 @@ void SdoClient::cancel_all(std::vector<can::Frame>& out, std::uint32_t code) {
   }
 }
 
+void SdoClient::fail_queued(std::uint32_t code) {
+  std::deque<Transfer> dropped;
+  dropped.swap(queue_);
+  for (Transfer& t : dropped) {
+    if (!t.done) continue;
+    SdoResult r;
+    r.index = t.index;
+    r.subindex = t.sub;
+    r.upload = t.upload;
+    r.abort = code;
+    t.done(r);
+  }
+}
+
 void SdoClient::tick(double now_s, std::vector<can::Frame>& out) {
   if (active_ && now_s >= active_->deadline) {
     ++counts_.timeouts;

@@ -250,12 +250,13 @@ TEST_SUITE("cia402") {
     REQUIRE(l.running());
     CHECK(l.drive.nmt() == canopen::NmtState::Operational);
     using W = std::pair<std::uint16_t, std::uint8_t>;
-    const std::vector<W> order{{0x6060, 0}, {0x6081, 0}, {0x6083, 0}, {0x6084, 0}, {0x6085, 0},
-                               {0x605A, 0}, {0x6007, 0}, {0x1016, 1}, {0x1017, 0}};
+    const std::vector<W> order{{0x6060, 0}, {0x60F2, 0}, {0x6081, 0}, {0x6083, 0}, {0x6084, 0},
+                               {0x6085, 0}, {0x605A, 0}, {0x6007, 0}, {0x1016, 1}, {0x1017, 0}};
     CHECK(l.drive.sdo_writes() == order);
     const double cpr = 1e6 / kTwoPi;
     CHECK(*l.drive.value(0x6060, 0) == 1);
     CHECK(*l.drive.value(0x6061, 0) == 1);
+    CHECK(*l.drive.value(0x60F2, 0) == 1);  // relative to the actual position
     CHECK(*l.drive.value(0x6081, 0) == std::llround(30 * kDeg * cpr));
     CHECK(*l.drive.value(0x6083, 0) == std::llround(60 * kDeg * cpr));
     CHECK(*l.drive.value(0x6084, 0) == std::llround(40 * kDeg * cpr));
@@ -404,7 +405,7 @@ TEST_SUITE("cia402") {
       CHECK(st.fault_name.find("profile acceleration") != std::string::npos);
       // the drive: what came before was written, nothing after, never started
       using W = std::pair<std::uint16_t, std::uint8_t>;
-      CHECK(l.drive.sdo_writes() == std::vector<W>{{0x6060, 0}, {0x6081, 0}});
+      CHECK(l.drive.sdo_writes() == std::vector<W>{{0x6060, 0}, {0x60F2, 0}, {0x6081, 0}});
       CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
       // a move is refused with the reason, and sends nothing
       l.from_master.clear();
@@ -436,11 +437,17 @@ TEST_SUITE("cia402") {
     CHECK(l.drive.state() == State::OperationEnabled);
     CHECK(l.master.drive_state() == State::OperationEnabled);
     CHECK((l.drive.controlword() & 0x8F) == 0x0F);
-    // disable: back to switch on disabled
+    // disable: shutdown (transition 8) to ready to switch on, not disable
+    // voltage (9), which would let a moving table coast
     REQUIRE(l.command(TableCommandCode::Disable, 43));
     REQUIRE(l.run_until([&] { return l.master.status().ack == 43; }, 0.5));
     CHECK(l.master.status().state == TableState::Disabled);
-    CHECK(l.drive.state() == State::SwitchOnDisabled);
+    CHECK(l.drive.state() == State::ReadyToSwitchOn);
+    CHECK((l.drive.controlword() & 0x8F) == 0x06);
+    l.run_for(0.1);
+    CHECK(l.drive.state() == State::ReadyToSwitchOn);
+    // and enabled again from there
+    REQUIRE(l.enabled(44));
   }
 
   TEST_CASE("relative and absolute moves: handshake, moving, in position within a count") {
@@ -695,7 +702,7 @@ TEST_SUITE("cia402") {
     CHECK(l.master.counts().nmt_resets == 2);
     CHECK(l.drive.counts().nmt_resets == 1);
     CHECK(l.master.counts().configurations == configs + 1);
-    CHECK(l.drive.sdo_writes().size() == writes + 9);
+    CHECK(l.drive.sdo_writes().size() == writes + 10);
     CHECK(*l.drive.value(0x1016, 1) == (127 << 16 | 500));  // watched again
     CHECK(*l.drive.value(0x1017, 0) == 100);
     CHECK(l.drive.state() == State::OperationEnabled);
@@ -846,7 +853,7 @@ TEST_SUITE("cia402") {
     CHECK((l.drive.statusword() & 0x2000) == 0);
   }
 
-  TEST_CASE("a refused move is never acknowledged") {
+  TEST_CASE("a refused move is never acknowledged: a set-point timeout") {
     stand::Drive402Faults df;
     df.refuse_moves = true;
     Loop l(master_settings(), drive_setup(), df);
@@ -854,9 +861,17 @@ TEST_SUITE("cia402") {
     REQUIRE(l.running());
     REQUIRE(l.enabled(1));
     REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 10 * kDeg, 30 * kDeg));
-    l.run_for(1.0);
+    l.run_for(0.45);
     CHECK(l.master.status().ack == 1);
     CHECK(l.master.status().state == TableState::Holding);
+    CHECK((l.drive.controlword() & 0x10) != 0);  // bit 4 held, waiting
+    // no bit 12 within the set-point timeout (0.5 s): a fault that names it
+    l.run_for(0.1);
+    CHECK(l.master.status().ack == 1);
+    CHECK(l.master.status().state == TableState::Fault);
+    CHECK(l.master.status().fault == FaultCode::SetPointTimeout);
+    CHECK(l.master.status().fault_name.find("set-point not acknowledged") != std::string::npos);
+    CHECK((l.drive.controlword() & 0x10) == 0);
     CHECK(l.drive.counts().set_points == 0);
     CHECK(l.drive.angle(l.t) == 0);
   }
@@ -1071,5 +1086,95 @@ TEST_SUITE("cia402") {
     CHECK(l.master.status().fault_name.find("no boot-up from drive node 5") != std::string::npos);
     CHECK(l.master.counts().nmt_resets == 2);
     CHECK(l.drive.counts().nmt_resets == 0);
+  }
+
+  TEST_CASE("a drive that samples RPDO1 once a cycle: bit 4 held until bit 12, then dropped") {
+    cia402::MasterSettings ms = master_settings();
+    stand::Drive402Setup ds = drive_setup();
+    ds.cycle_s = 0.004;  // the drive sees the last controlword of each 4 ms
+    SUBCASE("event-driven TPDO") {}
+    SUBCASE("TPDO1 on SYNC, RPDO1 taken at once") {
+      ms.sync_period_s = 0.01;
+      ds.cycle_s = 0;
+    }
+    SUBCASE("TPDO1 on SYNC, cyclic drive") {
+      ms.sync_period_s = 0.01;
+    }
+    Loop l(ms, ds);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 20 * kDeg, 30 * kDeg));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 2; }, 0.2));
+    CHECK(l.drive.counts().set_points == 1);
+    REQUIRE(l.in_position(2, 5));
+    CHECK(l.drive.position_counts(l.t) == 55556);  // 20 deg: 55555.6 counts
+    // every RPDO from the set-point to the first without bit 4 held it, and
+    // bit 4 dropped only after a statusword with bit 12 reached the master
+    const auto rpdo = canopen::kRpdo1Base + 5;
+    bool raised = false, dropped = false;
+    for (const can::Frame& f : l.sent) {
+      if (f.id != rpdo) continue;
+      const bool bit4 = (f.data[0] & 0x10) != 0;
+      if (bit4) raised = true;
+      if (raised && !bit4) dropped = true;
+      if (dropped) CHECK_FALSE(bit4);  // one set-point, one rising edge
+    }
+    CHECK(raised);
+    CHECK(dropped);
+    CHECK((l.drive.controlword() & 0x10) == 0);
+    CHECK((l.drive.statusword() & 0x1000) == 0);
+    // and a second move goes the same way
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 3, -20 * kDeg, 30 * kDeg));
+    REQUIRE(l.in_position(3, 5));
+    CHECK(l.drive.counts().set_points == 2);
+    CHECK(l.drive.position_counts(l.t) == 0);
+  }
+
+  TEST_CASE("a stale frozen TPDO and a drive that ignores the first fault reset") {
+    stand::Drive402Faults df;
+    df.fault_at_s = 0.5;
+    df.fault_code = 0x4310;
+    df.stale = stand::StalePdo::Frozen;
+    df.resets_ignored = 1;
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    l.run_for(1.0);
+    REQUIRE(l.master.status().fault == FaultCode::Emcy);
+    // the reset is ignored; the frozen TPDO keeps saying operation enabled
+    CHECK_FALSE(l.enabled(2));
+    CHECK(l.drive.state() == State::Fault);
+    CHECK(l.master.drive_state() == State::OperationEnabled);
+    CHECK(l.master.status().state == TableState::Fault);
+    CHECK(l.master.status().ack == 1);
+    CHECK_FALSE(l.command(TableCommandCode::MoveRelative, 3, 0.1, 0.1).ok());
+    // the next reset takes: switch on disabled seen, then enabled
+    REQUIRE(l.enabled(4));
+    CHECK(l.drive.counts().fault_resets == 1);
+    CHECK(l.drive.state() == State::OperationEnabled);
+  }
+
+  TEST_CASE("the fault reset's rising edge survives a drive that samples RPDO1 once a cycle") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.cycle_s = 0.004;
+    stand::Drive402Faults df;
+    df.fault_at_s = 0.5;
+    df.fault_code = 0x3210;
+    df.resets_ignored = 1;
+    Loop l(master_settings(), ds, df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    l.run_for(1.0);
+    REQUIRE(l.master.status().fault == FaultCode::Emcy);
+    CHECK_FALSE(l.enabled(2));  // the first reset is ignored: bit 7 stays high
+    CHECK(l.drive.state() == State::Fault);
+    REQUIRE((l.drive.controlword() & 0x80) != 0);
+    // the second needs bit 7 low for one sample, then high
+    REQUIRE(l.enabled(3));
+    CHECK(l.drive.counts().fault_resets == 1);
+    CHECK(l.drive.state() == State::OperationEnabled);
   }
 }

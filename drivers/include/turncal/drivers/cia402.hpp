@@ -95,6 +95,7 @@ inline constexpr std::uint16_t kProfileVelocity = 0x6081;
 inline constexpr std::uint16_t kProfileAcceleration = 0x6083;
 inline constexpr std::uint16_t kProfileDeceleration = 0x6084;
 inline constexpr std::uint16_t kQuickStopDeceleration = 0x6085;
+inline constexpr std::uint16_t kPositioningOption = 0x60F2;
 inline constexpr std::uint16_t kDeviceName = 0x1008;
 inline constexpr std::uint16_t kConsumerHeartbeat = 0x1016;
 inline constexpr std::uint16_t kProducerHeartbeat = 0x1017;
@@ -286,6 +287,15 @@ struct MasterSettings {
   double sync_period_s = 0;
   /// TPDO1's event timer when the mapping is written without SYNC.
   double tpdo_event_timer_s = 0.01;
+  /// A set-point (controlword bit 4, held) not acknowledged (statusword
+  /// bit 12) within this latches a fault.
+  double set_point_timeout_s = 0.5;
+  /// A fault reset is a rising edge of bit 7 and RPDO1 an overwrite buffer
+  /// the drive samples once a cycle: 0x0000 goes first and 0x0080 follows
+  /// at the next statusword, or after this when none comes.
+  double fault_reset_low_s = 0.05;
+  /// How long 0x6061 may take to show the mode written to 0x6060.
+  double mode_switch_timeout_s = 0.2;
 
   [[nodiscard]] double counts_per_rad() const {
     return counts_per_rev * gear_ratio / (2 * 3.14159265358979323846);
@@ -315,6 +325,7 @@ enum class FaultCode : std::uint8_t {
   Configuration = 6,       ///< an SDO abort (or timeout) during configuration
   NoBootUp = 7,            ///< no boot-up message after the NMT reset
   Sdo = 8,                 ///< the SDO a move needed (profile velocity) failed
+  SetPointTimeout = 9,     ///< no set-point acknowledge (bit 12) in time
 };
 
 /// What the sequencer's TableStatusEvent carries (icd.hpp, can-icd.md).
@@ -423,7 +434,7 @@ class Master {
     Halting,  ///< halt set, decelerating until bit 10
     Done,     ///< target reached (or halted at rest)
   };
-  enum class Recovery : std::uint8_t { None, AfterComm, SendReset, WaitFresh };
+  enum class Recovery : std::uint8_t { None, AfterComm, SendReset, ResetLow, WaitFresh };
   enum class AckOn : std::uint8_t { None, Enabled, Disabled, Stopped, Halted };
   struct PendingMove {
     std::uint8_t seq = 0;
@@ -435,6 +446,11 @@ class Master {
   void reset_comm(double now_s, std::vector<can::Frame>& out);
   void configure(double now_s, std::vector<can::Frame>& out);
   void config_done(double now_s, std::vector<can::Frame>& out);
+  void config_failed(const canopen::SdoResult& r, const std::string& why);
+  /// Reads 0x60F2 back, then check_mode.
+  void check_options(std::uint64_t gen);
+  /// Reads 0x6061 until it shows profile position (1), then completes.
+  void check_mode(std::uint64_t gen);
   void latch(FaultCode code, std::string name, bool needs_comm_reset = false);
   void on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
   void on_heartbeat(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
@@ -488,6 +504,12 @@ class Master {
   MoveStep move_ = MoveStep::None;
   PendingMove pending_;
   std::uint64_t move_sent_seq_ = 0;
+  double move_sent_t_ = 0;
+  std::uint64_t low_seq_ = 0;  // sw_seq_ when 0x0000 went out before a fault reset
+  double low_t_ = 0;
+  double mode_since_ = 0;  // the mode check began
+  double mode_poll_at_ = INFINITY;
+  bool sdo_quick_stop_ = false;  // a quick stop written by SDO awaits its answer
   std::uint32_t velocity_written_ = 0;
   std::uint64_t move_generation_ = 0;
   std::uint16_t move_flags_ = 0;  // relative, change immediately

@@ -56,6 +56,18 @@ struct Drive402Setup {
   bool default_mapping = true;
   std::uint16_t tpdo_event_timer_ms = 10;   ///< 0x1800:05 after a reset
   std::uint16_t producer_heartbeat_ms = 0;  ///< 0x1017 after a reset
+  /// > 0: the drive works in cycles of this length, as a real one does:
+  /// RPDO1 is an overwrite buffer sampled once a cycle (a controlword
+  /// overwritten before the cycle is never seen), and the statusword that
+  /// answers goes out with the next cycle's TPDO1. 0: every frame is taken
+  /// at once and answered at once.
+  double cycle_s = 0;
+  /// Delay of a write of 0x6060 before 0x6061 shows it and the mode works
+  /// (a set-point before then is ignored).
+  double mode_switch_s = 0.003;
+  /// 0x60F2 after a reset; bits 0-1 = 00 (the default of many drives): a
+  /// relative target counts from the last target; 01: from position actual.
+  std::uint16_t positioning_option = 0;
 };
 
 /// What TPDO1 does while the drive is in fault (the stale-PDO trap).
@@ -159,6 +171,8 @@ class VirtualDrive402 {
   void on_nmt(double t, const can::Frame& f, std::vector<DriveFrame>& out);
   void on_sdo(double t, const can::Frame& f, std::vector<DriveFrame>& out);
   void on_rpdo(double t, const can::Frame& f, std::vector<DriveFrame>& out);
+  void apply_rpdo(double t, const can::Frame& f, std::vector<DriveFrame>& out);
+  void cycle(double t, std::vector<DriveFrame>& out);
   void on_sync(double t, std::vector<DriveFrame>& out);
   /// 0: written; else the abort code.
   std::uint32_t write(double t, std::uint32_t key, const std::vector<std::uint8_t>& data,
@@ -220,6 +234,14 @@ class VirtualDrive402 {
   std::optional<std::uint16_t> last_sent_sw_;
   std::optional<can::Frame> frozen_;
   std::uint32_t sync_count_ = 0;
+  // cycles
+  double next_cycle_ = std::numeric_limits<double>::infinity();
+  std::optional<can::Frame> rpdo_buf_;  // the RPDO1 not yet sampled
+  bool in_cycle_ = false;
+  bool timer_due_ = false;  // the event timer fell in this cycle
+  // modes of operation: 0x6061 follows 0x6060 at mode_at_
+  double mode_at_ = std::numeric_limits<double>::infinity();
+  std::int64_t last_target_ = 0;  // the last set-point's absolute target, counts
   std::vector<std::pair<std::uint16_t, std::uint8_t>> writes_;
   std::vector<std::uint16_t> emcy_sent_;
   Drive402Counts counts_;
