@@ -189,6 +189,7 @@ std::uint16_t VirtualDrive402::statusword() const {
     s |= cia402::sw::kTargetReached;
   if (set_point_ack_ && state_ == State::OperationEnabled) s |= cia402::sw::kSetPointAcknowledge;
   if (following_error_) s |= cia402::sw::kFollowingError;
+  if (warning_) s |= cia402::sw::kWarning;
   return s;
 }
 
@@ -243,6 +244,7 @@ void VirtualDrive402::advance(double t, std::vector<DriveFrame>& out) {
       consider(host_last_hb_ + (consumer & 0xFFFF) / 1000.0, 2);
     consider(faults_.fault_at_s, 3);
     consider(faults_.following_error_at_s, 4);
+    consider(faults_.warning_at_s, 9);
     if (motion_kind_ != Motion::Rest) consider(rest_at_, 5);
     if (nmt_ == canopen::NmtState::Operational && !booting_) consider(next_tpdo_, 6);
     consider(next_cycle_, 7);
@@ -287,6 +289,11 @@ void VirtualDrive402::advance(double t, std::vector<DriveFrame>& out) {
       }
       case 7:
         cycle(when, out);
+        break;
+      case 9:
+        faults_.warning_at_s = NAN;
+        warning_ = true;
+        emcy(when, faults_.warning_code, 0x09, out);  // generic + temperature
         break;
       case 8:
         mode_at_ = kInf;

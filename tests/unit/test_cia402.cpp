@@ -1177,4 +1177,133 @@ TEST_SUITE("cia402") {
     CHECK(l.drive.counts().fault_resets == 1);
     CHECK(l.drive.state() == State::OperationEnabled);
   }
+
+  TEST_CASE("quick stop outside running: refused while the drive boots, by SDO while configuring") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.mode_switch_s = 0.05;  // the configuration waits for 0x6061
+    Loop l(master_settings(), ds);
+    l.start();
+    REQUIRE(l.master.phase() == cia402::CommPhase::WaitBootUp);
+    // no SDO reaches a drive before its boot-up: not sent, not acknowledged
+    CHECK_FALSE(l.command(TableCommandCode::QuickStop, 7).ok());
+    CHECK(l.master.status().ack == 0);
+    REQUIRE(l.run_until([&] { return l.master.phase() == cia402::CommPhase::Configuring; }, 0.5));
+    const auto writes = l.drive.sdo_writes().size();
+    REQUIRE(l.command(TableCommandCode::QuickStop, 8));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 8; }, 0.1));
+    // acknowledged on the drive's answer to the write of 0x6040
+    REQUIRE(l.drive.sdo_writes().size() > writes);
+    CHECK(l.drive.sdo_writes()[writes] == std::make_pair<std::uint16_t, std::uint8_t>(0x6040, 0));
+    CHECK(*l.drive.value(0x6040, 0) == 0x0002);
+    REQUIRE(l.running());
+    l.run_for(0.1);
+    CHECK(l.master.status().state == TableState::QuickStopped);
+    CHECK((l.drive.controlword() & 0x8F) == 0x02);  // and by PDO once running
+  }
+
+  TEST_CASE("an EMCY that only warns: the quick stop waits for a statusword that shows it") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.cycle_s = 0.004;
+    stand::Drive402Faults df;
+    df.warning_at_s = 1.0;
+    Loop l(master_settings(), ds, df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
+    l.run_for(1.5);
+    REQUIRE(l.master.status().fault == FaultCode::Emcy);  // latched, to be safe
+    REQUIRE(l.drive.state() == State::OperationEnabled);  // but the drive goes on
+    REQUIRE(l.drive.moving(l.t));
+    REQUIRE(l.command(TableCommandCode::QuickStop, 3));
+    CHECK(l.master.status().ack != 3);  // the drive has not yet sampled it
+    CHECK(l.drive.moving(l.t));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.1));
+    CHECK(l.drive.state() == State::QuickStopActive);
+    CHECK((l.drive.controlword() & 0x8F) == 0x02);
+  }
+
+  TEST_CASE("disable: refused while moving; from quick stop active nothing before rest") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    const auto sent = l.sent.size();
+    CHECK_FALSE(l.command(TableCommandCode::Disable, 3).ok());
+    CHECK(l.sent.size() == sent);
+    CHECK(l.drive.state() == State::OperationEnabled);
+    REQUIRE(l.in_position(2, 5));
+    // a quick stop, and at once enable again: the drive leaves quick stop
+    // active (transition 12) only once at rest (bit 10)
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 4, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    REQUIRE(l.command(TableCommandCode::QuickStop, 5));
+    REQUIRE(l.command(TableCommandCode::Enable, 6));
+    REQUIRE(l.drive.moving(l.t));
+    while (l.drive.moving(l.t)) {
+      CHECK(l.drive.state() == State::QuickStopActive);
+      CHECK((l.drive.controlword() & 0x8F) == 0x02);
+      l.step();
+    }
+    REQUIRE(l.enabled(6));
+    // and disable from quick stop active, also at rest only
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 7, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    REQUIRE(l.command(TableCommandCode::QuickStop, 8));
+    REQUIRE(l.command(TableCommandCode::Disable, 9));
+    REQUIRE(l.drive.moving(l.t));
+    while (l.drive.moving(l.t)) {
+      CHECK(l.drive.state() == State::QuickStopActive);
+      l.step();
+    }
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 9; }, 0.5));
+    CHECK(l.drive.state() == State::SwitchOnDisabled);  // transition 12
+    CHECK(l.master.status().state == TableState::Disabled);
+  }
+
+  TEST_CASE("modes of operation display read back: the drive switches late, or never") {
+    stand::Drive402Setup ds = drive_setup();
+    SUBCASE("late: configuration waits") {
+      ds.mode_switch_s = 0.05;
+      Loop l(master_settings(), ds);
+      l.start();
+      REQUIRE(l.running());
+      CHECK(*l.drive.value(0x6061, 0) == 1);  // shown before NMT start
+      REQUIRE(l.enabled(1));
+      REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 10 * kDeg, 30 * kDeg));
+      REQUIRE(l.in_position(2, 3));
+    }
+    SUBCASE("never within the timeout: configuration fails, naming 0x6061") {
+      ds.mode_switch_s = 10;
+      Loop l(master_settings(), ds);
+      l.start();
+      l.run_for(0.5);
+      CHECK(l.master.phase() == cia402::CommPhase::Failed);
+      CHECK(l.master.status().fault == FaultCode::Configuration);
+      CHECK(l.master.status().fault_name.find("0x6061") != std::string::npos);
+      CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
+    }
+  }
+
+  TEST_CASE("relative moves count from the actual position (0x60F2), not the last target") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.positioning_option = 0;  // as many drives: from the last target
+    Loop l(master_settings(), ds);
+    l.start();
+    REQUIRE(l.running());
+    CHECK(*l.drive.value(0x60F2, 0) == 1);
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.5);
+    REQUIRE(l.command(TableCommandCode::QuickStop, 3));
+    l.run_for(0.5);
+    REQUIRE(l.enabled(4));
+    const std::int64_t stopped = l.drive.position_counts(l.t);
+    REQUIRE(stopped < 250000);
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 5, 10 * kDeg, 30 * kDeg));
+    REQUIRE(l.in_position(5, 3));
+    CHECK(l.drive.position_counts(l.t) == stopped + 27778);
+  }
 }

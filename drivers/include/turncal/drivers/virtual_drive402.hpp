@@ -85,6 +85,9 @@ struct Drive402Faults {
   double silent_at_s = NAN;  ///< the drive neither sends nor hears anything from then ...
   double silent_until_s = std::numeric_limits<double>::infinity();  ///< ... to then
   double following_error_at_s = NAN;  ///< statusword bit 13, EMCY 0x8611, fault
+  /// An EMCY that only warns (statusword bit 7): the drive keeps moving.
+  double warning_at_s = NAN;
+  std::uint16_t warning_code = 0x4210;  ///< excess temperature device
   bool refuse_moves = false;          ///< new set-points are never acknowledged
   int resets_ignored = 0;  ///< the first fault resets leave it in fault (the cause persists)
   /// (index << 8 | sub) -> abort code for any SDO access to that object.
@@ -224,6 +227,7 @@ class VirtualDrive402 {
   bool target_reached_ = true;
   bool set_point_ack_ = false;
   bool following_error_ = false;
+  bool warning_ = false;
   TableMotion motion_;
   Motion motion_kind_ = Motion::Rest;
   double rest_at_ = -std::numeric_limits<double>::infinity();
