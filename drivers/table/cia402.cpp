@@ -390,8 +390,20 @@ Status MasterSettings::check() const {
     return make_error("the drive heartbeat timeout must exceed its period");
   const double host_ms = std::round(host_heartbeat_timeout_s * 1000);
   const double drive_ms = std::round(drive_heartbeat_period_s * 1000);
-  if (host_ms > 65535 || drive_ms < 1 || drive_ms > 65535)
+  // 0 ms would switch the drive's watch of us off (0x1016:01)
+  if (host_ms < 1 || host_ms > 65535 || drive_ms < 1 || drive_ms > 65535)
     return make_error("heartbeat times must be 1 to 65535 ms (0x1016, 0x1017)");
+  // CiA 402: 0x605A 0..8 defined (9.. reserved, negative the maker's own);
+  // 0x6007 0..3 (4.. reserved, negative the maker's own)
+  if (quick_stop_option < 0 || quick_stop_option > 8)
+    return make_error("quick stop option code " + std::to_string(quick_stop_option) +
+                      " is not one CiA 402 defines (0 to 8, 0x605A)");
+  if (abort_connection_option < 0 || abort_connection_option > 3)
+    return make_error("abort connection option code " + std::to_string(abort_connection_option) +
+                      " is not one CiA 402 defines (0 to 3, 0x6007)");
+  if (!positive(set_point_timeout_s) || !positive(fault_reset_low_s) ||
+      !positive(mode_switch_timeout_s))
+    return make_error("set-point, fault reset and mode switch times must be positive");
   if (!(sync_period_s >= 0) || !std::isfinite(sync_period_s))
     return make_error("SYNC period must be 0 (none) or positive");
   const double cpr = counts_per_rad();
@@ -408,11 +420,34 @@ Status MasterSettings::check() const {
   TURNCAL_TRY(tpdo_layout().check());
   if (velocity_pdo) {
     TURNCAL_TRY(velocity_layout().check());
-    const std::uint32_t ids[] = {rpdo_layout().cob_id, tpdo_layout().cob_id,
-                                 velocity_layout().cob_id};
-    if (ids[2] == ids[0] || ids[2] == ids[1])
-      return make_error("TPDO2's COB-ID " + hex(ids[2], 3) + " is another PDO's");
     if (configure_mapping) TURNCAL_TRY(velocity_layout().mapping());
+  }
+  {
+    // every PDO's identifier is its own: not another PDO's, nor one of the
+    // predefined connection set's this bus uses (CiA 301, 7.3.5)
+    struct Id {
+      std::uint32_t id;
+      const char* what;
+    };
+    const Id fixed[] = {{canopen::kNmtId, "NMT"},
+                        {canopen::kSyncId, "SYNC"},
+                        {canopen::kEmcyBase + node_id, "the drive's EMCY"},
+                        {canopen::kSdoTxBase + node_id, "the drive's SDO response"},
+                        {canopen::kSdoRxBase + node_id, "the drive's SDO request"},
+                        {canopen::kHeartbeatBase + node_id, "the drive's heartbeat"},
+                        {canopen::kHeartbeatBase + host_node_id, "our heartbeat"}};
+    std::vector<Id> pdos{{rpdo_layout().cob_id, "RPDO1"}, {tpdo_layout().cob_id, "TPDO1"}};
+    if (velocity_pdo) pdos.push_back({velocity_layout().cob_id, "TPDO2"});
+    for (std::size_t i = 0; i < pdos.size(); ++i) {
+      for (std::size_t j = i + 1; j < pdos.size(); ++j)
+        if (pdos[i].id == pdos[j].id)
+          return make_error(std::string(pdos[j].what) + "'s COB-ID " + hex(pdos[j].id, 3) + " is " +
+                            pdos[i].what + "'s");
+      for (const Id& f : fixed)
+        if (pdos[i].id == f.id)
+          return make_error(std::string(pdos[i].what) + "'s COB-ID " + hex(pdos[i].id, 3) + " is " +
+                            f.what + "'s");
+    }
   }
   if (configure_mapping) {
     TURNCAL_TRY(rpdo_layout().mapping());
@@ -530,6 +565,9 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
   steps.push_back({obj::kProducerHeartbeat, 0, le_bytes(drive_ms, 2)});
   auto pdo = [&](std::uint16_t comm, std::uint16_t map, std::uint32_t cob,
                  const std::vector<std::uint32_t>& entries, bool tpdo) {
+    // CiA 301 COB-ID entry: bit 31 PDO not valid, bit 30 (a TPDO's) no RTR
+    // allowed: nobody asks our drive for its PDOs by remote frame
+    if (tpdo) cob |= 0x40000000u;
     steps.push_back({comm, 1, le_bytes(cob | 0x80000000u, 4)});  // PDO not valid
     steps.push_back({map, 0, le_bytes(0, 1)});
     for (std::size_t i = 0; i < entries.size(); ++i)
@@ -704,9 +742,22 @@ void Master::on_heartbeat(const can::Frame& f, double t_s, std::vector<can::Fram
     ++counts_.malformed;
     return;
   }
-  ++counts_.heartbeats;
   const auto st = static_cast<canopen::NmtState>(f.data[0]);
+  if (st != canopen::NmtState::BootUp && st != canopen::NmtState::Stopped &&
+      st != canopen::NmtState::Operational && st != canopen::NmtState::PreOperational) {
+    ++counts_.unknown_nmt_states;  // no state CiA 301 defines: counted, skipped
+    return;
+  }
+  ++counts_.heartbeats;
   if (st == canopen::NmtState::BootUp) {
+    // a drive that booted may count its position afresh: the unwrap of
+    // its s32 starts again from its next position actual
+    if (have_pos_) {
+      have_pos_ = false;
+      last_sample_t_ = NAN;
+      rate_ = NAN;
+      ++counts_.position_resets;
+    }
     if (phase_ == CommPhase::WaitBootUp) {
       out.push_back(canopen::nmt_frame(canopen::NmtCommand::EnterPreOperational, s_.node_id));
       configure(t_s, out);

@@ -244,6 +244,57 @@ TEST_SUITE("cia402") {
     CHECK(c.idle());
   }
 
+  TEST_CASE("SDO client: an abort for another object is not ours; a 0-byte download is refused") {
+    canopen::SdoClient c(5, 0.5);
+    std::vector<can::Frame> out;
+    std::vector<canopen::SdoResult> done;
+    c.upload(0x6061, 0, [&](const canopen::SdoResult& r) { done.push_back(r); });
+    c.tick(0, out);
+    REQUIRE(out.size() == 1);
+    // a late abort of an earlier transfer (0x6083:00) arrives first
+    can::Frame r;
+    r.id = 0x585;
+    r.len = 8;
+    r.data = {0x80, 0x83, 0x60, 0x00, 0x31, 0x00, 0x09, 0x06};
+    CHECK(c.on_frame(r, 0.01, out));
+    CHECK(done.empty());
+    CHECK(c.counts().unexpected == 1);
+    r.data = {0x4F, 0x61, 0x60, 0x00, 0x01, 0, 0, 0};  // expedited, 1 byte: 1
+    CHECK(c.on_frame(r, 0.02, out));
+    REQUIRE(done.size() == 1);
+    CHECK(done[0].ok());
+    CHECK(done[0].data == std::vector<std::uint8_t>{1});
+    // nothing to write: refused, no frame
+    out.clear();
+    c.download(0x2001, 0, {}, [&](const canopen::SdoResult& x) { done.push_back(x); });
+    c.tick(0.03, out);
+    CHECK(out.empty());
+    REQUIRE(done.size() == 2);
+    CHECK(done[1].abort == canopen::abort_code::kLength);
+    CHECK(c.idle());
+  }
+
+  TEST_CASE("a failed configuration ends a caller's queued transfer through its callback") {
+    stand::Drive402Faults df;
+    df.refuse_objects[0x608300] = canopen::abort_code::kValueHigh;
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    // the boot-up by hand, so a transfer can be queued behind the configuration
+    std::vector<stand::DriveFrame> boot;
+    l.t = 0.01;
+    l.drive.advance(l.t, boot);
+    REQUIRE(boot.size() == 1);
+    l.master.on_frame(boot[0].frame, l.t, l.from_master);
+    REQUIRE(l.master.phase() == cia402::CommPhase::Configuring);
+    std::vector<canopen::SdoResult> got;
+    l.master.read(0x1008, 0, [&](const canopen::SdoResult& r) { got.push_back(r); });
+    l.deliver();
+    CHECK(l.master.phase() == cia402::CommPhase::Failed);
+    REQUIRE(got.size() == 1);
+    CHECK(got[0].index == 0x1008);
+    CHECK_FALSE(got[0].ok());
+  }
+
   TEST_CASE("boot-up, configuration in order, start: the values written arrive") {
     Loop l;
     l.start();
@@ -301,8 +352,8 @@ TEST_SUITE("cia402") {
     CHECK(*l.drive.value(0x1A00, 0) == 2);
     CHECK(*l.drive.value(0x1A00, 1) == 0x60410010);
     CHECK(*l.drive.value(0x1A00, 2) == 0x60640020);
-    CHECK(*l.drive.value(0x1800, 2) == 1);      // synchronous
-    CHECK(*l.drive.value(0x1800, 1) == 0x185);  // valid again
+    CHECK(*l.drive.value(0x1800, 2) == 1);           // synchronous
+    CHECK(*l.drive.value(0x1800, 1) == 0x40000185);  // valid again, no RTR (bit 30)
     CHECK(*l.drive.value(0x1400, 1) == 0x205);
     // the PDO went invalid before its mapping was written
     const auto& w = l.drive.sdo_writes();
@@ -331,7 +382,7 @@ TEST_SUITE("cia402") {
     REQUIRE(l.running());
     CHECK(*l.drive.value(0x1A01, 0) == 1);
     CHECK(*l.drive.value(0x1A01, 1) == 0x606C0020);
-    CHECK(*l.drive.value(0x1801, 1) == 0x285);  // valid
+    CHECK(*l.drive.value(0x1801, 1) == 0x40000285);  // valid
     REQUIRE(l.enabled(1));
     REQUIRE(l.command(TableCommandCode::MoveRelative, 2, -90 * kDeg, 30 * kDeg));
     l.run_for(2.0);  // cruising
@@ -931,6 +982,48 @@ TEST_SUITE("cia402") {
     CHECK(out.empty());
   }
 
+  TEST_CASE("settings the drive would misread are refused: times, option codes, COB-IDs") {
+    auto refused = [](const cia402::MasterSettings& s, const char* why) {
+      const auto r = cia402::Master::create(s);
+      REQUIRE_FALSE(r.ok());
+      CHECK(r.error().message.find(why) != std::string::npos);
+    };
+    cia402::MasterSettings s = master_settings();
+    REQUIRE(cia402::Master::create(s).ok());
+    SUBCASE("a host heartbeat consumer time under 1 ms would switch the watch off") {
+      s.host_heartbeat_period_s = 0.0001;
+      s.host_heartbeat_timeout_s = 0.0004;
+      refused(s, "1 to 65535 ms");
+    }
+    SUBCASE("option codes CiA 402 does not define") {
+      s.quick_stop_option = 9;
+      refused(s, "0x605A");
+      s.quick_stop_option = -1;
+      refused(s, "0x605A");
+      s = master_settings();
+      s.abort_connection_option = 4;
+      refused(s, "0x6007");
+      s.abort_connection_option = -2;
+      refused(s, "0x6007");
+    }
+    SUBCASE("PDO identifiers that collide") {
+      s.tpdo = cia402::TpdoLayout::defaults(5);
+      s.tpdo->cob_id = s.rpdo_layout().cob_id;
+      refused(s, "TPDO1's COB-ID 0x205 is RPDO1's");
+      s.tpdo->cob_id = 0x585;
+      refused(s, "the drive's SDO response");
+      s.tpdo->cob_id = 0x085;
+      refused(s, "the drive's EMCY");
+      s.tpdo->cob_id = 0x77F;
+      refused(s, "our heartbeat");
+      s = master_settings();
+      s.velocity_pdo = true;
+      s.tpdo2 = cia402::VelocityPdoLayout::defaults(5);
+      s.tpdo2->cob_id = 0x705;
+      refused(s, "TPDO2's COB-ID 0x705 is the drive's heartbeat");
+    }
+  }
+
   TEST_CASE("frames of a wrong length are counted and skipped") {
     Loop l;
     l.start();
@@ -1024,6 +1117,25 @@ TEST_SUITE("cia402") {
     CHECK(smp[1].angle_rad - smp[0].angle_rad == doctest::Approx(32 / cpr).epsilon(1e-6));
     CHECK(smp[1].t_s == 0.01);
     CHECK(out.empty());  // not started: nothing to say
+    // the drive reboots: its count starts afresh, not as a step from the last
+    tpdo(0x80000010u, 0.03);
+    CHECK(m.counts().position_resets == 0);
+    can::Frame boot;
+    boot.id = 0x705;
+    boot.len = 1;
+    boot.data[0] = 0x00;
+    m.on_frame(boot, 0.04, out);
+    CHECK(m.counts().position_resets == 1);
+    tpdo(5, 0.05);
+    smp.clear();
+    m.take_samples(smp);
+    REQUIRE(smp.size() == 2);
+    CHECK(smp[1].counts == 5);
+    // a heartbeat whose state byte CiA 301 does not define: counted, skipped
+    boot.data[0] = 0x42;
+    m.on_frame(boot, 0.06, out);
+    CHECK(m.counts().unknown_nmt_states == 1);
+    CHECK(m.counts().heartbeats == 1);
   }
 
   TEST_CASE("PDO layouts from the stand's DBC drive the mapping and the codec") {

@@ -353,9 +353,11 @@ struct MasterCounts {
   std::uint64_t velocity_pdo = 0;
   std::uint64_t emcy = 0;
   std::uint64_t heartbeats = 0;
-  std::uint64_t malformed = 0;       ///< a TPDO, EMCY or heartbeat of a wrong length
-  std::uint64_t nmt_resets = 0;      ///< reset communication sent
-  std::uint64_t configurations = 0;  ///< configurations completed
+  std::uint64_t malformed = 0;           ///< a TPDO, EMCY or heartbeat of a wrong length
+  std::uint64_t nmt_resets = 0;          ///< reset communication sent
+  std::uint64_t configurations = 0;      ///< configurations completed
+  std::uint64_t unknown_nmt_states = 0;  ///< drive heartbeats with a state byte CiA 301 lacks
+  std::uint64_t position_resets = 0;     ///< the position unwrap restarted (the drive rebooted)
 };
 
 /// The master's own progress through NMT and configuration.

@@ -88,7 +88,7 @@ struct Drive402Faults {
   /// An EMCY that only warns (statusword bit 7): the drive keeps moving.
   double warning_at_s = NAN;
   std::uint16_t warning_code = 0x4210;  ///< excess temperature device
-  bool refuse_moves = false;          ///< new set-points are never acknowledged
+  bool refuse_moves = false;            ///< new set-points are never acknowledged
   int resets_ignored = 0;  ///< the first fault resets leave it in fault (the cause persists)
   /// (index << 8 | sub) -> abort code for any SDO access to that object.
   std::map<std::uint32_t, std::uint32_t> refuse_objects;
