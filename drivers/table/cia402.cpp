@@ -668,7 +668,10 @@ void Master::config_done(double now_s, std::vector<can::Frame>& out) {
   configured_mapping_ = s_.configure_mapping;
   ++counts_.configurations;
   cw_sent_ = false;
-  if (recovery_ == Recovery::AfterComm) recovery_ = Recovery::SendReset;
+  if (recovery_ == Recovery::AfterComm) {
+    recovery_ = Recovery::SendReset;
+    low_t_ = now_s;
+  }
 }
 
 void Master::latch(FaultCode code, std::string name, bool needs_comm_reset) {
@@ -871,7 +874,26 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
   switch (recovery_) {
     case Recovery::AfterComm:
       return;  // config_done moves it on
-    case Recovery::SendReset:
+    case Recovery::SendReset: {
+      // After a reconfiguration the drive's controlword is not known: hear
+      // the drive first (its statusword after NMT start is fresh, sw_ was
+      // cleared with the reset), for a little while.
+      if (!cw_sent_ && !sw_ && now_s - low_t_ < s_.fault_reset_low_s) return;
+      // A fault of the communication (heartbeat, NMT state, boot-up,
+      // configuration), not of the drive: a drive whose fresh statusword
+      // shows no fault needs no reset, and a 0x0000 would let it coast.
+      const bool comm_fault = fault_ == FaultCode::DriveHeartbeatLost ||
+                              fault_ == FaultCode::DriveNmtState || fault_ == FaultCode::NoBootUp ||
+                              fault_ == FaultCode::Configuration;
+      if (comm_fault && !cw_sent_ && sw_ && (word & (sw::kFault | sw::kFollowingError)) == 0 &&
+          state_ != State::Fault && state_ != State::FaultReactionActive &&
+          state_ != State::Unknown) {
+        fault_ = FaultCode::None;
+        fault_name_.clear();
+        needs_comm_reset_ = false;
+        recovery_ = Recovery::None;
+        break;
+      }
       // The fault reset is a rising edge of bit 7, and RPDO1 an overwrite
       // buffer the drive samples once a cycle: a 0x0000 sent with 0x0080
       // right behind it may never be seen. Bit 7 low first, when the drive
@@ -887,6 +909,7 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
       reset_seq_ = sw_seq_;
       recovery_ = Recovery::WaitFresh;
       return;
+    }
     case Recovery::ResetLow:
       // a statusword since 0x0000 went out: the drive has sampled it
       if (sw_seq_ > low_seq_ || now_s - low_t_ >= s_.fault_reset_low_s) {
@@ -1043,6 +1066,7 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
           reset_comm(now_s, out);
         } else {
           recovery_ = Recovery::SendReset;
+          low_t_ = now_s;
         }
       } else if (phase_ == CommPhase::Failed) {
         reset_comm(now_s, out);

@@ -1418,4 +1418,33 @@ TEST_SUITE("cia402") {
     REQUIRE(l.in_position(5, 3));
     CHECK(l.drive.position_counts(l.t) == stopped + 27778);
   }
+
+  TEST_CASE("heartbeat lost while the drive stays enabled: no reset after reconfiguration") {
+    cia402::MasterSettings ms = master_settings();
+    ms.abort_connection_option = 0;  // the drive takes no action on our lost heartbeat
+    stand::Drive402Faults df;
+    df.silent_at_s = 1.0;
+    df.silent_until_s = 1.5;
+    Loop l(ms, drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 2.0));
+    INFO(l.master.status().fault_name);
+    REQUIRE(l.master.status().fault == FaultCode::DriveHeartbeatLost);
+    l.run_for(0.5);  // it talks again, still enabled
+    REQUIRE(l.drive.state() == State::OperationEnabled);
+    const auto from = l.sent.size();
+    REQUIRE(l.command(TableCommandCode::Enable, 2));
+    REQUIRE(l.run_until(
+        [&] {
+          CHECK(l.drive.state() == State::OperationEnabled);  // never let go
+          return l.master.status().ack == 2 && l.master.status().state == TableState::Holding;
+        },
+        1.0));
+    CHECK(l.master.counts().configurations == 2);
+    CHECK(l.drive.counts().fault_resets == 0);
+    for (std::size_t i = from; i < l.sent.size(); ++i)
+      if (l.sent[i].id == canopen::kRpdo1Base + 5) CHECK((l.sent[i].data[0] & 0x8F) == 0x0F);
+  }
 }

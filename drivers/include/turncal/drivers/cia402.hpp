@@ -5,9 +5,16 @@
 // What it does, in order:
 //   NMT reset communication -> the drive's boot-up (0x700+node, 0x00) ->
 //   NMT enter pre-operational -> configuration by SDO (0x6060 = 1,
-//   0x6081, 0x6083, 0x6084, 0x6085, 0x605A, 0x6007, 0x1016:01, 0x1017, then
-//   the PDO mappings 0x1600 / 0x1A00 [/ 0x1A01] when the settings ask) ->
-//   NMT start.
+//   0x60F2 = 1, 0x6081, 0x6083, 0x6084, 0x6085, 0x605A, 0x6007, 0x1016:01,
+//   0x1017, then the PDO mappings 0x1600 / 0x1A00 [/ 0x1A01] when the
+//   settings ask; then 0x60F2 read back, and 0x6061 read until the drive
+//   shows profile position) -> NMT start.
+//
+// Relative moves: 0x60F2 (positioning option code) bits 0-1 = 01 makes a
+// relative target count from the actual position (CiA 402); many drives
+// default to 00, from the last target, which after a halt or a quick stop
+// is not where the table is. The configuration fails when the drive does
+// not keep 01.
 // From then on RPDO1 (controlword + target position) goes out, TPDO1
 // (statusword + position actual) and, when asked, TPDO2 (velocity actual)
 // come in, the drive's heartbeat is watched, its EMCYs are decoded and
@@ -36,19 +43,29 @@
 //
 // The acknowledgement (status().ack) is the seq of the last command the
 // drive accepted: Enable when Operation enabled is reached, Disable when
-// Switch on disabled is, a move when the drive acknowledges its set-point
-// (statusword bit 12), ControlledStop at the first statusword after the
-// halt bit went out, QuickStop when the drive is in Quick stop active or
-// not enabled at all (at rest).
+// Ready to switch on (or Switch on disabled) is, a move when the drive
+// acknowledges its set-point (statusword bit 12; bit 4 is held until then,
+// and a fault latches after set_point_timeout_s), ControlledStop at the
+// first statusword after the halt bit went out, QuickStop at a statusword
+// received after it that shows Quick stop active, Fault or not enabled (an
+// EMCY is no proof: many only warn), or, outside Running, on the drive's
+// answer to the SDO write of 0x6040 (refused while the drive boots).
+// Disable is Shutdown (transition 8: the drive stops on its ramp), refused
+// while a move is under way; Quick stop active is left (transition 12)
+// only once the quick stop is complete (bit 10).
 //
 // The stale-PDO trap: a drive in fault may keep (or stop sending) a last
 // TPDO that says Operation enabled. The master judges by the freshest
 // information: an EMCY with a non-zero code, the drive's heartbeat lost, or
 // its NMT state leaving operational latches a fault whatever the last
-// statusword said, and only a statusword received after the fault reset
-// that an Enable sends can clear it. After a lost heartbeat (or a drive
-// that left operational or rebooted) the Enable first resets the drive's
-// communication (NMT) and configures it again.
+// statusword said, and only Switch on disabled (transition 15), in a
+// statusword received after the fault reset that an Enable sends, can
+// clear it. The reset is a rising edge of bit 7 in an overwrite buffer the
+// drive samples once a cycle: 0x0000 first, 0x0080 at the next statusword.
+// After a lost heartbeat (or a drive that left operational or rebooted)
+// the Enable first resets the drive's communication (NMT) and configures
+// it again; a drive whose first statusword then shows no fault is not
+// reset at all (the fault was the bus's, and 0x0000 would let it coast).
 //
 // Wiring (the daemon, the replay, a test):
 //   auto m = Master::create(settings);           // an error names the misfit

@@ -17,8 +17,11 @@
 // * a set-point while moving with "change set immediately" brakes at the
 //   profile deceleration and then sets off to the new target (a real drive
 //   blends); without it the set-point waits for the move under way;
-// * a relative target counts from where the drive is (at rest), or from
-//   the target of the move under way;
+// * a relative target counts per 0x60F2 bits 0-1: 00 (the default, as on
+//   many drives) from the last target, 01 from where the drive is (at
+//   rest), or from the target of the move under way;
+// * 0x6061 shows a mode written to 0x6060 mode_switch_s later; until then
+//   set-points are ignored;
 // * releasing halt does not resume the move: a new set-point is needed;
 // * disable voltage, shutdown and disable operation while moving stop at
 //   the quick stop deceleration (a motor let go would coast);
