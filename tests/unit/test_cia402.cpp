@@ -1447,4 +1447,24 @@ TEST_SUITE("cia402") {
     for (std::size_t i = from; i < l.sent.size(); ++i)
       if (l.sent[i].id == canopen::kRpdo1Base + 5) CHECK((l.sent[i].data[0] & 0x8F) == 0x0F);
   }
+
+  TEST_CASE("a quick stop is kept commanded by PDO while a fault is latched") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.mode_switch_s = 0.05;  // configuring for a while
+    stand::Drive402Faults df;
+    df.warning_at_s = 0.02;  // an EMCY during the configuration: latched
+    Loop l(master_settings(), ds, df);
+    l.start();
+    REQUIRE(l.run_until([&] { return l.master.status().fault == FaultCode::Emcy; }, 0.1));
+    REQUIRE(l.master.phase() == cia402::CommPhase::Configuring);
+    REQUIRE(l.command(TableCommandCode::QuickStop, 3));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.1));
+    REQUIRE(l.running());
+    l.run_for(0.05);
+    CHECK(l.master.status().fault == FaultCode::Emcy);
+    bool pdo_quick_stop = false;
+    for (const can::Frame& f : l.sent)
+      if (f.id == canopen::kRpdo1Base + 5 && (f.data[0] & 0x8F) == 0x02) pdo_quick_stop = true;
+    CHECK(pdo_quick_stop);
+  }
 }
