@@ -510,6 +510,8 @@ void Master::reset_comm(double now_s, std::vector<can::Frame>& out) {
   // the configuration's and a waiting move's transfers end here: their
   // callbacks see a stale generation or no move waiting, and do nothing
   ++config_generation_;
+  mode_poll_at_ = INFINITY;  // a poll of the configuration that ends here
+  config_complete_ = false;
   move_ = MoveStep::None;
   sdo_.cancel_all(out);
   out.push_back(canopen::nmt_frame(canopen::NmtCommand::ResetCommunication, s_.node_id));
