@@ -44,6 +44,8 @@ VirtualDrive402::VirtualDrive402(const Drive402Setup& setup, const Drive402Fault
   booting_ = true;
   boot_at_ = setup_.power_on_s + setup_.boot_delay_s;
   demand_ = position_counts(setup_.power_on_s);
+  last_target_ = demand_;
+  if (setup_.cycle_s > 0) next_cycle_ = setup_.power_on_s + setup_.cycle_s;
 }
 
 void VirtualDrive402::add(std::uint16_t index, std::uint8_t sub, Entry e) {
@@ -129,6 +131,7 @@ void VirtualDrive402::build_dictionary() {
   add(obj::kQuickStopOption, 0, sgn(2, true, 2, false, 0, 8));
   add(obj::kModesOfOperation, 0, sgn(1, true, 0, false, -128, 127));
   add(obj::kModesDisplay, 0, sgn(1, false, 0, false, -128, 127));
+  add(obj::kPositioningOption, 0, uns(2, true, setup_.positioning_option));
   constexpr std::int64_t kS32Min = -2147483648LL, kS32Max = 2147483647LL;
   add(obj::kPositionActual, 0, sgn(4, false, 0, true, kS32Min, kS32Max));
   add(obj::kVelocityActual, 0, sgn(4, false, 0, true, kS32Min, kS32Max));
@@ -186,6 +189,7 @@ std::uint16_t VirtualDrive402::statusword() const {
     s |= cia402::sw::kTargetReached;
   if (set_point_ack_ && state_ == State::OperationEnabled) s |= cia402::sw::kSetPointAcknowledge;
   if (following_error_) s |= cia402::sw::kFollowingError;
+  if (warning_) s |= cia402::sw::kWarning;
   return s;
 }
 
@@ -216,6 +220,7 @@ void VirtualDrive402::reset_communication(double t) {
   next_tpdo_ = std::numeric_limits<double>::infinity();
   last_sent_sw_.reset();
   sync_count_ = 0;
+  rpdo_buf_.reset();
   ++counts_.nmt_resets;
 }
 
@@ -239,8 +244,11 @@ void VirtualDrive402::advance(double t, std::vector<DriveFrame>& out) {
       consider(host_last_hb_ + (consumer & 0xFFFF) / 1000.0, 2);
     consider(faults_.fault_at_s, 3);
     consider(faults_.following_error_at_s, 4);
+    consider(faults_.warning_at_s, 9);
     if (motion_kind_ != Motion::Rest) consider(rest_at_, 5);
     if (nmt_ == canopen::NmtState::Operational && !booting_) consider(next_tpdo_, 6);
+    consider(next_cycle_, 7);
+    consider(mode_at_, 8);
     const std::uint16_t hb_ms = static_cast<std::uint16_t>(u32(obj::kProducerHeartbeat));
     switch (which) {
       case 0:
@@ -271,11 +279,26 @@ void VirtualDrive402::advance(double t, std::vector<DriveFrame>& out) {
         at_rest(when, out);
         break;
       case 6: {
-        send_tpdo(when, out);
+        if (setup_.cycle_s > 0)
+          timer_due_ = true;  // at the next cycle
+        else
+          send_tpdo(when, out);
         const std::uint16_t timer = static_cast<std::uint16_t>(u32(obj::kTpdo1Comm, 5));
         next_tpdo_ = event_driven() && timer > 0 ? when + timer / 1000.0 : kInf;
         break;
       }
+      case 7:
+        cycle(when, out);
+        break;
+      case 9:
+        faults_.warning_at_s = NAN;
+        warning_ = true;
+        emcy(when, faults_.warning_code, 0x09, out);  // generic + temperature
+        break;
+      case 8:
+        mode_at_ = kInf;
+        set(obj::kModesDisplay, 0, static_cast<std::int64_t>(u32(obj::kModesOfOperation)));
+        break;
       default:
         now_ = std::max(now_, t);
         return;
@@ -441,7 +464,8 @@ std::uint32_t VirtualDrive402::write(double t, std::uint32_t key,
     const std::uint32_t timer = u32(obj::kTpdo1Comm, 5);
     next_tpdo_ = event_driven() && timer > 0 ? t + timer / 1000.0 : kInf;
   }
-  if (index == obj::kModesOfOperation) set(obj::kModesDisplay, 0, v);
+  // the drive switches its mode a little later, as real drives do
+  if (index == obj::kModesOfOperation) mode_at_ = t + setup_.mode_switch_s;
   if (index == obj::kControlword) on_controlword(t, static_cast<std::uint16_t>(v), out);
   return 0;
 }
@@ -616,10 +640,37 @@ void VirtualDrive402::send_tpdo(double t, std::vector<DriveFrame>& out) {
 }
 
 void VirtualDrive402::tpdo_on_change(double t, std::vector<DriveFrame>& out) {
+  if (setup_.cycle_s > 0 && !in_cycle_) return;  // at the next cycle
   if (event_driven() && statusword() != last_sent_sw_) send_tpdo(t, out);
 }
 
+void VirtualDrive402::cycle(double t, std::vector<DriveFrame>& out) {
+  next_cycle_ = t + setup_.cycle_s;
+  // last cycle's statusword first, then this cycle's sample of RPDO1
+  in_cycle_ = true;
+  if (timer_due_ && event_driven())
+    send_tpdo(t, out);
+  else
+    tpdo_on_change(t, out);
+  timer_due_ = false;
+  in_cycle_ = false;
+  if (rpdo_buf_) {
+    const can::Frame f = *rpdo_buf_;
+    rpdo_buf_.reset();
+    apply_rpdo(t, f, out);
+  }
+}
+
 void VirtualDrive402::on_rpdo(double t, const can::Frame& f, std::vector<DriveFrame>& out) {
+  if (nmt_ != canopen::NmtState::Operational) return;
+  if (setup_.cycle_s > 0) {
+    rpdo_buf_ = f;  // an overwrite buffer: the next cycle sees the last one
+    return;
+  }
+  apply_rpdo(t, f, out);
+}
+
+void VirtualDrive402::apply_rpdo(double t, const can::Frame& f, std::vector<DriveFrame>& out) {
   if (nmt_ != canopen::NmtState::Operational) return;
   const std::uint32_t n = u32(obj::kRpdo1Map, 0);
   if (n == 0) return;
@@ -687,8 +738,12 @@ void VirtualDrive402::take_set_point(double t, std::uint16_t c) {
   const auto target = static_cast<std::int32_t>(u32(obj::kTargetPosition));
   const bool relative = (c & cia402::cw::kRelative) != 0;
   const bool in_motion = motion_kind_ == Motion::Move && t < rest_at_;
-  const std::int64_t base = in_motion ? demand_ : position_counts(t);
+  // 0x60F2 bits 0-1: 00 from the last target (also after a halt or a quick
+  // stop), 01 from position actual (the demand while moving)
+  const bool from_actual = (u32(obj::kPositioningOption) & 0x3) == 1;
+  const std::int64_t base = from_actual ? (in_motion ? demand_ : position_counts(t)) : last_target_;
   const std::int64_t abs = relative ? base + target : target;
+  last_target_ = abs;
   set_point_ack_ = true;
   target_reached_ = false;
   ++counts_.set_points;
@@ -772,7 +827,7 @@ void VirtualDrive402::on_controlword(double t, std::uint16_t c, std::vector<Driv
     target_reached_ = true;
     set_point_ack_ = false;
   }
-  if (u32(obj::kModesOfOperation) != 1) return;  // profile position only
+  if (u32(obj::kModesDisplay) != 1) return;  // profile position only, once switched
   const bool halt = (c & cw::kHalt) != 0;
   if (halt && (prev & cw::kHalt) == 0) stop_motion(t, u32(obj::kProfileDeceleration), Motion::Halt);
   if ((c & cw::kNewSetPoint) != 0 && (prev & cw::kNewSetPoint) == 0 && !halt) take_set_point(t, c);

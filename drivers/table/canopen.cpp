@@ -386,6 +386,12 @@ void SdoClient::start(double now_s, std::vector<can::Frame>& out) {
   queue_.pop_front();
   Transfer& t = *active_;
   t.deadline = now_s + timeout_s_;
+  if (!t.upload && t.data.empty()) {
+    // nothing to write: CiA 301 has no 0-byte download (a segmented one
+    // would carry a segment of 7 unused bytes); refused without a frame
+    finish(abort_code::kLength, false, now_s, out);
+    return;
+  }
   can::Frame f = request();
   if (t.upload) {
     f.data[0] = 0x40;  // initiate upload request (ccs 2)
@@ -465,6 +471,20 @@ void SdoClient::cancel_all(std::vector<can::Frame>& out, std::uint32_t code) {
   }
 }
 
+void SdoClient::fail_queued(std::uint32_t code) {
+  std::deque<Transfer> dropped;
+  dropped.swap(queue_);
+  for (Transfer& t : dropped) {
+    if (!t.done) continue;
+    SdoResult r;
+    r.index = t.index;
+    r.subindex = t.sub;
+    r.upload = t.upload;
+    r.abort = code;
+    t.done(r);
+  }
+}
+
 void SdoClient::tick(double now_s, std::vector<can::Frame>& out) {
   if (active_ && now_s >= active_->deadline) {
     ++counts_.timeouts;
@@ -487,6 +507,12 @@ bool SdoClient::on_frame(const can::Frame& f, double now_s, std::vector<can::Fra
   const std::uint8_t b0 = f.data[0];
   const std::uint8_t scs = b0 >> 5;
   if (scs == 4) {  // abort transfer
+    // an abort names its transfer's object; one for another (a late answer
+    // to a transfer already ended) must not end the one under way
+    if (get_le(f.payload(), 1, 2) != t.index || f.data[3] != t.sub) {
+      ++counts_.unexpected;
+      return true;
+    }
     ++counts_.aborts_received;
     finish(get_le(f.payload(), 4, 4), true, now_s, out);
     return true;

@@ -27,6 +27,10 @@ std::string num(double v) {
 }
 
 constexpr double kRadToDeg = 57.29577951308232;
+/// 0x60F2 bits 0-1 = 01: relative to the actual position (CiA 402).
+constexpr std::uint16_t kPositioningRelativeToActual = 0x0001;
+/// How often 0x6061 is read while the drive switches its mode.
+constexpr double kModePollPeriod_s = 0.005;
 
 /// A physical value in counts (rounded), or an error when it is not a
 /// positive u32: never clamped.
@@ -386,8 +390,20 @@ Status MasterSettings::check() const {
     return make_error("the drive heartbeat timeout must exceed its period");
   const double host_ms = std::round(host_heartbeat_timeout_s * 1000);
   const double drive_ms = std::round(drive_heartbeat_period_s * 1000);
-  if (host_ms > 65535 || drive_ms < 1 || drive_ms > 65535)
+  // 0 ms would switch the drive's watch of us off (0x1016:01)
+  if (host_ms < 1 || host_ms > 65535 || drive_ms < 1 || drive_ms > 65535)
     return make_error("heartbeat times must be 1 to 65535 ms (0x1016, 0x1017)");
+  // CiA 402: 0x605A 0..8 defined (9.. reserved, negative the maker's own);
+  // 0x6007 0..3 (4.. reserved, negative the maker's own)
+  if (quick_stop_option < 0 || quick_stop_option > 8)
+    return make_error("quick stop option code " + std::to_string(quick_stop_option) +
+                      " is not one CiA 402 defines (0 to 8, 0x605A)");
+  if (abort_connection_option < 0 || abort_connection_option > 3)
+    return make_error("abort connection option code " + std::to_string(abort_connection_option) +
+                      " is not one CiA 402 defines (0 to 3, 0x6007)");
+  if (!positive(set_point_timeout_s) || !positive(fault_reset_low_s) ||
+      !positive(mode_switch_timeout_s))
+    return make_error("set-point, fault reset and mode switch times must be positive");
   if (!(sync_period_s >= 0) || !std::isfinite(sync_period_s))
     return make_error("SYNC period must be 0 (none) or positive");
   const double cpr = counts_per_rad();
@@ -404,11 +420,34 @@ Status MasterSettings::check() const {
   TURNCAL_TRY(tpdo_layout().check());
   if (velocity_pdo) {
     TURNCAL_TRY(velocity_layout().check());
-    const std::uint32_t ids[] = {rpdo_layout().cob_id, tpdo_layout().cob_id,
-                                 velocity_layout().cob_id};
-    if (ids[2] == ids[0] || ids[2] == ids[1])
-      return make_error("TPDO2's COB-ID " + hex(ids[2], 3) + " is another PDO's");
     if (configure_mapping) TURNCAL_TRY(velocity_layout().mapping());
+  }
+  {
+    // every PDO's identifier is its own: not another PDO's, nor one of the
+    // predefined connection set's this bus uses (CiA 301, 7.3.5)
+    struct Id {
+      std::uint32_t id;
+      const char* what;
+    };
+    const Id fixed[] = {{canopen::kNmtId, "NMT"},
+                        {canopen::kSyncId, "SYNC"},
+                        {canopen::kEmcyBase + node_id, "the drive's EMCY"},
+                        {canopen::kSdoTxBase + node_id, "the drive's SDO response"},
+                        {canopen::kSdoRxBase + node_id, "the drive's SDO request"},
+                        {canopen::kHeartbeatBase + node_id, "the drive's heartbeat"},
+                        {canopen::kHeartbeatBase + host_node_id, "our heartbeat"}};
+    std::vector<Id> pdos{{rpdo_layout().cob_id, "RPDO1"}, {tpdo_layout().cob_id, "TPDO1"}};
+    if (velocity_pdo) pdos.push_back({velocity_layout().cob_id, "TPDO2"});
+    for (std::size_t i = 0; i < pdos.size(); ++i) {
+      for (std::size_t j = i + 1; j < pdos.size(); ++j)
+        if (pdos[i].id == pdos[j].id)
+          return make_error(std::string(pdos[j].what) + "'s COB-ID " + hex(pdos[j].id, 3) + " is " +
+                            pdos[i].what + "'s");
+      for (const Id& f : fixed)
+        if (pdos[i].id == f.id)
+          return make_error(std::string(pdos[i].what) + "'s COB-ID " + hex(pdos[i].id, 3) + " is " +
+                            f.what + "'s");
+    }
   }
   if (configure_mapping) {
     TURNCAL_TRY(rpdo_layout().mapping());
@@ -471,6 +510,8 @@ void Master::reset_comm(double now_s, std::vector<can::Frame>& out) {
   // the configuration's and a waiting move's transfers end here: their
   // callbacks see a stale generation or no move waiting, and do nothing
   ++config_generation_;
+  mode_poll_at_ = INFINITY;  // a poll of the configuration that ends here
+  config_complete_ = false;
   move_ = MoveStep::None;
   sdo_.cancel_all(out);
   out.push_back(canopen::nmt_frame(canopen::NmtCommand::ResetCommunication, s_.node_id));
@@ -501,6 +542,11 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
   };
   std::vector<Step> steps;
   steps.push_back({obj::kModesOfOperation, 0, le_bytes(1, 1)});  // profile position
+  // Positioning option code, bits 0-1 = 01: a relative target counts from
+  // the actual position (CiA 402), not from the last target (00, the
+  // default of many drives), so a move after a halt or a quick stop goes
+  // by the delta asked from where the table is. Read back at the end.
+  steps.push_back({obj::kPositioningOption, 0, le_bytes(kPositioningRelativeToActual, 2)});
   const std::uint32_t vel = u32(s_.profile_velocity_rps, "v", obj::kProfileVelocity);
   steps.push_back({obj::kProfileVelocity, 0, le_bytes(vel, 4)});
   steps.push_back({obj::kProfileAcceleration, 0,
@@ -521,6 +567,9 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
   steps.push_back({obj::kProducerHeartbeat, 0, le_bytes(drive_ms, 2)});
   auto pdo = [&](std::uint16_t comm, std::uint16_t map, std::uint32_t cob,
                  const std::vector<std::uint32_t>& entries, bool tpdo) {
+    // CiA 301 COB-ID entry: bit 31 PDO not valid, bit 30 (a TPDO's) no RTR
+    // allowed: nobody asks our drive for its PDOs by remote frame
+    if (tpdo) cob |= 0x40000000u;
     steps.push_back({comm, 1, le_bytes(cob | 0x80000000u, 4)});  // PDO not valid
     steps.push_back({map, 0, le_bytes(0, 1)});
     for (std::size_t i = 0; i < entries.size(); ++i)
@@ -552,24 +601,63 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
     sdo_.download(steps[i].index, steps[i].sub, std::move(steps[i].data),
                   [this, gen, last, vel](const canopen::SdoResult& r) {
                     if (gen != config_generation_) return;
-                    if (!r.ok()) {
-                      sdo_.drop_queued();
-                      ++config_generation_;
-                      phase_ = CommPhase::Failed;
-                      const char* name = object_name(r.index);
-                      latch(FaultCode::Configuration,
-                            "SDO abort during configuration: " + r.describe() +
-                                (name != nullptr ? std::string(" [") + name + "]" : ""),
-                            true);
-                      return;
-                    }
+                    if (!r.ok()) return config_failed(r, "");
                     if (last) {
                       velocity_written_ = vel;
-                      config_complete_ = true;
+                      check_options(gen);
                     }
                   });
   }
   sdo_.tick(now_s, out);
+}
+
+void Master::config_failed(const canopen::SdoResult& r, const std::string& why) {
+  ++config_generation_;  // the configuration's own callbacks do nothing now
+  sdo_.fail_queued();    // a caller's queued transfer hears that it ended
+  phase_ = CommPhase::Failed;
+  mode_poll_at_ = INFINITY;
+  std::string text = why;
+  if (text.empty()) {
+    const char* name = object_name(r.index);
+    text = "SDO abort during configuration: " + r.describe() +
+           (name != nullptr ? std::string(" [") + name + "]" : "");
+  }
+  latch(FaultCode::Configuration, std::move(text), true);
+}
+
+void Master::check_options(std::uint64_t gen) {
+  sdo_.upload(obj::kPositioningOption, 0, [this, gen](const canopen::SdoResult& r) {
+    if (gen != config_generation_) return;
+    if (!r.ok()) return config_failed(r, "");
+    const std::uint32_t v = r.data.empty() ? 0xFFFFFFFFu : get_le(r.data, 0, r.data.size());
+    if (r.data.empty() || r.data.size() > 2 || (v & 0x3) != kPositioningRelativeToActual)
+      return config_failed(r, "positioning option code (0x60F2) reads " + hex(v, 4) +
+                                  ": relative moves would not count from the actual position");
+    mode_since_ = now_;
+    check_mode(gen);
+  });
+}
+
+void Master::check_mode(std::uint64_t gen) {
+  mode_poll_at_ = INFINITY;
+  sdo_.upload(obj::kModesDisplay, 0, [this, gen](const canopen::SdoResult& r) {
+    if (gen != config_generation_) return;
+    if (!r.ok()) return config_failed(r, "");
+    const int mode = r.data.size() == 1 ? static_cast<std::int8_t>(r.data[0]) : -1000;
+    if (mode == 1) {
+      config_complete_ = true;  // profile position, as written
+      return;
+    }
+    if (r.data.size() == 1 && now_ - mode_since_ < s_.mode_switch_timeout_s) {
+      mode_poll_at_ = now_ + kModePollPeriod_s;  // the drive switches a little later
+      return;
+    }
+    config_failed(r, "modes of operation display (0x6061) reads " +
+                         (r.data.size() == 1 ? std::to_string(mode)
+                                             : std::to_string(r.data.size()) + " bytes") +
+                         ", not 1 (profile position), " + num(s_.mode_switch_timeout_s) +
+                         " s after 0x6060 was written");
+  });
 }
 
 void Master::config_done(double now_s, std::vector<can::Frame>& out) {
@@ -582,7 +670,10 @@ void Master::config_done(double now_s, std::vector<can::Frame>& out) {
   configured_mapping_ = s_.configure_mapping;
   ++counts_.configurations;
   cw_sent_ = false;
-  if (recovery_ == Recovery::AfterComm) recovery_ = Recovery::SendReset;
+  if (recovery_ == Recovery::AfterComm) {
+    recovery_ = Recovery::SendReset;
+    low_t_ = now_s;
+  }
 }
 
 void Master::latch(FaultCode code, std::string name, bool needs_comm_reset) {
@@ -613,6 +704,7 @@ void Master::tick(double now_s, std::vector<can::Frame>& out) {
           true);
     reset_comm(now_s, out);  // and try again
   }
+  if (phase_ == CommPhase::Configuring && now_s >= mode_poll_at_) check_mode(config_generation_);
   sdo_.tick(now_s, out);
   if (phase_ == CommPhase::Running && !drive_hb_lost_ &&
       now_s - last_drive_hb_ > s_.drive_heartbeat_timeout_s) {
@@ -655,9 +747,22 @@ void Master::on_heartbeat(const can::Frame& f, double t_s, std::vector<can::Fram
     ++counts_.malformed;
     return;
   }
-  ++counts_.heartbeats;
   const auto st = static_cast<canopen::NmtState>(f.data[0]);
+  if (st != canopen::NmtState::BootUp && st != canopen::NmtState::Stopped &&
+      st != canopen::NmtState::Operational && st != canopen::NmtState::PreOperational) {
+    ++counts_.unknown_nmt_states;  // no state CiA 301 defines: counted, skipped
+    return;
+  }
+  ++counts_.heartbeats;
   if (st == canopen::NmtState::BootUp) {
+    // a drive that booted may count its position afresh: the unwrap of
+    // its s32 starts again from its next position actual
+    if (have_pos_) {
+      have_pos_ = false;
+      last_sample_t_ = NAN;
+      rate_ = NAN;
+      ++counts_.position_resets;
+    }
     if (phase_ == CommPhase::WaitBootUp) {
       out.push_back(canopen::nmt_frame(canopen::NmtCommand::EnterPreOperational, s_.node_id));
       configure(t_s, out);
@@ -771,16 +876,57 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
   switch (recovery_) {
     case Recovery::AfterComm:
       return;  // config_done moves it on
-    case Recovery::SendReset:
-      // a rising edge of bit 7
-      if ((cw_ & cw::kFaultReset) != 0) send_rpdo(cw::kCmdDisableVoltage, out);
+    case Recovery::SendReset: {
+      // After a reconfiguration the drive's controlword is not known: hear
+      // the drive first (its statusword after NMT start is fresh, sw_ was
+      // cleared with the reset), for a little while.
+      if (!cw_sent_ && !sw_ && now_s - low_t_ < s_.fault_reset_low_s) return;
+      // A fault of the communication (heartbeat, NMT state, boot-up,
+      // configuration), not of the drive: a drive whose fresh statusword
+      // shows no fault needs no reset, and a 0x0000 would let it coast.
+      const bool comm_fault = fault_ == FaultCode::DriveHeartbeatLost ||
+                              fault_ == FaultCode::DriveNmtState || fault_ == FaultCode::NoBootUp ||
+                              fault_ == FaultCode::Configuration;
+      if (comm_fault && !cw_sent_ && sw_ && (word & (sw::kFault | sw::kFollowingError)) == 0 &&
+          state_ != State::Fault && state_ != State::FaultReactionActive &&
+          state_ != State::Unknown) {
+        fault_ = FaultCode::None;
+        fault_name_.clear();
+        needs_comm_reset_ = false;
+        recovery_ = Recovery::None;
+        break;
+      }
+      // The fault reset is a rising edge of bit 7, and RPDO1 an overwrite
+      // buffer the drive samples once a cycle: a 0x0000 sent with 0x0080
+      // right behind it may never be seen. Bit 7 low first, when the drive
+      // may hold it high (or we do not know), and the edge later.
+      if (!cw_sent_ || (cw_ & cw::kFaultReset) != 0) {
+        send_rpdo(cw::kCmdDisableVoltage, out);
+        low_seq_ = sw_seq_;
+        low_t_ = now_s;
+        recovery_ = Recovery::ResetLow;
+        return;
+      }
       send_rpdo(cw::kCmdFaultReset, out);
       reset_seq_ = sw_seq_;
       recovery_ = Recovery::WaitFresh;
       return;
+    }
+    case Recovery::ResetLow:
+      // a statusword since 0x0000 went out: the drive has sampled it
+      if (sw_seq_ > low_seq_ || now_s - low_t_ >= s_.fault_reset_low_s) {
+        send_rpdo(cw::kCmdFaultReset, out);
+        reset_seq_ = sw_seq_;
+        recovery_ = Recovery::WaitFresh;
+      }
+      return;
     case Recovery::WaitFresh:
+      // A fault reset takes the drive to Switch on disabled (CiA 402
+      // transition 15): only that state, in a statusword received after the
+      // reset went out, clears the latch. A frozen TPDO that still says
+      // Operation enabled, or any other state, proves nothing.
       if (sw_ && sw_seq_ > reset_seq_ && (word & (sw::kFault | sw::kFollowingError)) == 0 &&
-          state_ != State::FaultReactionActive && state_ != State::Unknown) {
+          state_ == State::SwitchOnDisabled) {
         fault_ = FaultCode::None;
         fault_name_.clear();
         needs_comm_reset_ = false;
@@ -792,13 +938,21 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
     case Recovery::None:
       break;
   }
-  if (fault_ != FaultCode::None || !sw_) return;
+  if (fault_ != FaultCode::None || !sw_) {
+    // a latched fault does not stop the drive (many EMCYs are warnings):
+    // the quick stop goes on being commanded until the drive shows it
+    if (fault_ != FaultCode::None && goal_ == Goal::QuickStop &&
+        (!cw_sent_ || (cw_ & cw::kCommandMask) != cw::kCmdQuickStop))
+      send_rpdo(cw::kCmdQuickStop, out);
+    return;
+  }
   switch (ack_on_) {
     case AckOn::Enabled:
       if (state_ == State::OperationEnabled) ack_on_ = AckOn::None, ack_ = ack_seq_;
       break;
     case AckOn::Disabled:
-      if (state_ == State::SwitchOnDisabled || state_ == State::NotReadyToSwitchOn)
+      if (state_ == State::ReadyToSwitchOn || state_ == State::SwitchOnDisabled ||
+          state_ == State::NotReadyToSwitchOn)
         ack_on_ = AckOn::None, ack_ = ack_seq_;
       break;
     case AckOn::Halted:
@@ -815,7 +969,13 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
   } else if (move_ == MoveStep::Sent && sw_seq_ > move_sent_seq_ &&
              (word & sw::kSetPointAcknowledge) != 0) {
     ack_ = pending_.seq;
-    move_ = MoveStep::Acked;
+    move_ = MoveStep::Acked;  // bit 4 drops with the controlword below
+  } else if (move_ == MoveStep::Sent && now_s - move_sent_t_ > s_.set_point_timeout_s) {
+    move_ = MoveStep::None;
+    latch(FaultCode::SetPointTimeout, "set-point not acknowledged (statusword bit 12) within " +
+                                          num(s_.set_point_timeout_s) + " s");
+    send_rpdo(cw::kCmdEnableOperation | motion_bits(), out);  // bit 4 down
+    return;
   } else if (move_ == MoveStep::Acked && (word & sw::kSetPointAcknowledge) == 0 &&
              (word & sw::kTargetReached) != 0) {
     move_ = MoveStep::Done;
@@ -827,7 +987,18 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
   bool set_point = false;
   switch (goal_) {
     case Goal::Disabled:
-      want = cw::kCmdDisableVoltage;
+      // Shutdown (transition 8 from Operation enabled): the drive stops on
+      // its ramp before it lets go, where Disable voltage (9) lets a moving
+      // table coast. From Quick stop active only Disable voltage (12) leads
+      // out: sent once the quick stop is complete (bit 10, at rest).
+      // Switch on disabled stays so (Disable voltage holds it there).
+      if (state_ == State::QuickStopActive) {
+        if ((word & sw::kTargetReached) != 0) want = cw::kCmdDisableVoltage;
+      } else if (state_ == State::SwitchOnDisabled || state_ == State::NotReadyToSwitchOn) {
+        want = cw::kCmdDisableVoltage;
+      } else {
+        want = cw::kCmdShutdown;
+      }
       break;
     case Goal::QuickStop:
       want = cw::kCmdQuickStop;
@@ -848,10 +1019,15 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
           if (move_ == MoveStep::Ready && (word & sw::kSetPointAcknowledge) == 0) {
             want |= cw::kNewSetPoint;
             set_point = true;
+          } else if (move_ == MoveStep::Sent) {
+            // CiA 402: bit 4 stays high until the drive acknowledges (bit 12)
+            want |= cw::kNewSetPoint;
           }
           break;
         case State::QuickStopActive:
-          want = cw::kCmdDisableVoltage;  // 12, then up again
+          // 12, then up again; not before the quick stop is complete (bit
+          // 10): Disable voltage while still decelerating lets it coast
+          if ((word & sw::kTargetReached) != 0) want = cw::kCmdDisableVoltage;
           break;
         default:
           break;  // not ready, fault reaction, fault: the drive moves on by itself
@@ -863,6 +1039,7 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
     send_rpdo(want, out);
     move_ = MoveStep::Sent;
     move_sent_seq_ = sw_seq_;
+    move_sent_t_ = now_s;
   } else if (!cw_sent_ || want != cw_) {
     send_rpdo(want, out);
   }
@@ -891,12 +1068,19 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
           reset_comm(now_s, out);
         } else {
           recovery_ = Recovery::SendReset;
+          low_t_ = now_s;
         }
       } else if (phase_ == CommPhase::Failed) {
         reset_comm(now_s, out);
       }
       break;
     case TableCommandCode::Disable:
+      if (running && fault_ == FaultCode::None && goal_ == Goal::Enabled &&
+          state_ == State::OperationEnabled &&
+          (move_ == MoveStep::WaitSdo || move_ == MoveStep::Ready || move_ == MoveStep::Sent ||
+           move_ == MoveStep::Acked || move_ == MoveStep::Halting))
+        return make_error(
+            "disable refused while the table moves: stop it first (controlled or quick stop)");
       goal_ = Goal::Disabled;
       quick_stopped_ = false;
       move_ = MoveStep::None;
@@ -911,16 +1095,42 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
       ack_seq_ = seq;
       ack_on_ = AckOn::Stopped;
       ack_after_ = sw_seq_;
-      if (!running) {
-        ack_ = seq, ack_on_ = AckOn::None;
-      } else {
-        // at once, whatever the fault latch: the drive is told to stop
+      // a fault reset under way gives way; the next Enable tries again
+      if (recovery_ == Recovery::SendReset || recovery_ == Recovery::ResetLow ||
+          recovery_ == Recovery::WaitFresh)
+        recovery_ = Recovery::None;
+      if (running) {
+        // at once, whatever the fault latch: the drive is told to stop, and
+        // the ack waits for a statusword that shows it (quick stop active,
+        // fault, or not enabled): an EMCY may be a mere warning
         send_rpdo(cw::kCmdQuickStop, out);
-        if (fault_ == FaultCode::Emcy || fault_ == FaultCode::DriveFault ||
-            fault_ == FaultCode::FollowingError) {
-          // a drive in fault has stopped itself (its fault reaction)
-          ack_ = seq, ack_on_ = AckOn::None;
-        }
+        evaluate(now_s, out);
+        return Ok{};
+      }
+      if (phase_ == CommPhase::WaitBootUp)
+        return make_error(
+            "quick stop not sent: the drive's communication is being reset (no SDO before its "
+            "boot-up); send it again");
+      // Configuring or Failed: no PDO, but an SDO reaches the drive in
+      // pre-operational, and after a communication reset it may still be
+      // enabled. The answer to the write is the ack.
+      {
+        const std::uint8_t qs_seq = seq;
+        sdo_quick_stop_ = true;
+        sdo_.download(obj::kControlword, 0, le_bytes(cw::kCmdQuickStop, 2),
+                      [this, qs_seq](const canopen::SdoResult& r) {
+                        sdo_quick_stop_ = false;
+                        if (ack_on_ != AckOn::Stopped || ack_seq_ != qs_seq) return;
+                        if (r.ok()) {
+                          ack_ = qs_seq;
+                          ack_on_ = AckOn::None;
+                        } else {
+                          ack_on_ = AckOn::None;
+                          latch(FaultCode::Sdo,
+                                "quick stop by SDO (0x6040) failed: " + r.describe());
+                        }
+                      });
+        sdo_.tick(now_s, out);
       }
       return Ok{};
     case TableCommandCode::ControlledStop:

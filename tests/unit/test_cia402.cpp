@@ -244,18 +244,70 @@ TEST_SUITE("cia402") {
     CHECK(c.idle());
   }
 
+  TEST_CASE("SDO client: an abort for another object is not ours; a 0-byte download is refused") {
+    canopen::SdoClient c(5, 0.5);
+    std::vector<can::Frame> out;
+    std::vector<canopen::SdoResult> done;
+    c.upload(0x6061, 0, [&](const canopen::SdoResult& r) { done.push_back(r); });
+    c.tick(0, out);
+    REQUIRE(out.size() == 1);
+    // a late abort of an earlier transfer (0x6083:00) arrives first
+    can::Frame r;
+    r.id = 0x585;
+    r.len = 8;
+    r.data = {0x80, 0x83, 0x60, 0x00, 0x31, 0x00, 0x09, 0x06};
+    CHECK(c.on_frame(r, 0.01, out));
+    CHECK(done.empty());
+    CHECK(c.counts().unexpected == 1);
+    r.data = {0x4F, 0x61, 0x60, 0x00, 0x01, 0, 0, 0};  // expedited, 1 byte: 1
+    CHECK(c.on_frame(r, 0.02, out));
+    REQUIRE(done.size() == 1);
+    CHECK(done[0].ok());
+    CHECK(done[0].data == std::vector<std::uint8_t>{1});
+    // nothing to write: refused, no frame
+    out.clear();
+    c.download(0x2001, 0, {}, [&](const canopen::SdoResult& x) { done.push_back(x); });
+    c.tick(0.03, out);
+    CHECK(out.empty());
+    REQUIRE(done.size() == 2);
+    CHECK(done[1].abort == canopen::abort_code::kLength);
+    CHECK(c.idle());
+  }
+
+  TEST_CASE("a failed configuration ends a caller's queued transfer through its callback") {
+    stand::Drive402Faults df;
+    df.refuse_objects[0x608300] = canopen::abort_code::kValueHigh;
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    // the boot-up by hand, so a transfer can be queued behind the configuration
+    std::vector<stand::DriveFrame> boot;
+    l.t = 0.01;
+    l.drive.advance(l.t, boot);
+    REQUIRE(boot.size() == 1);
+    l.master.on_frame(boot[0].frame, l.t, l.from_master);
+    REQUIRE(l.master.phase() == cia402::CommPhase::Configuring);
+    std::vector<canopen::SdoResult> got;
+    l.master.read(0x1008, 0, [&](const canopen::SdoResult& r) { got.push_back(r); });
+    l.deliver();
+    CHECK(l.master.phase() == cia402::CommPhase::Failed);
+    REQUIRE(got.size() == 1);
+    CHECK(got[0].index == 0x1008);
+    CHECK_FALSE(got[0].ok());
+  }
+
   TEST_CASE("boot-up, configuration in order, start: the values written arrive") {
     Loop l;
     l.start();
     REQUIRE(l.running());
     CHECK(l.drive.nmt() == canopen::NmtState::Operational);
     using W = std::pair<std::uint16_t, std::uint8_t>;
-    const std::vector<W> order{{0x6060, 0}, {0x6081, 0}, {0x6083, 0}, {0x6084, 0}, {0x6085, 0},
-                               {0x605A, 0}, {0x6007, 0}, {0x1016, 1}, {0x1017, 0}};
+    const std::vector<W> order{{0x6060, 0}, {0x60F2, 0}, {0x6081, 0}, {0x6083, 0}, {0x6084, 0},
+                               {0x6085, 0}, {0x605A, 0}, {0x6007, 0}, {0x1016, 1}, {0x1017, 0}};
     CHECK(l.drive.sdo_writes() == order);
     const double cpr = 1e6 / kTwoPi;
     CHECK(*l.drive.value(0x6060, 0) == 1);
     CHECK(*l.drive.value(0x6061, 0) == 1);
+    CHECK(*l.drive.value(0x60F2, 0) == 1);  // relative to the actual position
     CHECK(*l.drive.value(0x6081, 0) == std::llround(30 * kDeg * cpr));
     CHECK(*l.drive.value(0x6083, 0) == std::llround(60 * kDeg * cpr));
     CHECK(*l.drive.value(0x6084, 0) == std::llround(40 * kDeg * cpr));
@@ -300,8 +352,8 @@ TEST_SUITE("cia402") {
     CHECK(*l.drive.value(0x1A00, 0) == 2);
     CHECK(*l.drive.value(0x1A00, 1) == 0x60410010);
     CHECK(*l.drive.value(0x1A00, 2) == 0x60640020);
-    CHECK(*l.drive.value(0x1800, 2) == 1);      // synchronous
-    CHECK(*l.drive.value(0x1800, 1) == 0x185);  // valid again
+    CHECK(*l.drive.value(0x1800, 2) == 1);           // synchronous
+    CHECK(*l.drive.value(0x1800, 1) == 0x40000185);  // valid again, no RTR (bit 30)
     CHECK(*l.drive.value(0x1400, 1) == 0x205);
     // the PDO went invalid before its mapping was written
     const auto& w = l.drive.sdo_writes();
@@ -330,7 +382,7 @@ TEST_SUITE("cia402") {
     REQUIRE(l.running());
     CHECK(*l.drive.value(0x1A01, 0) == 1);
     CHECK(*l.drive.value(0x1A01, 1) == 0x606C0020);
-    CHECK(*l.drive.value(0x1801, 1) == 0x285);  // valid
+    CHECK(*l.drive.value(0x1801, 1) == 0x40000285);  // valid
     REQUIRE(l.enabled(1));
     REQUIRE(l.command(TableCommandCode::MoveRelative, 2, -90 * kDeg, 30 * kDeg));
     l.run_for(2.0);  // cruising
@@ -404,7 +456,7 @@ TEST_SUITE("cia402") {
       CHECK(st.fault_name.find("profile acceleration") != std::string::npos);
       // the drive: what came before was written, nothing after, never started
       using W = std::pair<std::uint16_t, std::uint8_t>;
-      CHECK(l.drive.sdo_writes() == std::vector<W>{{0x6060, 0}, {0x6081, 0}});
+      CHECK(l.drive.sdo_writes() == std::vector<W>{{0x6060, 0}, {0x60F2, 0}, {0x6081, 0}});
       CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
       // a move is refused with the reason, and sends nothing
       l.from_master.clear();
@@ -436,11 +488,17 @@ TEST_SUITE("cia402") {
     CHECK(l.drive.state() == State::OperationEnabled);
     CHECK(l.master.drive_state() == State::OperationEnabled);
     CHECK((l.drive.controlword() & 0x8F) == 0x0F);
-    // disable: back to switch on disabled
+    // disable: shutdown (transition 8) to ready to switch on, not disable
+    // voltage (9), which would let a moving table coast
     REQUIRE(l.command(TableCommandCode::Disable, 43));
     REQUIRE(l.run_until([&] { return l.master.status().ack == 43; }, 0.5));
     CHECK(l.master.status().state == TableState::Disabled);
-    CHECK(l.drive.state() == State::SwitchOnDisabled);
+    CHECK(l.drive.state() == State::ReadyToSwitchOn);
+    CHECK((l.drive.controlword() & 0x8F) == 0x06);
+    l.run_for(0.1);
+    CHECK(l.drive.state() == State::ReadyToSwitchOn);
+    // and enabled again from there
+    REQUIRE(l.enabled(44));
   }
 
   TEST_CASE("relative and absolute moves: handshake, moving, in position within a count") {
@@ -695,7 +753,7 @@ TEST_SUITE("cia402") {
     CHECK(l.master.counts().nmt_resets == 2);
     CHECK(l.drive.counts().nmt_resets == 1);
     CHECK(l.master.counts().configurations == configs + 1);
-    CHECK(l.drive.sdo_writes().size() == writes + 9);
+    CHECK(l.drive.sdo_writes().size() == writes + 10);
     CHECK(*l.drive.value(0x1016, 1) == (127 << 16 | 500));  // watched again
     CHECK(*l.drive.value(0x1017, 0) == 100);
     CHECK(l.drive.state() == State::OperationEnabled);
@@ -846,7 +904,7 @@ TEST_SUITE("cia402") {
     CHECK((l.drive.statusword() & 0x2000) == 0);
   }
 
-  TEST_CASE("a refused move is never acknowledged") {
+  TEST_CASE("a refused move is never acknowledged: a set-point timeout") {
     stand::Drive402Faults df;
     df.refuse_moves = true;
     Loop l(master_settings(), drive_setup(), df);
@@ -854,9 +912,17 @@ TEST_SUITE("cia402") {
     REQUIRE(l.running());
     REQUIRE(l.enabled(1));
     REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 10 * kDeg, 30 * kDeg));
-    l.run_for(1.0);
+    l.run_for(0.45);
     CHECK(l.master.status().ack == 1);
     CHECK(l.master.status().state == TableState::Holding);
+    CHECK((l.drive.controlword() & 0x10) != 0);  // bit 4 held, waiting
+    // no bit 12 within the set-point timeout (0.5 s): a fault that names it
+    l.run_for(0.1);
+    CHECK(l.master.status().ack == 1);
+    CHECK(l.master.status().state == TableState::Fault);
+    CHECK(l.master.status().fault == FaultCode::SetPointTimeout);
+    CHECK(l.master.status().fault_name.find("set-point not acknowledged") != std::string::npos);
+    CHECK((l.drive.controlword() & 0x10) == 0);
     CHECK(l.drive.counts().set_points == 0);
     CHECK(l.drive.angle(l.t) == 0);
   }
@@ -914,6 +980,48 @@ TEST_SUITE("cia402") {
     REQUIRE_FALSE(c.ok());
     CHECK(c.error().message.find("invalid CANopen master settings") == 0);
     CHECK(out.empty());
+  }
+
+  TEST_CASE("settings the drive would misread are refused: times, option codes, COB-IDs") {
+    auto refused = [](const cia402::MasterSettings& s, const char* why) {
+      const auto r = cia402::Master::create(s);
+      REQUIRE_FALSE(r.ok());
+      CHECK(r.error().message.find(why) != std::string::npos);
+    };
+    cia402::MasterSettings s = master_settings();
+    REQUIRE(cia402::Master::create(s).ok());
+    SUBCASE("a host heartbeat consumer time under 1 ms would switch the watch off") {
+      s.host_heartbeat_period_s = 0.0001;
+      s.host_heartbeat_timeout_s = 0.0004;
+      refused(s, "1 to 65535 ms");
+    }
+    SUBCASE("option codes CiA 402 does not define") {
+      s.quick_stop_option = 9;
+      refused(s, "0x605A");
+      s.quick_stop_option = -1;
+      refused(s, "0x605A");
+      s = master_settings();
+      s.abort_connection_option = 4;
+      refused(s, "0x6007");
+      s.abort_connection_option = -2;
+      refused(s, "0x6007");
+    }
+    SUBCASE("PDO identifiers that collide") {
+      s.tpdo = cia402::TpdoLayout::defaults(5);
+      s.tpdo->cob_id = s.rpdo_layout().cob_id;
+      refused(s, "TPDO1's COB-ID 0x205 is RPDO1's");
+      s.tpdo->cob_id = 0x585;
+      refused(s, "the drive's SDO response");
+      s.tpdo->cob_id = 0x085;
+      refused(s, "the drive's EMCY");
+      s.tpdo->cob_id = 0x77F;
+      refused(s, "our heartbeat");
+      s = master_settings();
+      s.velocity_pdo = true;
+      s.tpdo2 = cia402::VelocityPdoLayout::defaults(5);
+      s.tpdo2->cob_id = 0x705;
+      refused(s, "TPDO2's COB-ID 0x705 is the drive's heartbeat");
+    }
   }
 
   TEST_CASE("frames of a wrong length are counted and skipped") {
@@ -1009,6 +1117,25 @@ TEST_SUITE("cia402") {
     CHECK(smp[1].angle_rad - smp[0].angle_rad == doctest::Approx(32 / cpr).epsilon(1e-6));
     CHECK(smp[1].t_s == 0.01);
     CHECK(out.empty());  // not started: nothing to say
+    // the drive reboots: its count starts afresh, not as a step from the last
+    tpdo(0x80000010u, 0.03);
+    CHECK(m.counts().position_resets == 0);
+    can::Frame boot;
+    boot.id = 0x705;
+    boot.len = 1;
+    boot.data[0] = 0x00;
+    m.on_frame(boot, 0.04, out);
+    CHECK(m.counts().position_resets == 1);
+    tpdo(5, 0.05);
+    smp.clear();
+    m.take_samples(smp);
+    REQUIRE(smp.size() == 2);
+    CHECK(smp[1].counts == 5);
+    // a heartbeat whose state byte CiA 301 does not define: counted, skipped
+    boot.data[0] = 0x42;
+    m.on_frame(boot, 0.06, out);
+    CHECK(m.counts().unknown_nmt_states == 1);
+    CHECK(m.counts().heartbeats == 1);
   }
 
   TEST_CASE("PDO layouts from the stand's DBC drive the mapping and the codec") {
@@ -1071,5 +1198,273 @@ TEST_SUITE("cia402") {
     CHECK(l.master.status().fault_name.find("no boot-up from drive node 5") != std::string::npos);
     CHECK(l.master.counts().nmt_resets == 2);
     CHECK(l.drive.counts().nmt_resets == 0);
+  }
+
+  TEST_CASE("a drive that samples RPDO1 once a cycle: bit 4 held until bit 12, then dropped") {
+    cia402::MasterSettings ms = master_settings();
+    stand::Drive402Setup ds = drive_setup();
+    ds.cycle_s = 0.004;  // the drive sees the last controlword of each 4 ms
+    SUBCASE("event-driven TPDO") {}
+    SUBCASE("TPDO1 on SYNC, RPDO1 taken at once") {
+      ms.sync_period_s = 0.01;
+      ds.cycle_s = 0;
+    }
+    SUBCASE("TPDO1 on SYNC, cyclic drive") {
+      ms.sync_period_s = 0.01;
+    }
+    Loop l(ms, ds);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 20 * kDeg, 30 * kDeg));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 2; }, 0.2));
+    CHECK(l.drive.counts().set_points == 1);
+    REQUIRE(l.in_position(2, 5));
+    CHECK(l.drive.position_counts(l.t) == 55556);  // 20 deg: 55555.6 counts
+    // every RPDO from the set-point to the first without bit 4 held it, and
+    // bit 4 dropped only after a statusword with bit 12 reached the master
+    const auto rpdo = canopen::kRpdo1Base + 5;
+    bool raised = false, dropped = false;
+    for (const can::Frame& f : l.sent) {
+      if (f.id != rpdo) continue;
+      const bool bit4 = (f.data[0] & 0x10) != 0;
+      if (bit4) raised = true;
+      if (raised && !bit4) dropped = true;
+      if (dropped) CHECK_FALSE(bit4);  // one set-point, one rising edge
+    }
+    CHECK(raised);
+    CHECK(dropped);
+    CHECK((l.drive.controlword() & 0x10) == 0);
+    CHECK((l.drive.statusword() & 0x1000) == 0);
+    // and a second move goes the same way
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 3, -20 * kDeg, 30 * kDeg));
+    REQUIRE(l.in_position(3, 5));
+    CHECK(l.drive.counts().set_points == 2);
+    CHECK(l.drive.position_counts(l.t) == 0);
+  }
+
+  TEST_CASE("a stale frozen TPDO and a drive that ignores the first fault reset") {
+    stand::Drive402Faults df;
+    df.fault_at_s = 0.5;
+    df.fault_code = 0x4310;
+    df.stale = stand::StalePdo::Frozen;
+    df.resets_ignored = 1;
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    l.run_for(1.0);
+    REQUIRE(l.master.status().fault == FaultCode::Emcy);
+    // the reset is ignored; the frozen TPDO keeps saying operation enabled
+    CHECK_FALSE(l.enabled(2));
+    CHECK(l.drive.state() == State::Fault);
+    CHECK(l.master.drive_state() == State::OperationEnabled);
+    CHECK(l.master.status().state == TableState::Fault);
+    CHECK(l.master.status().ack == 1);
+    CHECK_FALSE(l.command(TableCommandCode::MoveRelative, 3, 0.1, 0.1).ok());
+    // the next reset takes: switch on disabled seen, then enabled
+    REQUIRE(l.enabled(4));
+    CHECK(l.drive.counts().fault_resets == 1);
+    CHECK(l.drive.state() == State::OperationEnabled);
+  }
+
+  TEST_CASE("the fault reset's rising edge survives a drive that samples RPDO1 once a cycle") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.cycle_s = 0.004;
+    stand::Drive402Faults df;
+    df.fault_at_s = 0.5;
+    df.fault_code = 0x3210;
+    df.resets_ignored = 1;
+    Loop l(master_settings(), ds, df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    l.run_for(1.0);
+    REQUIRE(l.master.status().fault == FaultCode::Emcy);
+    CHECK_FALSE(l.enabled(2));  // the first reset is ignored: bit 7 stays high
+    CHECK(l.drive.state() == State::Fault);
+    REQUIRE((l.drive.controlword() & 0x80) != 0);
+    // the second needs bit 7 low for one sample, then high
+    REQUIRE(l.enabled(3));
+    CHECK(l.drive.counts().fault_resets == 1);
+    CHECK(l.drive.state() == State::OperationEnabled);
+  }
+
+  TEST_CASE("quick stop outside running: refused while the drive boots, by SDO while configuring") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.mode_switch_s = 0.05;  // the configuration waits for 0x6061
+    Loop l(master_settings(), ds);
+    l.start();
+    REQUIRE(l.master.phase() == cia402::CommPhase::WaitBootUp);
+    // no SDO reaches a drive before its boot-up: not sent, not acknowledged
+    CHECK_FALSE(l.command(TableCommandCode::QuickStop, 7).ok());
+    CHECK(l.master.status().ack == 0);
+    REQUIRE(l.run_until([&] { return l.master.phase() == cia402::CommPhase::Configuring; }, 0.5));
+    const auto writes = l.drive.sdo_writes().size();
+    REQUIRE(l.command(TableCommandCode::QuickStop, 8));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 8; }, 0.1));
+    // acknowledged on the drive's answer to the write of 0x6040
+    REQUIRE(l.drive.sdo_writes().size() > writes);
+    CHECK(l.drive.sdo_writes()[writes] == std::make_pair<std::uint16_t, std::uint8_t>(0x6040, 0));
+    CHECK(*l.drive.value(0x6040, 0) == 0x0002);
+    REQUIRE(l.running());
+    l.run_for(0.1);
+    CHECK(l.master.status().state == TableState::QuickStopped);
+    CHECK((l.drive.controlword() & 0x8F) == 0x02);  // and by PDO once running
+  }
+
+  TEST_CASE("an EMCY that only warns: the quick stop waits for a statusword that shows it") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.cycle_s = 0.004;
+    stand::Drive402Faults df;
+    df.warning_at_s = 1.0;
+    Loop l(master_settings(), ds, df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
+    l.run_for(1.5);
+    REQUIRE(l.master.status().fault == FaultCode::Emcy);  // latched, to be safe
+    REQUIRE(l.drive.state() == State::OperationEnabled);  // but the drive goes on
+    REQUIRE(l.drive.moving(l.t));
+    REQUIRE(l.command(TableCommandCode::QuickStop, 3));
+    CHECK(l.master.status().ack != 3);  // the drive has not yet sampled it
+    CHECK(l.drive.moving(l.t));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.1));
+    CHECK(l.drive.state() == State::QuickStopActive);
+    CHECK((l.drive.controlword() & 0x8F) == 0x02);
+  }
+
+  TEST_CASE("disable: refused while moving; from quick stop active nothing before rest") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    const auto sent = l.sent.size();
+    CHECK_FALSE(l.command(TableCommandCode::Disable, 3).ok());
+    CHECK(l.sent.size() == sent);
+    CHECK(l.drive.state() == State::OperationEnabled);
+    REQUIRE(l.in_position(2, 5));
+    // a quick stop, and at once enable again: the drive leaves quick stop
+    // active (transition 12) only once at rest (bit 10)
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 4, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    REQUIRE(l.command(TableCommandCode::QuickStop, 5));
+    REQUIRE(l.command(TableCommandCode::Enable, 6));
+    REQUIRE(l.drive.moving(l.t));
+    while (l.drive.moving(l.t)) {
+      CHECK(l.drive.state() == State::QuickStopActive);
+      CHECK((l.drive.controlword() & 0x8F) == 0x02);
+      l.step();
+    }
+    REQUIRE(l.enabled(6));
+    // and disable from quick stop active, also at rest only
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 7, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.0);
+    REQUIRE(l.command(TableCommandCode::QuickStop, 8));
+    REQUIRE(l.command(TableCommandCode::Disable, 9));
+    REQUIRE(l.drive.moving(l.t));
+    while (l.drive.moving(l.t)) {
+      CHECK(l.drive.state() == State::QuickStopActive);
+      l.step();
+    }
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 9; }, 0.5));
+    CHECK(l.drive.state() == State::SwitchOnDisabled);  // transition 12
+    CHECK(l.master.status().state == TableState::Disabled);
+  }
+
+  TEST_CASE("modes of operation display read back: the drive switches late, or never") {
+    stand::Drive402Setup ds = drive_setup();
+    SUBCASE("late: configuration waits") {
+      ds.mode_switch_s = 0.05;
+      Loop l(master_settings(), ds);
+      l.start();
+      REQUIRE(l.running());
+      CHECK(*l.drive.value(0x6061, 0) == 1);  // shown before NMT start
+      REQUIRE(l.enabled(1));
+      REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 10 * kDeg, 30 * kDeg));
+      REQUIRE(l.in_position(2, 3));
+    }
+    SUBCASE("never within the timeout: configuration fails, naming 0x6061") {
+      ds.mode_switch_s = 10;
+      Loop l(master_settings(), ds);
+      l.start();
+      l.run_for(0.5);
+      CHECK(l.master.phase() == cia402::CommPhase::Failed);
+      CHECK(l.master.status().fault == FaultCode::Configuration);
+      CHECK(l.master.status().fault_name.find("0x6061") != std::string::npos);
+      CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
+    }
+  }
+
+  TEST_CASE("relative moves count from the actual position (0x60F2), not the last target") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.positioning_option = 0;  // as many drives: from the last target
+    Loop l(master_settings(), ds);
+    l.start();
+    REQUIRE(l.running());
+    CHECK(*l.drive.value(0x60F2, 0) == 1);
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.5);
+    REQUIRE(l.command(TableCommandCode::QuickStop, 3));
+    l.run_for(0.5);
+    REQUIRE(l.enabled(4));
+    const std::int64_t stopped = l.drive.position_counts(l.t);
+    REQUIRE(stopped < 250000);
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 5, 10 * kDeg, 30 * kDeg));
+    REQUIRE(l.in_position(5, 3));
+    CHECK(l.drive.position_counts(l.t) == stopped + 27778);
+  }
+
+  TEST_CASE("heartbeat lost while the drive stays enabled: no reset after reconfiguration") {
+    cia402::MasterSettings ms = master_settings();
+    ms.abort_connection_option = 0;  // the drive takes no action on our lost heartbeat
+    stand::Drive402Faults df;
+    df.silent_at_s = 1.0;
+    df.silent_until_s = 1.5;
+    Loop l(ms, drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 2.0));
+    INFO(l.master.status().fault_name);
+    REQUIRE(l.master.status().fault == FaultCode::DriveHeartbeatLost);
+    l.run_for(0.5);  // it talks again, still enabled
+    REQUIRE(l.drive.state() == State::OperationEnabled);
+    const auto from = l.sent.size();
+    REQUIRE(l.command(TableCommandCode::Enable, 2));
+    REQUIRE(l.run_until(
+        [&] {
+          CHECK(l.drive.state() == State::OperationEnabled);  // never let go
+          return l.master.status().ack == 2 && l.master.status().state == TableState::Holding;
+        },
+        1.0));
+    CHECK(l.master.counts().configurations == 2);
+    CHECK(l.drive.counts().fault_resets == 0);
+    for (std::size_t i = from; i < l.sent.size(); ++i)
+      if (l.sent[i].id == canopen::kRpdo1Base + 5) CHECK((l.sent[i].data[0] & 0x8F) == 0x0F);
+  }
+
+  TEST_CASE("a quick stop is kept commanded by PDO while a fault is latched") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.mode_switch_s = 0.05;  // configuring for a while
+    stand::Drive402Faults df;
+    df.warning_at_s = 0.02;  // an EMCY during the configuration: latched
+    Loop l(master_settings(), ds, df);
+    l.start();
+    REQUIRE(l.run_until([&] { return l.master.status().fault == FaultCode::Emcy; }, 0.1));
+    REQUIRE(l.master.phase() == cia402::CommPhase::Configuring);
+    REQUIRE(l.command(TableCommandCode::QuickStop, 3));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.1));
+    REQUIRE(l.running());
+    l.run_for(0.05);
+    CHECK(l.master.status().fault == FaultCode::Emcy);
+    bool pdo_quick_stop = false;
+    for (const can::Frame& f : l.sent)
+      if (f.id == canopen::kRpdo1Base + 5 && (f.data[0] & 0x8F) == 0x02) pdo_quick_stop = true;
+    CHECK(pdo_quick_stop);
   }
 }

@@ -157,6 +157,9 @@ class SdoClient {
   void cancel_all(std::vector<can::Frame>& out, std::uint32_t code = abort_code::kGeneral);
   /// Drops the queued transfers, not the one under way (safe in a callback).
   void drop_queued() { queue_.clear(); }
+  /// Ends the queued transfers, not the one under way (safe in a callback):
+  /// each callback gets `code`, none is lost; a callback may queue anew.
+  void fail_queued(std::uint32_t code = abort_code::kGeneral);
   [[nodiscard]] bool idle() const { return !active_ && queue_.empty(); }
   [[nodiscard]] std::size_t pending() const { return queue_.size() + (active_ ? 1 : 0); }
   [[nodiscard]] const SdoCounts& counts() const { return counts_; }

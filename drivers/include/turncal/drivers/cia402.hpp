@@ -5,9 +5,16 @@
 // What it does, in order:
 //   NMT reset communication -> the drive's boot-up (0x700+node, 0x00) ->
 //   NMT enter pre-operational -> configuration by SDO (0x6060 = 1,
-//   0x6081, 0x6083, 0x6084, 0x6085, 0x605A, 0x6007, 0x1016:01, 0x1017, then
-//   the PDO mappings 0x1600 / 0x1A00 [/ 0x1A01] when the settings ask) ->
-//   NMT start.
+//   0x60F2 = 1, 0x6081, 0x6083, 0x6084, 0x6085, 0x605A, 0x6007, 0x1016:01,
+//   0x1017, then the PDO mappings 0x1600 / 0x1A00 [/ 0x1A01] when the
+//   settings ask; then 0x60F2 read back, and 0x6061 read until the drive
+//   shows profile position) -> NMT start.
+//
+// Relative moves: 0x60F2 (positioning option code) bits 0-1 = 01 makes a
+// relative target count from the actual position (CiA 402); many drives
+// default to 00, from the last target, which after a halt or a quick stop
+// is not where the table is. The configuration fails when the drive does
+// not keep 01.
 // From then on RPDO1 (controlword + target position) goes out, TPDO1
 // (statusword + position actual) and, when asked, TPDO2 (velocity actual)
 // come in, the drive's heartbeat is watched, its EMCYs are decoded and
@@ -36,19 +43,29 @@
 //
 // The acknowledgement (status().ack) is the seq of the last command the
 // drive accepted: Enable when Operation enabled is reached, Disable when
-// Switch on disabled is, a move when the drive acknowledges its set-point
-// (statusword bit 12), ControlledStop at the first statusword after the
-// halt bit went out, QuickStop when the drive is in Quick stop active or
-// not enabled at all (at rest).
+// Ready to switch on (or Switch on disabled) is, a move when the drive
+// acknowledges its set-point (statusword bit 12; bit 4 is held until then,
+// and a fault latches after set_point_timeout_s), ControlledStop at the
+// first statusword after the halt bit went out, QuickStop at a statusword
+// received after it that shows Quick stop active, Fault or not enabled (an
+// EMCY is no proof: many only warn), or, outside Running, on the drive's
+// answer to the SDO write of 0x6040 (refused while the drive boots).
+// Disable is Shutdown (transition 8: the drive stops on its ramp), refused
+// while a move is under way; Quick stop active is left (transition 12)
+// only once the quick stop is complete (bit 10).
 //
 // The stale-PDO trap: a drive in fault may keep (or stop sending) a last
 // TPDO that says Operation enabled. The master judges by the freshest
 // information: an EMCY with a non-zero code, the drive's heartbeat lost, or
 // its NMT state leaving operational latches a fault whatever the last
-// statusword said, and only a statusword received after the fault reset
-// that an Enable sends can clear it. After a lost heartbeat (or a drive
-// that left operational or rebooted) the Enable first resets the drive's
-// communication (NMT) and configures it again.
+// statusword said, and only Switch on disabled (transition 15), in a
+// statusword received after the fault reset that an Enable sends, can
+// clear it. The reset is a rising edge of bit 7 in an overwrite buffer the
+// drive samples once a cycle: 0x0000 first, 0x0080 at the next statusword.
+// After a lost heartbeat (or a drive that left operational or rebooted)
+// the Enable first resets the drive's communication (NMT) and configures
+// it again; a drive whose first statusword then shows no fault is not
+// reset at all (the fault was the bus's, and 0x0000 would let it coast).
 //
 // Wiring (the daemon, the replay, a test):
 //   auto m = Master::create(settings);           // an error names the misfit
@@ -95,6 +112,7 @@ inline constexpr std::uint16_t kProfileVelocity = 0x6081;
 inline constexpr std::uint16_t kProfileAcceleration = 0x6083;
 inline constexpr std::uint16_t kProfileDeceleration = 0x6084;
 inline constexpr std::uint16_t kQuickStopDeceleration = 0x6085;
+inline constexpr std::uint16_t kPositioningOption = 0x60F2;
 inline constexpr std::uint16_t kDeviceName = 0x1008;
 inline constexpr std::uint16_t kConsumerHeartbeat = 0x1016;
 inline constexpr std::uint16_t kProducerHeartbeat = 0x1017;
@@ -286,6 +304,15 @@ struct MasterSettings {
   double sync_period_s = 0;
   /// TPDO1's event timer when the mapping is written without SYNC.
   double tpdo_event_timer_s = 0.01;
+  /// A set-point (controlword bit 4, held) not acknowledged (statusword
+  /// bit 12) within this latches a fault.
+  double set_point_timeout_s = 0.5;
+  /// A fault reset is a rising edge of bit 7 and RPDO1 an overwrite buffer
+  /// the drive samples once a cycle: 0x0000 goes first and 0x0080 follows
+  /// at the next statusword, or after this when none comes.
+  double fault_reset_low_s = 0.05;
+  /// How long 0x6061 may take to show the mode written to 0x6060.
+  double mode_switch_timeout_s = 0.2;
 
   [[nodiscard]] double counts_per_rad() const {
     return counts_per_rev * gear_ratio / (2 * 3.14159265358979323846);
@@ -315,6 +342,7 @@ enum class FaultCode : std::uint8_t {
   Configuration = 6,       ///< an SDO abort (or timeout) during configuration
   NoBootUp = 7,            ///< no boot-up message after the NMT reset
   Sdo = 8,                 ///< the SDO a move needed (profile velocity) failed
+  SetPointTimeout = 9,     ///< no set-point acknowledge (bit 12) in time
 };
 
 /// What the sequencer's TableStatusEvent carries (icd.hpp, can-icd.md).
@@ -342,9 +370,11 @@ struct MasterCounts {
   std::uint64_t velocity_pdo = 0;
   std::uint64_t emcy = 0;
   std::uint64_t heartbeats = 0;
-  std::uint64_t malformed = 0;       ///< a TPDO, EMCY or heartbeat of a wrong length
-  std::uint64_t nmt_resets = 0;      ///< reset communication sent
-  std::uint64_t configurations = 0;  ///< configurations completed
+  std::uint64_t malformed = 0;           ///< a TPDO, EMCY or heartbeat of a wrong length
+  std::uint64_t nmt_resets = 0;          ///< reset communication sent
+  std::uint64_t configurations = 0;      ///< configurations completed
+  std::uint64_t unknown_nmt_states = 0;  ///< drive heartbeats with a state byte CiA 301 lacks
+  std::uint64_t position_resets = 0;     ///< the position unwrap restarted (the drive rebooted)
 };
 
 /// The master's own progress through NMT and configuration.
@@ -423,7 +453,7 @@ class Master {
     Halting,  ///< halt set, decelerating until bit 10
     Done,     ///< target reached (or halted at rest)
   };
-  enum class Recovery : std::uint8_t { None, AfterComm, SendReset, WaitFresh };
+  enum class Recovery : std::uint8_t { None, AfterComm, SendReset, ResetLow, WaitFresh };
   enum class AckOn : std::uint8_t { None, Enabled, Disabled, Stopped, Halted };
   struct PendingMove {
     std::uint8_t seq = 0;
@@ -435,6 +465,11 @@ class Master {
   void reset_comm(double now_s, std::vector<can::Frame>& out);
   void configure(double now_s, std::vector<can::Frame>& out);
   void config_done(double now_s, std::vector<can::Frame>& out);
+  void config_failed(const canopen::SdoResult& r, const std::string& why);
+  /// Reads 0x60F2 back, then check_mode.
+  void check_options(std::uint64_t gen);
+  /// Reads 0x6061 until it shows profile position (1), then completes.
+  void check_mode(std::uint64_t gen);
   void latch(FaultCode code, std::string name, bool needs_comm_reset = false);
   void on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
   void on_heartbeat(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
@@ -488,6 +523,12 @@ class Master {
   MoveStep move_ = MoveStep::None;
   PendingMove pending_;
   std::uint64_t move_sent_seq_ = 0;
+  double move_sent_t_ = 0;
+  std::uint64_t low_seq_ = 0;  // sw_seq_ when 0x0000 went out before a fault reset
+  double low_t_ = 0;
+  double mode_since_ = 0;  // the mode check began
+  double mode_poll_at_ = INFINITY;
+  bool sdo_quick_stop_ = false;  // a quick stop written by SDO awaits its answer
   std::uint32_t velocity_written_ = 0;
   std::uint64_t move_generation_ = 0;
   std::uint16_t move_flags_ = 0;  // relative, change immediately

@@ -17,8 +17,11 @@
 // * a set-point while moving with "change set immediately" brakes at the
 //   profile deceleration and then sets off to the new target (a real drive
 //   blends); without it the set-point waits for the move under way;
-// * a relative target counts from where the drive is (at rest), or from
-//   the target of the move under way;
+// * a relative target counts per 0x60F2 bits 0-1: 00 (the default, as on
+//   many drives) from the last target, 01 from where the drive is (at
+//   rest), or from the target of the move under way;
+// * 0x6061 shows a mode written to 0x6060 mode_switch_s later; until then
+//   set-points are ignored;
 // * releasing halt does not resume the move: a new set-point is needed;
 // * disable voltage, shutdown and disable operation while moving stop at
 //   the quick stop deceleration (a motor let go would coast);
@@ -56,6 +59,18 @@ struct Drive402Setup {
   bool default_mapping = true;
   std::uint16_t tpdo_event_timer_ms = 10;   ///< 0x1800:05 after a reset
   std::uint16_t producer_heartbeat_ms = 0;  ///< 0x1017 after a reset
+  /// > 0: the drive works in cycles of this length, as a real one does:
+  /// RPDO1 is an overwrite buffer sampled once a cycle (a controlword
+  /// overwritten before the cycle is never seen), and the statusword that
+  /// answers goes out with the next cycle's TPDO1. 0: every frame is taken
+  /// at once and answered at once.
+  double cycle_s = 0;
+  /// Delay of a write of 0x6060 before 0x6061 shows it and the mode works
+  /// (a set-point before then is ignored).
+  double mode_switch_s = 0.003;
+  /// 0x60F2 after a reset; bits 0-1 = 00 (the default of many drives): a
+  /// relative target counts from the last target; 01: from position actual.
+  std::uint16_t positioning_option = 0;
 };
 
 /// What TPDO1 does while the drive is in fault (the stale-PDO trap).
@@ -73,7 +88,10 @@ struct Drive402Faults {
   double silent_at_s = NAN;  ///< the drive neither sends nor hears anything from then ...
   double silent_until_s = std::numeric_limits<double>::infinity();  ///< ... to then
   double following_error_at_s = NAN;  ///< statusword bit 13, EMCY 0x8611, fault
-  bool refuse_moves = false;          ///< new set-points are never acknowledged
+  /// An EMCY that only warns (statusword bit 7): the drive keeps moving.
+  double warning_at_s = NAN;
+  std::uint16_t warning_code = 0x4210;  ///< excess temperature device
+  bool refuse_moves = false;            ///< new set-points are never acknowledged
   int resets_ignored = 0;  ///< the first fault resets leave it in fault (the cause persists)
   /// (index << 8 | sub) -> abort code for any SDO access to that object.
   std::map<std::uint32_t, std::uint32_t> refuse_objects;
@@ -159,6 +177,8 @@ class VirtualDrive402 {
   void on_nmt(double t, const can::Frame& f, std::vector<DriveFrame>& out);
   void on_sdo(double t, const can::Frame& f, std::vector<DriveFrame>& out);
   void on_rpdo(double t, const can::Frame& f, std::vector<DriveFrame>& out);
+  void apply_rpdo(double t, const can::Frame& f, std::vector<DriveFrame>& out);
+  void cycle(double t, std::vector<DriveFrame>& out);
   void on_sync(double t, std::vector<DriveFrame>& out);
   /// 0: written; else the abort code.
   std::uint32_t write(double t, std::uint32_t key, const std::vector<std::uint8_t>& data,
@@ -210,6 +230,7 @@ class VirtualDrive402 {
   bool target_reached_ = true;
   bool set_point_ack_ = false;
   bool following_error_ = false;
+  bool warning_ = false;
   TableMotion motion_;
   Motion motion_kind_ = Motion::Rest;
   double rest_at_ = -std::numeric_limits<double>::infinity();
@@ -220,6 +241,14 @@ class VirtualDrive402 {
   std::optional<std::uint16_t> last_sent_sw_;
   std::optional<can::Frame> frozen_;
   std::uint32_t sync_count_ = 0;
+  // cycles
+  double next_cycle_ = std::numeric_limits<double>::infinity();
+  std::optional<can::Frame> rpdo_buf_;  // the RPDO1 not yet sampled
+  bool in_cycle_ = false;
+  bool timer_due_ = false;  // the event timer fell in this cycle
+  // modes of operation: 0x6061 follows 0x6060 at mode_at_
+  double mode_at_ = std::numeric_limits<double>::infinity();
+  std::int64_t last_target_ = 0;  // the last set-point's absolute target, counts
   std::vector<std::pair<std::uint16_t, std::uint8_t>> writes_;
   std::vector<std::uint16_t> emcy_sent_;
   Drive402Counts counts_;
