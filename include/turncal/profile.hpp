@@ -58,6 +58,12 @@ class TableMotion {
   [[nodiscard]] std::vector<double> breakpoints() const;
   /// Appends those strictly inside (ta, tb).
   void breakpoints_in(double ta, double tb, std::vector<double>& out) const;
+  /// Appends a piece from t0 (after every piece so far): angle, rate and
+  /// acceleration at t0. A motion known by samples (an encoder's, linear
+  /// between them) rather than planned.
+  void append(double t0, double angle, double rate, double accel) {
+    pieces_.push_back({t0, angle, rate, accel});
+  }
   /// The first time at or after t from which the plan stays at rest.
   [[nodiscard]] double rest_time() const { return pieces_.empty() ? 0 : pieces_.back().t0; }
 

@@ -4,6 +4,7 @@
 #include <Eigen/Eigenvalues>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 
 namespace turncal::est {
 namespace {
@@ -115,10 +116,12 @@ void boundary_samples(const EstimationInput& in, TimelineInput& tl, bool data) {
   }
 }
 
-/// The filter over `tl` from the alignment prior at tl.psi_start_rad; with
+/// The filter over `tl` from the alignment prior at tl.psi_start_rad (x0 =
+/// T xi, xi of mean `prior_mean` and covariance Sigma_xi); with
 /// data from in.velocity, or (covariance analysis) no data and the
 /// measurements the INS rate's grid of samples gives.
-Result<EstimationResult> run(const EstimationInput& in, const TimelineInput& given, bool data) {
+Result<EstimationResult> run(const EstimationInput& in, const TimelineInput& given, bool data,
+                             const XiVec& prior_mean = XiVec::Zero()) {
   if (!data && !(in.sample_rate_hz > 0))
     return make_error("the INS velocity rate must be positive for a covariance analysis");
   TimelineInput tl = given;
@@ -129,7 +132,7 @@ Result<EstimationResult> run(const EstimationInput& in, const TimelineInput& giv
   const XiVec sxi_diag = prior_sigmas(in.priors, tl.noise);
   const Eigen::Matrix<double, sx::kN, Eigen::Dynamic> s0 = t * sxi_diag.asDiagonal();
   // internal scaling: the prior sigma of each state
-  SqrtFilter f(StateVec::Zero(), s0, s0.rowwise().norm());
+  SqrtFilter f(t * prior_mean, s0, s0.rowwise().norm());
   const MeasMat h = velocity_measurement();
   EstimationResult r;
   const std::size_t expected = static_cast<std::size_t>(tl.duration_s / tl.epoch_s) + 1;
@@ -401,9 +404,141 @@ XiVec prior_sigmas(const Priors& pr, const ProcessNoise& noise) {
   return s;
 }
 
+namespace {
+
+using ParamArray = std::array<double, sx::kParams>;
+
+/// The nominal's velocity at t, linear between its samples (ascending),
+/// held beyond its ends; `k` is the search's start, kept between calls
+/// with ascending t.
+Meas nominal_at(const std::vector<VelocityObs>& nom, double t, std::size_t& k) {
+  while (k + 1 < nom.size() && nom[k + 1].t_s <= t) ++k;
+  const VelocityObs& a = nom[k];
+  if (k + 1 == nom.size() || t <= a.t_s) return Meas(a.ve, a.vn);
+  const VelocityObs& b = nom[k + 1];
+  const double f = (t - a.t_s) / (b.t_s - a.t_s);
+  return Meas(a.ve + f * (b.ve - a.ve), a.vn + f * (b.vn - a.vn));
+}
+
+/// One iteration of the second pass about `p`: the filter on z - h(p)
+/// with the parameters' prior mean at -p, its estimate and history put
+/// back in parameter terms (p + correction, dv of the nominal plus
+/// correction).
+Result<EstimationResult> pass_about(const EstimationInput& in, const ParamArray& p) {
+  TURNCAL_ASSIGN(nom, in.second_pass.nominal(in, p));
+  if (nom.empty()) return make_error("the nonlinear nominal gave no velocity");
+  EstimationInput resid = in;
+  // the model linearised about the nominal (model.md, 8)
+  resid.timeline.nominal = Nominal{p, in.timeline.psi_start_rad};
+  std::size_t k = 0;
+  for (VelocityObs& v : resid.velocity) {
+    const Meas h = nominal_at(nom, v.t_s, k);
+    v.ve -= h(0);
+    v.vn -= h(1);
+  }
+  XiVec mean = XiVec::Zero();
+  for (int j = 0; j < sx::kParams; ++j) mean(sxi::kParams + j) = -p[static_cast<std::size_t>(j)];
+  TURNCAL_ASSIGN(r, run(resid, resid.timeline, true, mean));
+  const ParamVec pv = Eigen::Map<const ParamVec>(p.data());
+  r.x.segment<sx::kParams>(sx::kNu0) += pv;
+  k = 0;
+  for (std::size_t i = 0; i < r.x_history.size(); ++i) {
+    r.x_history[i].segment<sx::kParams>(sx::kNu0) += pv;
+    r.x_history[i].segment<2>(sx::kDv) += nominal_at(nom, r.epoch_t[i], k);
+  }
+  r.x.segment<2>(sx::kDv) += nominal_at(nom, in.timeline.duration_s, k);
+  return r;
+}
+
+ParamArray params_of(const StateVec& x) {
+  ParamArray p{};
+  for (int j = 0; j < sx::kParams; ++j) p[static_cast<std::size_t>(j)] = x(sx::kNu0 + j);
+  return p;
+}
+
+std::string fixed(double v, int digits) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.*f", digits, v);
+  return buf;
+}
+
+}  // namespace
+
+double linearisation_error_sigma(const EstimationInput& in, const EstimationResult& first) {
+  const TimelineInput& tl = in.timeline;
+  const EarthAt e = EarthAt::at(tl.site);
+  const auto est = [&](int state) {
+    const auto j = static_cast<std::size_t>(state - sx::kNu0);
+    return std::abs(first.parameters[j].value) + first.parameters[j].sigma;
+  };
+  double turned = 0;  // the largest angle from the start orientation, rad
+  for (const AngleSample& s : tl.encoder)
+    if (s.t_s >= 0 && s.t_s <= tl.duration_s)
+      turned = std::max(turned, std::abs(s.psi_rad - tl.psi_start_rad));
+  const double b3 =
+      in.priors.heading_rad + est(sx::kNu0 + 2) * tl.duration_s + est(sx::theta(3, 3)) * turned;
+  double v_max = 0;
+  for (const VelocityObs& v : in.velocity) v_max = std::max(v_max, std::hypot(v.ve, v.vn));
+  const double rho = b3 + v_max / std::sqrt(e.g * std::sqrt(e.rm * e.rn));
+  double worst = 0;
+  const auto take = [&](const ParameterEstimate& q) {
+    if (q.sigma > 0 && q.prior_sigma > 0 && q.sigma < 0.5 * q.prior_sigma)
+      worst = std::max(worst, std::abs(q.value) / q.sigma);
+  };
+  for (const ParameterEstimate& q : first.parameters) take(q);
+  for (const ParameterEstimate& q : first.df_obs) take(q);
+  return rho * worst;
+}
+
 Result<EstimationResult> estimate(const EstimationInput& in) {
   TURNCAL_ASSIGN(r, run(in, in.timeline, true));
   interpret(in, r);
+  const SecondPassSettings& sp = in.second_pass;
+  SecondPass pass;
+  pass.predicted_sigma = linearisation_error_sigma(in, r);
+  const std::string predicted = "the first pass predicts a linearisation error of " +
+                                fixed(pass.predicted_sigma, 2) + " sigma (threshold " +
+                                fixed(sp.threshold_sigma, 2) + ")";
+  if (sp.mode == SecondPassSettings::Mode::Off) {
+    pass.reason = "turned off; " + predicted;
+  } else if (sp.nominal == nullptr) {
+    pass.reason = "no nonlinear nominal given; " + predicted;
+  } else if (sp.mode == SecondPassSettings::Mode::Auto &&
+             !(pass.predicted_sigma > sp.threshold_sigma)) {
+    pass.reason = predicted + ": the linear model suffices";
+  } else {
+    pass.reason =
+        sp.mode == SecondPassSettings::Mode::Always ? "asked for; " + predicted : predicted;
+    ParamArray p = params_of(r.x);
+    while (pass.iterations < std::max(1, sp.max_iterations)) {
+      auto next = pass_about(in, p);
+      if (!next) {  // the first pass, or the last iteration, stands
+        pass.reason += "; stopped after " + std::to_string(pass.iterations) +
+                       " iterations: " + next.error().describe();
+        break;
+      }
+      EstimationResult ri = std::move(next).value();
+      ++pass.iterations;
+      // the change of this iteration, p_{i+1} - p_i, in the sigmas of this
+      // linearisation (fixed parameters, sigma 0, never move)
+      double change = 0;
+      for (int j = 0; j < sx::kParams; ++j) {
+        const double sigma = std::sqrt(std::max(0.0, ri.p(sx::kNu0 + j, sx::kNu0 + j)));
+        const double d = ri.x(sx::kNu0 + j) - p[static_cast<std::size_t>(j)];
+        if (sigma > 0) change = std::max(change, std::abs(d) / sigma);
+      }
+      pass.last_change_sigma = change;
+      p = params_of(ri.x);
+      r = std::move(ri);
+      if (change < sp.tolerance_sigma) {
+        pass.converged = true;
+        break;
+      }
+    }
+    pass.ran = pass.iterations > 0;
+    if (pass.ran) interpret(in, r);
+  }
+  r.second_pass = pass;
   r.innovation_stats = innovation_stats(r.innovations, in.whiteness_lags);
   if (in.with_two_stage) {
     TURNCAL_ASSIGN(ts, two_stage(in, r.p));

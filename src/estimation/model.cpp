@@ -54,10 +54,12 @@ EarthAt EarthAt::at(const Site& site) {
                  std::tan(lat)};
 }
 
-StateMat hold_dynamics(const EarthAt& e, double psi) {
+StateMat hold_dynamics(const EarthAt& e, double psi, const Nominal* nominal, double t_s) {
   using namespace sx;
   StateMat f = StateMat::Zero();
-  const Mat3 a = rot(psi);
+  // the computed frame's view of body axes: A(psi - b3) about a nominal
+  const double psi_c = nominal != nullptr ? psi - nominal->b3(t_s, psi) : psi;
+  const Mat3 a = rot(psi_c);
   // d(dv1)/dt =  2 u3 dv2 - g (b2 + a2) + da1
   // d(dv2)/dt = -2 u3 dv1 + g (b1 + a1) + da2,   da = A(psi) df_z,
   // df_z1 = df0_1 + G13 g,  df_z2 = df0_2 + G23 g   (section 2, at rest)
@@ -82,21 +84,45 @@ StateMat hold_dynamics(const EarthAt& e, double psi) {
   f(kB + 1, kB) = -e.u3;
   f(kB + 2, kB) = e.u2;
   // nu = A(psi) (nu0 + Theta omega_z),  omega_z = A^T u_x = (u2 s, u2 c, u3) at rest
-  const Eigen::Vector3d w = a.transpose() * Eigen::Vector3d(0, e.u2, e.u3);
+  // (the true body rate: the true psi)
+  const Eigen::Vector3d w = rot(psi).transpose() * Eigen::Vector3d(0, e.u2, e.u3);
   for (int i = 0; i < 3; ++i) {
     for (int j = 0; j < 3; ++j) {
       f(kB + i, kNu0 + j) = -a(i, j);
       for (int k = 0; k < 3; ++k) f(kB + i, theta(j + 1, k + 1)) = -a(i, j) * w(k);
     }
   }
+  if (nominal != nullptr) {
+    // b3 against the nominal's errors: d/db3 of A(psi - b3) v is -A' v,
+    // A' = dA/dpsi = [[-s, -c], [c, -s]] on the horizontal
+    const auto& p = nominal->params;
+    const auto at = [&](int state) { return p[static_cast<std::size_t>(state - kNu0)]; };
+    Eigen::Vector3d theta_row;
+    Eigen::Vector3d nu_z;
+    for (int i = 0; i < 3; ++i) {
+      for (int k = 0; k < 3; ++k) theta_row(k) = at(theta(i + 1, k + 1));
+      nu_z(i) = at(kNu0 + i) + theta_row.dot(w);
+    }
+    const Eigen::Vector2d df_z(at(kDf0) + e.g * at(kG), at(kDf0 + 1) + e.g * at(kG + 1));
+    const double c = std::cos(psi_c), s = std::sin(psi_c);
+    Eigen::Matrix2d da;  // A' on the horizontal
+    da << -s, -c, c, -s;
+    const Eigen::Vector2d dv_b3 = -da * df_z;
+    const Eigen::Vector2d b_b3 = da * nu_z.head<2>();
+    for (int i = 0; i < 2; ++i) {
+      f(kDv + i, kB + 2) += dv_b3(i);
+      f(kB + i, kB + 2) += b_b3(i);
+    }
+  }
   return f;
 }
 
-Discrete discretize_hold(const EarthAt& e, double psi, double dt, const ProcessNoise& noise) {
+Discrete discretize_hold(const EarthAt& e, double psi, double dt, const ProcessNoise& noise,
+                         const Nominal* nominal, double t_mid_s) {
   // Van Loan: expm([[-F, GQG^T], [0, F^T]] dt) = [[., E12], [0, Phi^T]],
   // Q_d = Phi E12.
   constexpr int n = sx::kN;
-  const StateMat f = hold_dynamics(e, psi);
+  const StateMat f = hold_dynamics(e, psi, nominal, t_mid_s);
   Eigen::Matrix<double, 2 * n, 2 * n> m = Eigen::Matrix<double, 2 * n, 2 * n>::Zero();
   m.topLeftCorner<n, n>() = -f * dt;
   m.topRightCorner<n, n>() = noise_input(noise) * dt;
@@ -132,7 +158,8 @@ TurnIntegrals turn_integrals_constant_rate(double psi1, double psi2, double plat
 }
 
 Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
-                         const ProcessNoise& noise, const TurnIntegrals* integrals) {
+                         const ProcessNoise& noise, const TurnIntegrals* integrals,
+                         const Nominal* nominal) {
   // Only the 7 navigation rows move: the parameters are constants, so each
   // step is [[S_nn, S_np], [0, I]], the product keeps that form, and the
   // noise stays in the navigation block. Per encoder sample that is a few
@@ -150,16 +177,21 @@ Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
     const double dt = samples[k + 1].t_s - samples[k].t_s;
     if (dt <= 0) continue;
     const double psi1 = samples[k].psi_rad, psi2 = samples[k + 1].psi_rad;
+    const double t_mid = 0.5 * (samples[k].t_s + samples[k + 1].t_s);
     // Bounded terms of F at the mid angle, second-order transition:
     // I + F dt + (F dt)^2 / 2, whose parameter rows are those of I.
-    const StateMat f = hold_dynamics(e, 0.5 * (psi1 + psi2));
+    const StateMat f = hold_dynamics(e, 0.5 * (psi1 + psi2), nominal, t_mid);
+    // the angles the computed frame sees the body at (about a nominal:
+    // turned by -b3); the turn itself is the true one
+    const double psi1c = nominal != nullptr ? psi1 - nominal->b3(samples[k].t_s, psi1) : psi1;
+    const double psi2c = nominal != nullptr ? psi2 - nominal->b3(samples[k + 1].t_s, psi2) : psi2;
     const NavMat fnn = f.topLeftCorner<kNav, kNav>() * dt;
     const NavParMat fnp = f.topRightCorner<kNav, kParams>() * dt;
     const NavMat snn = NavMat::Identity() + fnn + 0.5 * fnn * fnn;
     NavParMat snp = fnp + 0.5 * fnn * fnp;
     // Theta_.3 Omega integrates over angle: Delta b = -[int A dpsi] Theta_.3,
     // int A dpsi = [[S, C, 0], [-C, S, 0], [0, 0, psi2 - psi1]].
-    const double sd = std::sin(psi2) - std::sin(psi1), cd = std::cos(psi2) - std::cos(psi1);
+    const double sd = std::sin(psi2c) - std::sin(psi1c), cd = std::cos(psi2c) - std::cos(psi1c);
     const double ia[3][3] = {{sd, cd, 0}, {-cd, sd, 0}, {0, 0, psi2 - psi1}};
     for (int i = 0; i < 3; ++i)
       for (int j = 0; j < 3; ++j) snp(kB + i, theta(j + 1, 3) - kNav) -= ia[i][j];
@@ -171,7 +203,7 @@ Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
         jc = integrals->plateau_rate * sd;
         js = -integrals->plateau_rate * cd;
       } else {
-        const double mid = 0.5 * (psi1 + psi2), dpsi = psi2 - psi1, omega = dpsi / dt;
+        const double mid = 0.5 * (psi1c + psi2c), dpsi = psi2 - psi1, omega = dpsi / dt;
         jc = omega * std::cos(mid) * dpsi;
         js = omega * std::sin(mid) * dpsi;
       }

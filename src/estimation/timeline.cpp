@@ -159,9 +159,18 @@ Result<TimelineReport> for_each_step(const TimelineInput& in,
   TimelineReport report;
   report.holds = holds_of(in, turns);
   const EarthAt e = EarthAt::at(in.site);
+  const Nominal* nom = in.nominal ? &*in.nominal : nullptr;
+  // a hold's transition over dt from t (about the nominal at its middle)
+  const auto hold = [&](double psi_h, double t_h, double dt) {
+    return discretize_hold(e, psi_h, dt, in.noise, nom, t_h + 0.5 * dt);
+  };
+  const auto azimuth = [&](double t_h, double psi_h) {
+    return nom != nullptr ? nom->b3(t_h, psi_h) : 0.0;
+  };
   double psi = in.psi_start_rad;
-  Discrete epoch = discretize_hold(e, psi, in.epoch_s, in.noise);
-  double epoch_psi = psi;  // the orientation `epoch` is for
+  Discrete epoch = hold(psi, 0, in.epoch_s);
+  double epoch_psi = psi;                            // the orientation `epoch` is for
+  double epoch_b3 = azimuth(0.5 * in.epoch_s, psi);  // and the nominal's azimuth
   double t = 0;
   std::size_t next_turn = 0;
   for (const Mark& m : schedule(in, turns)) {
@@ -183,9 +192,11 @@ Result<TimelineReport> for_each_step(const TimelineInput& in,
     }
     const bool crosses = next_turn < turns.size() && turns[next_turn].w.t_start_s < m.t;
     if (!crosses && std::abs(m.t - t - in.epoch_s) < kSameTime) {
-      if (psi != epoch_psi) {
-        epoch = discretize_hold(e, psi, in.epoch_s, in.noise);
+      const double b3 = azimuth(t + 0.5 * in.epoch_s, psi);
+      if (psi != epoch_psi || std::abs(b3 - epoch_b3) > TimelineInput::kNominalAzimuthStep) {
+        epoch = hold(psi, t, in.epoch_s);
         epoch_psi = psi;
+        epoch_b3 = b3;
       }
       fn(step);  // a whole epoch of hold
     } else {
@@ -194,15 +205,15 @@ Result<TimelineReport> for_each_step(const TimelineInput& in,
       d.q.setZero();
       while (next_turn < turns.size() && turns[next_turn].w.t_start_s < m.t) {
         const ResolvedTurn& r = turns[next_turn++];
-        if (r.w.t_start_s - t > kSameTime)
-          compose(d, discretize_hold(e, psi, r.w.t_start_s - t, in.noise));
-        compose(d, turn_transition(e, r.samples, in.noise,
-                                   r.source == TurnSource::ClosedForm ? &r.closed_form : nullptr));
+        if (r.w.t_start_s - t > kSameTime) compose(d, hold(psi, t, r.w.t_start_s - t));
+        compose(
+            d, turn_transition(e, r.samples, in.noise,
+                               r.source == TurnSource::ClosedForm ? &r.closed_form : nullptr, nom));
         report.turns.push_back(r.source);
         psi = r.samples.back().psi_rad;
         t = r.w.t_end_s;
       }
-      if (m.t - t > kSameTime) compose(d, discretize_hold(e, psi, m.t - t, in.noise));
+      if (m.t - t > kSameTime) compose(d, hold(psi, t, m.t - t));
       d.sqrt_q = psd_sqrt(d.q);
       step.d = &d;
       fn(step);

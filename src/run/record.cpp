@@ -1,5 +1,7 @@
 #include "turncal/run/record.hpp"
 
+#include "turncal/estimation/nominal.hpp"
+
 #include <algorithm>
 #include <cmath>
 
@@ -76,6 +78,9 @@ Result<BuiltInput> build_input(Record& record, const Plan& plan, const BuildSett
 
   est::EstimationInput& in = out.input;
   in = input_of_plan(plan, settings.sample_rate_hz);
+  // the nonlinear second pass where the first pass says linearisation
+  // matters (model.md, 8)
+  in.second_pass.nominal = &est::strapdown_nominal;
   // the velocity from t0, in place: the record's samples become the input's
   in.velocity = record.take_velocity();
   std::size_t used = 0;

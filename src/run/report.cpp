@@ -397,6 +397,15 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
                         {"alarm_p", est::InnovationStats::kAlarmP},
                         {"white", s.white()},
                         {"degraded_updates", result->degraded_updates}};
+    // the nonlinear second pass (model.md, 8): whether it ran and why
+    const est::SecondPass& sp = result->second_pass;
+    j["second_pass"] = {{"ran", sp.ran},
+                        {"reason", sp.reason},
+                        {"predicted_error_sigma", sp.predicted_sigma},
+                        {"iterations", sp.iterations},
+                        {"converged", sp.converged}};
+    if (std::isfinite(sp.last_change_sigma))
+      j["second_pass"]["last_change_sigma"] = sp.last_change_sigma;
     j["verdict"] = judge(e, ctx.tolerances);
   } else {
     j["verdict"] = {{"pass", false}, {"checks", json::array()}, {"why", "no estimates"}};
@@ -570,6 +579,15 @@ std::string report_text(const json& r, const json* truth) {
     line("  innovations: NIS mean " + fmt("%.3f", i["nis_mean"].get<double>()) +
          " (95%: " + fmt("%.3f", i["nis_95_interval"][0].get<double>()) + " to " +
          fmt("%.3f", i["nis_95_interval"][1].get<double>()) + "); " + whiteness_text(i));
+  }
+  if (r.contains("second_pass") && r["second_pass"].is_object()) {
+    const auto& s = r["second_pass"];
+    const bool ran = s.value("ran", false);
+    line("  second pass: " +
+         (ran ? std::string("ran, ") + std::to_string(s.value("iterations", 0)) + " iterations, " +
+                    (s.value("converged", false) ? "converged" : "NOT converged")
+              : std::string("not run")) +
+         " (" + s.value("reason", std::string()) + ")");
   }
   if (r.contains("verdict")) {
     const auto& v = r["verdict"];
@@ -770,6 +788,14 @@ std::string check_report(const json& r) {
         c.each(i["nis_95_interval"], "innovations.nis_95_interval", Kind::Number) &&
         i["nis_95_interval"].size() != 2)
       c.fail("innovations.nis_95_interval", "expected two numbers");
+  }
+  if (c.field(r, "", "second_pass", Kind::Object)) {
+    const json& s = r["second_pass"];
+    for (const char* k : {"ran", "converged"}) c.field(s, "second_pass.", k, Kind::Boolean, true);
+    c.field(s, "second_pass.", "reason", Kind::String);
+    c.field(s, "second_pass.", "iterations", Kind::Integer);
+    for (const char* k : {"predicted_error_sigma", "last_change_sigma"})
+      c.field(s, "second_pass.", k, Kind::Number);
   }
   if (c.field(r, "", "verdict", Kind::Object)) {
     const json& v = r["verdict"];

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "scenarios.hpp"
+#include "turncal/estimation/nominal.hpp"
 
 namespace scenario {
 
@@ -29,6 +30,11 @@ struct MonteCarlo {
   int inconsistent = 0;  ///< runs outside their own NIS interval
   std::size_t degraded = 0;
   std::vector<std::string> errors;
+  /// the second pass: runs where it ran, of those the ones that converged,
+  /// and the most iterations one took
+  int second_pass_ran = 0;
+  int second_pass_converged = 0;
+  int second_pass_max_iterations = 0;
 };
 
 struct RunZ {
@@ -41,9 +47,13 @@ struct RunZ {
   bool white = true, consistent = true;
   std::size_t degraded = 0;
   std::string error;
+  est::SecondPass second_pass;
 };
 
-inline RunZ one_run(const Scenario& s, std::uint64_t seed) {
+/// One run of seed `seed`; the estimator's second pass as `mode` says (the
+/// daemon's default: Auto, with the strapdown nominal).
+inline RunZ one_run(const Scenario& s, std::uint64_t seed,
+                    est::SecondPassSettings::Mode mode = est::SecondPassSettings::Mode::Auto) {
   std::mt19937_64 rng(seed);
   const est::XiVec xi = draw(s, rng);
   const double psi_s = std::uniform_real_distribution<double>(0, 2 * earth::kPi)(rng);
@@ -56,6 +66,8 @@ inline RunZ one_run(const Scenario& s, std::uint64_t seed) {
   in.sigma_z = s.sigma_z;
   in.velocity.reserve(run.velocity.size());
   for (const auto& v : run.velocity) in.velocity.push_back({v.t_s, v.ve, v.vn});
+  in.second_pass.mode = mode;
+  in.second_pass.nominal = &est::strapdown_nominal;
   RunZ out;
   const auto r = est::estimate(in);
   if (!r) {
@@ -86,18 +98,20 @@ inline RunZ one_run(const Scenario& s, std::uint64_t seed) {
   out.white = st.ljung_box_p[0] >= 0.05 && st.ljung_box_p[1] >= 0.05;
   out.consistent = st.consistent();
   out.degraded = r->degraded_updates;
+  out.second_pass = r->second_pass;
   return out;
 }
 
 /// Runs seeds first_seed .. first_seed + runs - 1 on `threads` threads.
-inline MonteCarlo monte_carlo(const Scenario& s, int runs, std::uint64_t first_seed,
-                              unsigned threads = std::max(1u,
-                                                          std::thread::hardware_concurrency())) {
+inline MonteCarlo monte_carlo(
+    const Scenario& s, int runs, std::uint64_t first_seed,
+    unsigned threads = std::max(1u, std::thread::hardware_concurrency()),
+    est::SecondPassSettings::Mode mode = est::SecondPassSettings::Mode::Auto) {
   std::vector<RunZ> z(static_cast<std::size_t>(runs));
   std::vector<std::thread> pool;
   for (unsigned t = 0; t < threads; ++t)
     pool.emplace_back([&, t] {
-      for (std::size_t k = t; k < z.size(); k += threads) z[k] = one_run(s, first_seed + k);
+      for (std::size_t k = t; k < z.size(); k += threads) z[k] = one_run(s, first_seed + k, mode);
     });
   for (auto& th : pool) th.join();
   MonteCarlo mc;
@@ -124,6 +138,10 @@ inline MonteCarlo monte_carlo(const Scenario& s, int runs, std::uint64_t first_s
     mc.not_white += r.white ? 0 : 1;
     mc.inconsistent += r.consistent ? 0 : 1;
     mc.degraded += r.degraded;
+    mc.second_pass_ran += r.second_pass.ran ? 1 : 0;
+    mc.second_pass_converged += r.second_pass.ran && r.second_pass.converged ? 1 : 0;
+    mc.second_pass_max_iterations =
+        std::max(mc.second_pass_max_iterations, r.second_pass.iterations);
   }
   const double n = static_cast<double>(z.size() - mc.errors.size());
   for (std::size_t j = 0; j < mc.rms_z.size(); ++j) {

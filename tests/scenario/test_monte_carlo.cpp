@@ -72,20 +72,33 @@ TEST_SUITE("monte carlo") {
     }
   }
 
-  TEST_CASE("the recommended plan's df_obs at the full tactical prior: overconfident, linearised") {
-    // Known, and what the nonlinear second pass (not yet built) is for: at
-    // the full tactical prior the velocities reach 100 m/s and the linear
-    // model's misses (up to 3%) enter df_obs, whose sigma after four
-    // reversals is small (14 ug): its RMS z is 1.49 and 1.57 on these seeds
-    // (at a tenth of the prior, the next test, 1.01). The band [1.3, 1.8]
-    // holds that state: anything else (a second pass that works, or worse)
-    // fails here and asks for this test to change with it.
+  TEST_CASE(
+      "the recommended plan's df_obs at the full tactical prior: the second pass calibrates") {
+    // At the full tactical prior the velocities reach 100 m/s and the
+    // linear model's misses (up to 3%) enter df_obs, whose sigma after four
+    // reversals is small (14 ug): on these seeds the linear model alone
+    // gives RMS z 1.49 and 1.57. The nonlinear second pass (model.md, 8)
+    // runs on each of these runs by its criterion and brings df_obs to RMS
+    // z within 3 standard errors of 1 (1 +- 3/sqrt(2N): [0.70, 1.30] for
+    // N = 50; 1.03 and 1.08 here) and mean z within 3/sqrt(N) = 0.42 of 0.
+    // It reaches its 0.01 sigma in 41 of these 50 runs within its 5
+    // iterations (the model about the nominal is itself linearised, so
+    // the iteration converges linearly); the rest stop at 5, calibrated
+    // all the same. The seeds are fixed: 35 is a band about 41, not a
+    // sampling bound.
     const MonteCarlo& mc = recommended(1.0);
     REQUIRE(mc.errors.empty());
+    CHECK(mc.second_pass_ran == mc.runs);
+    MESSAGE("second pass converged in " << mc.second_pass_converged << " of " << mc.runs
+                                        << " runs, at most " << mc.second_pass_max_iterations
+                                        << " iterations");
+    CHECK(mc.second_pass_converged >= 35);
+    const double n = static_cast<double>(mc.runs);
     for (std::size_t i = 0; i < 2; ++i) {
-      MESSAGE("recommended, full prior: df_obs_" << i + 1 << " rms z " << mc.rms_z_df_obs[i]);
-      CHECK(mc.rms_z_df_obs[i] > 1.3);
-      CHECK(mc.rms_z_df_obs[i] < 1.8);
+      MESSAGE("recommended, full prior, second pass: df_obs_"
+              << i + 1 << " rms z " << mc.rms_z_df_obs[i] << ", mean z " << mc.mean_z_df_obs[i]);
+      CHECK(std::abs(mc.rms_z_df_obs[i] - 1) <= 3 / std::sqrt(2 * n));
+      CHECK(std::abs(mc.mean_z_df_obs[i]) <= 3 / std::sqrt(n));
     }
   }
 

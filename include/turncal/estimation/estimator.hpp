@@ -7,6 +7,8 @@
 #pragma once
 
 #include <array>
+#include <cmath>
+#include <string>
 #include <string_view>
 #include <vector>
 
@@ -36,6 +38,39 @@ struct VelocityObs {
   double vn;
 };
 
+struct EstimationInput;
+
+/// The nonlinear nominal of the second pass: the velocity the INS would
+/// output, noise-free, if its errors were `params` (SI, state order from
+/// sx::kNu0) and its start errors zero, ascending in time from t0
+/// (strapdown_nominal in turncal/estimation/nominal.hpp: the nonlinear
+/// strapdown over the recorded table motion).
+using NominalModel = Result<std::vector<VelocityObs>> (*)(
+    const EstimationInput& in, const std::array<double, sx::kParams>& params);
+
+/// The nonlinear second pass (model.md, 8): the linear model is exact only
+/// about zero errors. Iterated about the estimate p_i: the nominal's
+/// velocity h(p_i) is taken from the data and the residual z - h(p_i)
+/// estimated by the linear model, with the prior of the parameters moved
+/// to mean p_prior - p_i = -p_i, until no parameter changes by more than
+/// `tolerance_sigma` of its sigma (Gauss-Newton, or the iterated Kalman
+/// filter, with a Jacobian taken as the linear model's).
+struct SecondPassSettings {
+  enum class Mode {
+    Auto,    ///< where the first pass predicts a linearisation error over threshold_sigma
+    Off,     ///< never (the first pass is the result)
+    Always,  ///< whenever a nominal is given
+  };
+  Mode mode = Mode::Auto;
+  NominalModel nominal = nullptr;  ///< none: no second pass
+  /// Auto runs the second pass where linearisation_error_sigma() of the
+  /// first pass exceeds this: an error of 0.3 sigma added in quadrature
+  /// inflates the RMS of error/sigma by 4%.
+  double threshold_sigma = 0.3;
+  double tolerance_sigma = 0.01;
+  int max_iterations = 5;
+};
+
 struct EstimationInput {
   TimelineInput timeline;
   Priors priors;
@@ -51,6 +86,7 @@ struct EstimationInput {
   double sharp_ratio = 0.1;
   bool with_two_stage = false;  ///< also run the two-stage baseline (its covariance)
   int whiteness_lags = 20;      ///< lags of the innovation whiteness test
+  SecondPassSettings second_pass;
 };
 
 struct Innovation {
@@ -126,6 +162,20 @@ struct TwoStage {
   std::array<double, sx::kParams> ratio{};  ///< single-loop sigma / two-stage sigma
 };
 
+/// What the second pass did.
+struct SecondPass {
+  bool ran = false;
+  /// Why it ran or not, in a sentence.
+  std::string reason;
+  /// The criterion: the linearisation error the first pass predicts, in
+  /// sigmas of the determined quantity where it is largest.
+  double predicted_sigma = 0;
+  int iterations = 0;      ///< nonlinear nominals run
+  bool converged = false;  ///< the last change under tolerance_sigma
+  /// The largest change of a parameter in the last iteration, in sigmas.
+  double last_change_sigma = NAN;
+};
+
 struct EstimationResult {
   StateVec x = StateVec::Zero();
   StateMat p = StateMat::Zero();
@@ -146,13 +196,34 @@ struct EstimationResult {
   InnovationStats innovation_stats;
   bool has_two_stage = false;
   TwoStage two_stage;
+  /// After a second pass: the parameters and dv of x and x_history are the
+  /// estimates (nominal plus correction); a and b stay relative to the
+  /// nominal's, which the nominal does not give.
+  SecondPass second_pass;
 };
 
 /// Sigma_xi (diagonal) from the priors and the process noise.
 XiVec prior_sigmas(const Priors& priors, const ProcessNoise& noise);
 
-/// Runs the square-root filter over the record.
+/// Runs the square-root filter over the record, then the second pass
+/// where in.second_pass says.
 Result<EstimationResult> estimate(const EstimationInput& in);
+
+/// The second pass's criterion (model.md, 8): the linearisation error, in
+/// sigmas, that the first pass `first` predicts for the quantity it
+/// determines best relative to its size. The second-order terms of the
+/// error equations are a fraction rho of the first-order ones, with
+///   rho = |b3|max + |v|max / sqrt(g R):
+/// b3 the azimuth error (the heading prior, |nu0_3| T and |Theta_33|
+/// times the largest angle turned from the start, each estimate taken
+/// with one sigma added, as either may be undetermined): the rotation of
+/// the horizontal errors by the azimuth the linear model leaves out; and
+/// the largest measured velocity over sqrt(g R), the Schuler-loop speed
+/// (7.9 km/s): the transport rate v/R beside the Schuler rate. A
+/// relative model error rho in the velocity errs an estimate p by about
+/// rho |p|; in its sigmas, rho max_j |p_j| / sigma_j over the determined
+/// parameters and df_obs.
+double linearisation_error_sigma(const EstimationInput& in, const EstimationResult& first);
 
 /// Covariance analysis: the same filter on the model alone, a measurement
 /// at every epoch, no data (in.velocity is ignored). Predicts the accuracy

@@ -8,6 +8,7 @@
 
 #include <cmath>
 #include <functional>
+#include <optional>
 #include <span>
 #include <vector>
 
@@ -47,6 +48,11 @@ struct TimelineInput {
   /// term) to the transition's 9e-6 m/s; the closed form misses by 2.5e-4
   /// m/s (test_estimator.cpp).
   double max_encoder_gap_s = 0.25;
+  /// The second pass's nominal (model.md, 8): the model linearised about
+  /// it. The epoch's transition in a hold is made again where the
+  /// nominal's azimuth has moved by kNominalAzimuthStep since it was.
+  std::optional<Nominal> nominal;
+  static constexpr double kNominalAzimuthStep = 2e-4;  ///< rad (0.01 deg)
 };
 
 struct TimelineStep {

@@ -1,0 +1,58 @@
+#include "turncal/estimation/nominal.hpp"
+
+#include <algorithm>
+#include <cmath>
+
+#include "turncal/profile.hpp"
+#include "turncal/sim/strapdown.hpp"
+
+namespace turncal::est {
+
+Result<std::vector<VelocityObs>> strapdown_nominal(const EstimationInput& in,
+                                                   const std::array<double, sx::kParams>& params) {
+  const TimelineInput& tl = in.timeline;
+  if (!(tl.duration_s > 0)) return make_error("the nominal needs a run of positive length");
+  if (tl.encoder.empty() && !tl.turns.empty())
+    return make_error("the nominal needs the encoder samples of the turns");
+  // The table angle relative to t0 (the simulation's), from the encoder in
+  // each turn window (model sense: psi - psi_s), at rest between them.
+  TableMotion motion(0.0);
+  const std::span<const AngleSample> enc(tl.encoder);
+  for (const TurnWindow& w : tl.turns) {
+    std::vector<AngleSample> s{{w.t_start_s, psi_at(enc, w.t_start_s)}};
+    auto it = std::upper_bound(enc.begin(), enc.end(), w.t_start_s,
+                               [](double v, const AngleSample& a) { return v < a.t_s; });
+    for (; it != enc.end() && it->t_s < w.t_end_s; ++it) s.push_back(*it);
+    s.push_back({w.t_end_s, psi_at(enc, w.t_end_s)});
+    for (std::size_t k = 0; k + 1 < s.size(); ++k) {
+      const double dt = s[k + 1].t_s - s[k].t_s;
+      if (!(dt > 0)) continue;
+      motion.append(s[k].t_s, s[k].psi_rad - tl.psi_start_rad,
+                    (s[k + 1].psi_rad - s[k].psi_rad) / dt, 0);
+    }
+    motion.append(w.t_end_s, s.back().psi_rad - tl.psi_start_rad, 0, 0);
+  }
+  sim::Config c;
+  c.latitude_rad = tl.site.latitude_rad;
+  c.height_m = tl.site.height_m;
+  c.psi_start_rad = tl.psi_start_rad;
+  c.profile.duration_s = tl.duration_s;
+  c.profile.align_s = in.priors.align_s;
+  c.motion = &motion;
+  c.motion_t0_s = 0;
+  c.errors.nu0 = Eigen::Vector3d(params[0], params[1], params[2]);
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j)
+      c.errors.theta(i, j) = params[static_cast<std::size_t>(sx::theta(i + 1, j + 1) - sx::kNu0)];
+  const auto at = [&](int state) { return params[static_cast<std::size_t>(state - sx::kNu0)]; };
+  c.errors.df0 = Eigen::Vector2d(at(sx::kDf0), at(sx::kDf0 + 1));
+  c.errors.g = Eigen::Vector2d(at(sx::kG), at(sx::kG + 1));
+  c.errors.r = Eigen::Vector2d(at(sx::kR), at(sx::kR + 1));
+  const sim::Run run = sim::simulate(c);
+  std::vector<VelocityObs> out;
+  out.reserve(run.velocity.size());
+  for (const sim::VelocitySample& v : run.velocity) out.push_back({v.t_s, v.ve, v.vn});
+  return out;
+}
+
+}  // namespace turncal::est
