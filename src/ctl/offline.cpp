@@ -3,6 +3,7 @@
 //   replay LOG [--config FILE] [--report LIVE.json | --no-report]
 //              [--profile PLAN.toml] [--set KEY=VALUE]... [--epoch S]
 //              [--mean | --sample] [--two-stage | --no-two-stage]
+//              [--second-pass auto|off|always]
 //              [--heading-offset DEG] [--json OUT] [--html OUT] [--truth TRUTH.json]
 //   plan [--config FILE] [--profile PLAN.toml | --compare PLAN.toml...] [--set KEY=VALUE]...
 //   [--epoch S]
@@ -138,6 +139,17 @@ int replay(int argc, char** argv, int i, bool as_json) {
       no_report = true;
     } else if (a == "--two-stage" || a == "--no-two-stage") {
       o.two_stage = a == "--two-stage";
+    } else if (a == "--second-pass" && has) {
+      const std::string m = argv[++i];
+      using Mode = est::SecondPassSettings::Mode;
+      if (m == "auto")
+        o.second_pass = Mode::Auto;
+      else if (m == "off")
+        o.second_pass = Mode::Off;
+      else if (m == "always")
+        o.second_pass = Mode::Always;
+      else
+        return usage("replay: --second-pass needs auto, off or always");
     } else if (a == "--html" && has) {
       html_out = argv[++i];
       o.html = true;

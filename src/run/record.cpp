@@ -81,6 +81,7 @@ Result<BuiltInput> build_input(Record& record, const Plan& plan, const BuildSett
   // the nonlinear second pass where the first pass says linearisation
   // matters (model.md, 8)
   in.second_pass.nominal = &est::strapdown_nominal;
+  in.second_pass.mode = settings.second_pass;
   // the velocity from t0, in place: the record's samples become the input's
   in.velocity = record.take_velocity();
   std::size_t used = 0;

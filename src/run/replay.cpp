@@ -103,6 +103,7 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   if (live != nullptr && live->contains("settings") && (*live)["settings"].contains("two_stage"))
     b.two_stage = (*live)["settings"]["two_stage"].get<bool>();
   if (options.two_stage) b.two_stage = *options.two_stage;
+  if (options.second_pass) b.second_pass = *options.second_pass;
 
   // the next record; a line that does not parse ends the log there
   can::LogRecord rec;

@@ -86,6 +86,9 @@ struct BuildSettings {
   double merge_s = 0.5;
   double sample_rate_hz = 100;  ///< INS velocity rate
   bool two_stage = true;
+  /// The nonlinear second pass: where the first pass says linearisation
+  /// matters (Auto), never, or always.
+  est::SecondPassSettings::Mode second_pass = est::SecondPassSettings::Mode::Auto;
 };
 
 struct BuiltInput {

@@ -18,6 +18,7 @@
 #include <vector>
 
 #include "turncal/config.hpp"
+#include "turncal/estimation/estimator.hpp"
 #include "turncal/result.hpp"
 
 namespace turncal::run {
@@ -26,8 +27,10 @@ struct ReplayOptions {
   /// The profile to replay with; empty: the live report's (its text), else
   /// the configuration's default profile.
   std::string profile;
-  std::vector<std::string> overrides;        ///< plan keys, "section.key=VALUE"
-  std::optional<bool> two_stage;             ///< else the live run's (else on)
+  std::vector<std::string> overrides;  ///< plan keys, "section.key=VALUE"
+  std::optional<bool> two_stage;       ///< else the live run's (else on)
+  /// The nonlinear second pass (est::SecondPassSettings); else Auto.
+  std::optional<est::SecondPassSettings::Mode> second_pass;
   std::optional<double> heading_offset_rad;  ///< else the live run's, else the config's
   bool html = false;                         ///< also make the HTML report
 };
