@@ -259,7 +259,11 @@ int plan(int argc, char** argv, int i, bool as_json) {
     q.profile = p->profile;
     q.start_angle_rad = p->start_angle_rad;
     q.limits = cfg->stand.limits;
-    q.commands = run::command_signals(*roles);
+    {
+      // the command signals of the stand's own table protocol
+      const drivers::Devices dev = drivers::make_devices(cfg->can, *roles, {}, 1);
+      q.commands = run::command_signals(*dev.ins, *dev.table);
+    }
     if (const std::string bad = run::check_plan(q); !bad.empty()) {
       std::fprintf(stderr, "turncalctl: %s: the stand would refuse this plan: %s\n",
                    profile.c_str(), bad.c_str());
@@ -450,6 +454,7 @@ int check(int argc, char** argv, int i, bool as_json) {
   }
   std::printf("%s\n", usable ? "usable" : "NOT usable");
   return usable ? kOk : kRefused;
+}
 
 namespace {
 
