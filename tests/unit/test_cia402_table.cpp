@@ -208,10 +208,8 @@ TEST_SUITE("cia402 table driver") {
   }
 
   TEST_CASE("observe mode: nothing sent, the status read from the statuswords") {
-    // a live pair drives the drive; an observer hears the same frames
-    stand::Drive402Faults f;
-    f.fault_at_s = 2.0;
-    Bus live(f);
+    // a relative move on a live pair, and an observer of the drive's frames
+    Bus live;
     Bus watcher({}, true);
     live.start();
     REQUIRE(live.command(TableCommandCode::Enable, 1));
