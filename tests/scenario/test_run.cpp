@@ -1523,3 +1523,49 @@ TEST_SUITE("run engine on the virtual CiA 402 stand") {
     CHECK(std::abs(d->angle(t)) < 1e-3);
   }
 }
+
+TEST_SUITE("run engine on the virtual CiA 402 stand") {
+  TEST_CASE("replay of a CiA 402 run in observe mode: the same input, sending nothing") {
+    // given a live run on the CiA 402 stand, every frame of both directions kept
+    const Plan plan = short_plan();
+    ClosedLoop live(plan, cia402_setup_of(plan, 7), cia402_stand(), cia402_roles());
+    live.run_until(200);
+    REQUIRE_MESSAGE(live.phase() == run::Phase::Done, live.course().reason);
+    REQUIRE(live.input);
+    // when an observer's engine replays them (the drive's frames, ours echoed)
+    run::SequencerSettings q = ClosedLoop::settings_of(plan, live.setup);
+    q.observe = true;
+    auto dev = drivers::make_devices(cia402_stand().cfg.can, cia402_roles(), {}, 1);
+    run::Engine replay(cia402_stand().db, std::move(dev.ins), std::move(dev.table), plan, q,
+                       run::BuildSettings{}, run::TimeBase{kEpochNs / 1000, 1});
+    std::vector<run::OutFrame> out;
+    replay.start(live.log.front().f.time_ns, out);
+    std::optional<run::BuiltInput> in;
+    for (const Logged& l : live.log) {
+      replay.on_frame(l.f, out);
+      replay.tick(l.f.time_ns, out);
+      if (replay.estimation_due()) {
+        auto b = replay.take_estimation_input();
+        REQUIRE(b.ok());
+        in = std::move(*b);
+        break;
+      }
+    }
+    // then it sent nothing, and built the live run's input
+    CHECK(out.empty());
+    REQUIRE(in);
+    CHECK(replay.ingest().counters().unknown_id == 0);  // CANopen's frames are the driver's
+    const auto& a = live.input->input;
+    const auto& b = in->input;
+    REQUIRE(a.velocity.size() == b.velocity.size());
+    for (std::size_t i = 0; i < a.velocity.size(); ++i) {
+      CHECK(a.velocity[i].t_s == b.velocity[i].t_s);
+      CHECK(a.velocity[i].ve == b.velocity[i].ve);
+    }
+    REQUIRE(a.timeline.encoder.size() == b.timeline.encoder.size());
+    for (std::size_t i = 0; i < a.timeline.encoder.size(); ++i) {
+      CHECK(a.timeline.encoder[i].t_s == b.timeline.encoder[i].t_s);
+      CHECK(a.timeline.encoder[i].psi_rad == b.timeline.encoder[i].psi_rad);
+    }
+  }
+}
