@@ -31,7 +31,14 @@ constexpr double kDeg = std::numbers::pi / 180;
 
 /// The master's settings from the configuration; the PDO layouts from the
 /// DBC messages the roles name.
-Result<cia402::MasterSettings> master_settings(const Cia402Settings& c, const RoleMap& roles) {
+Result<cia402::MasterSettings> master_settings(const Cia402Settings& c, const RoleMap& roles,
+                                               const CanConfig* where = nullptr) {
+  // an error at the role's key in the configuration, when it is known
+  auto at = [&](Role r, const std::string& what) {
+    return make_error(
+        "key 'can.roles." + std::string(role_key(r)) + "': " + what,
+        where != nullptr ? where->roles[static_cast<std::size_t>(r)].where : SourcePos{});
+  };
   cia402::MasterSettings s;
   s.node_id = c.node_id;
   s.host_node_id = c.host_node_id;
@@ -57,23 +64,25 @@ Result<cia402::MasterSettings> master_settings(const Cia402Settings& c, const Ro
   const auto rpdo =
       cia402::RpdoLayout::from_dbc(*roles[Role::TableControlword].message,
                                    name(Role::TableControlword), name(Role::TableTargetPosition));
-  if (!rpdo) return make_error("can.roles.table_controlword: " + rpdo.error().message);
+  if (!rpdo)
+    return at(Role::TableControlword,
+              "RPDO1 with can.roles.table_target_position: " + rpdo.error().message);
   if (roles[Role::TableTargetPosition].message != roles[Role::TableControlword].message)
-    return make_error(
-        "can.roles.table_target_position: must be in the controlword's message (RPDO1)");
+    return at(Role::TableTargetPosition, "must be in the controlword's message (RPDO1)");
   const auto tpdo =
       cia402::TpdoLayout::from_dbc(*roles[Role::TableStatusword].message,
                                    name(Role::TableStatusword), name(Role::TablePositionActual));
-  if (!tpdo) return make_error("can.roles.table_statusword: " + tpdo.error().message);
+  if (!tpdo)
+    return at(Role::TableStatusword,
+              "TPDO1 with can.roles.table_position_actual: " + tpdo.error().message);
   if (roles[Role::TablePositionActual].message != roles[Role::TableStatusword].message)
-    return make_error(
-        "can.roles.table_position_actual: must be in the statusword's message (TPDO1)");
+    return at(Role::TablePositionActual, "must be in the statusword's message (TPDO1)");
   s.rpdo = *rpdo;
   s.tpdo = *tpdo;
   if (c.velocity_pdo) {
     const auto v = cia402::VelocityPdoLayout::from_dbc(*roles[Role::TableVelocityActual].message,
                                                        name(Role::TableVelocityActual));
-    if (!v) return make_error("can.roles.table_velocity_actual: " + v.error().message);
+    if (!v) return at(Role::TableVelocityActual, v.error().message);
     s.tpdo2 = *v;
   }
   TURNCAL_TRY(s.check());
@@ -273,8 +282,8 @@ std::unique_ptr<TableDriver> make_cia402_table(const Cia402Settings& settings,
 
 Status check_cia402_table(const CanConfig& can, const RoleMap& roles) {
   if (!can.table.is_cia402()) return Status{Ok{}};
-  auto s = master_settings(can.table.cia402, roles);
-  if (!s) return make_error("[table.cia402]: " + s.error().message);
+  auto s = master_settings(can.table.cia402, roles, &can);
+  if (!s) return make_error("[table] protocol = \"cia402\": " + s.error().message, s.error().where);
   return Status{Ok{}};
 }
 

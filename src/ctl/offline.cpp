@@ -330,6 +330,8 @@ int check(int argc, char** argv, int i, bool as_json) {
   if (!or_say(db)) return kUsage;
   auto roles = resolve_roles(cfg->can, *db);
   if (!or_say(roles)) return kUsage;
+  // a CiA 402 drive's PDO layouts, as the daemon checks them at start-up
+  if (auto layouts = drivers::check_cia402_table(cfg->can, *roles); !or_say(layouts)) return kUsage;
   json out;
   out["config"] = so.config;
   out["dbc"] = json::array();

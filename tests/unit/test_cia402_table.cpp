@@ -257,7 +257,11 @@ TEST_SUITE("cia402 table driver") {
     REQUIRE(roles.ok());
     const Status st = drivers::check_cia402_table(cfg.can, *roles);
     REQUIRE_FALSE(st.ok());
-    CHECK(st.error().message.find("table.cia402") != std::string::npos);
+    // named at the key of the role whose message does not fit
+    CHECK(st.error().message.find("can.roles.table_controlword") != std::string::npos);
+    CHECK(st.error().message.find("cia402") != std::string::npos);
+    CHECK(st.error().where.file.ends_with("stands/cia402/turncal.toml"));
+    CHECK(st.error().where.line > 0);
     auto driver = drivers::make_cia402_table(cfg.can.table.cia402, *roles);
     std::vector<can::Frame> out;
     driver->start(0, out);
