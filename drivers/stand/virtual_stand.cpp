@@ -41,7 +41,13 @@ VirtualStand::VirtualStand(const StandSetup& setup, const can::Database& db, con
       roles_(roles),
       codec_(db),
       table_(setup.table_limits, setup.table_angle0_rad, setup.table_faults),
-      ins_(setup.ins, table_.motion()),
+      drive_([&]() -> std::optional<VirtualDrive402> {
+        if (!setup.cia402) return std::nullopt;
+        Drive402Setup d = setup.drive;
+        d.angle0_rad = setup.table_angle0_rad;
+        return std::optional<VirtualDrive402>(std::in_place, d, setup.drive_faults);
+      }()),
+      ins_(setup.ins, drive_ ? drive_->motion() : table_.motion()),
       rng_(setup.seed) {}
 
 double VirtualStand::role_value(Role r, std::span<const double> values) const {
@@ -163,6 +169,13 @@ void VirtualStand::emit_garbage(double t, std::vector<StandFrame>& out) {
 void VirtualStand::advance(double t, std::vector<StandFrame>& out) {
   const StandFaults& f = setup_.faults;
   const double inf = std::numeric_limits<double>::infinity();
+  const std::size_t first = out.size();
+  // the drive's answers to the host's frames since the last advance
+  auto flush_drive = [&] {
+    for (const DriveFrame& d : drive_out_) out.push_back({d.t_s, false, d.frame});
+    drive_out_.clear();
+  };
+  if (drive_) flush_drive();
   auto flush_velocity = [&](double upto) {
     ins_.advance(upto, vel_);
     for (InsVelocity& v : vel_) {
@@ -174,7 +187,9 @@ void VirtualStand::advance(double t, std::vector<StandFrame>& out) {
   for (;;) {
     const double ts = static_cast<double>(ins_status_k_) / setup_.ins_status_hz;
     const double te = static_cast<double>(encoder_k_) / setup_.encoder_hz;
-    const double tt = static_cast<double>(table_status_k_) / setup_.table_status_hz;
+    // a CiA 402 drive sends its own frames (TPDOs, heartbeat, EMCY): the
+    // encoder's rate steps it, the reference table's status is not sent
+    const double tt = drive_ ? inf : static_cast<double>(table_status_k_) / setup_.table_status_hz;
     const double tg =
         f.garbage_rate_hz > 0 ? static_cast<double>(garbage_k_ + 1) / f.garbage_rate_hz : inf;
     const double tf = f.flood_s > 0 && f.flood_rate_hz > 0
@@ -190,7 +205,12 @@ void VirtualStand::advance(double t, std::vector<StandFrame>& out) {
       ++ins_status_k_;
     }
     if (te == tn) {
-      emit_encoder(tn, out);
+      if (drive_) {
+        drive_->advance(tn, drive_out_);
+        flush_drive();
+      } else {
+        emit_encoder(tn, out);
+      }
       ++encoder_k_;
     }
     if (tt == tn) {
@@ -210,13 +230,28 @@ void VirtualStand::advance(double t, std::vector<StandFrame>& out) {
     }
   }
   table_.advance(t);
+  if (drive_) {
+    drive_->advance(t, drive_out_);
+    flush_drive();
+  }
   flush_velocity(t);
   now_ = std::max(now_, t);
+  // the drive's frames come at their own times: in time order with the INS's
+  if (drive_)
+    std::stable_sort(out.begin() + static_cast<std::ptrdiff_t>(first), out.end(),
+                     [](const StandFrame& a, const StandFrame& b) { return a.t_s < b.t_s; });
 }
 
 void VirtualStand::receive(double t, const can::Frame& frame) {
   ++counts_.host_frames;
   table_.advance(t);
+  if (drive_) {
+    // every host frame reaches the drive: it takes its node's (NMT, SYNC,
+    // SDO, RPDO, the host heartbeat) and leaves the others
+    drive_->advance(t, drive_out_);
+    drive_->receive(t, frame, drive_out_);
+    if (codec_.message_for(frame) == nullptr) return;  // CANopen's, no DBC message
+  }
   const can::Message* msg = nullptr;
   scratch_.resize(16);
   const can::Message* known = codec_.message_for(frame);

@@ -105,9 +105,10 @@ class ReferenceTable final : public TableDriver {
 
 Devices make_devices(const CanConfig& can, const RoleMap& roles, Plausibility plausibility,
                      double time_scale) {
-  // [table] protocol: "reference" is the one there is
+  // [table] protocol
   return {make_ins(can.ins, roles, plausibility, time_scale),
-          make_reference_table(roles, plausibility)};
+          can.table.is_cia402() ? make_cia402_table(can.table.cia402, roles)
+                                : make_reference_table(roles, plausibility)};
 }
 
 std::unique_ptr<TableDriver> make_reference_table(const RoleMap& roles, Plausibility plausibility) {

@@ -44,8 +44,14 @@ enum class Role : std::uint8_t {
   TableCommandRateLimit,    ///< rate limit, deg/s
   HeartbeatCounter,         ///< host heartbeat rolling counter
   HeartbeatState,           ///< host state in the heartbeat
+  // a CiA 402 drive's process data ([table] protocol = "cia402"), as its PDOs map them
+  TableControlword,     ///< controlword 0x6040 in RPDO1 (u16, unscaled)
+  TableTargetPosition,  ///< target position 0x607A in RPDO1 (s32 counts, unscaled)
+  TableStatusword,      ///< statusword 0x6041 in TPDO1 (u16, unscaled)
+  TablePositionActual,  ///< position actual 0x6064 in TPDO1 (s32 counts, unscaled)
+  TableVelocityActual,  ///< velocity actual 0x606C in TPDO2 (s32 counts/s), if mapped
 };
-inline constexpr std::size_t kRoleCount = static_cast<std::size_t>(Role::HeartbeatState) + 1;
+inline constexpr std::size_t kRoleCount = static_cast<std::size_t>(Role::TableVelocityActual) + 1;
 
 /// Configuration key of a role ("ins_vel_east", ...).
 std::string_view role_key(Role role);
@@ -81,9 +87,39 @@ struct InsLayout {
   double time_frame_max_age_s = 0.005;
 };
 
+/// A CiA 402 servo drive in profile position mode ([table.cia402]), the
+/// settings of the CANopen master (drivers/cia402.hpp) in SI units; the
+/// file gives them in ms, deg/s^2 and counts.
+struct Cia402Settings {
+  std::uint8_t node_id = 1;               ///< the drive's CANopen node
+  std::uint8_t host_node_id = 127;        ///< ours, for our heartbeat (0x700 + host)
+  double counts_per_revolution = 131072;  ///< encoder counts per motor turn
+  double gear_ratio = 1;                  ///< motor turns per table turn
+  double profile_acceleration_rps2 = 0.17453292519943295;    ///< 0x6083, 10 deg/s^2
+  double profile_deceleration_rps2 = 0.17453292519943295;    ///< 0x6084, 10 deg/s^2
+  double quick_stop_deceleration_rps2 = 1.5707963267948966;  ///< 0x6085, 90 deg/s^2
+  std::int16_t quick_stop_option_code = 6;                   ///< 0x605A
+  std::int16_t abort_connection_option_code =
+      3;                                   ///< 0x6007: 1 fault, 2 disable voltage, 3 quick stop
+  double host_heartbeat_period_s = 0.1;    ///< our heartbeat
+  double host_heartbeat_timeout_s = 0.5;   ///< the drive's consumer time (0x1016:01)
+  double drive_heartbeat_period_s = 0.1;   ///< the drive's producer time (0x1017)
+  double drive_heartbeat_timeout_s = 0.3;  ///< how long we wait for it
+  double sync_period_s = 0;                ///< > 0: we produce SYNC and TPDO1 follows it
+  double tpdo_event_timer_s = 0.01;        ///< TPDO1's event timer when the mapping is written
+  bool configure_mapping = false;          ///< write the PDO mappings from the DBC's layout
+  bool velocity_pdo = false;            ///< velocity actual from TPDO2 (role table_velocity_actual)
+  bool change_set_immediately = false;  ///< controlword bit 5 with every set-point
+  double sdo_timeout_s = 0.5;
+  double boot_timeout_s = 2.0;  ///< from the NMT reset to the drive's boot-up
+};
+
 /// The turntable's protocol ([table]).
 struct TableProtocol {
-  std::string name = "reference";  ///< can-icd.md's TBL_* frames
+  /// "reference": can-icd.md's TBL_* frames; "cia402": a CiA 402 drive.
+  std::string name = "reference";
+  Cia402Settings cia402;  ///< [table.cia402], when name is "cia402"
+  [[nodiscard]] bool is_cia402() const { return name == "cia402"; }
 };
 
 struct CanConfig {

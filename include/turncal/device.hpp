@@ -201,6 +201,20 @@ class TableDriver {
   [[nodiscard]] virtual SignalSpan target() const = 0;
   [[nodiscard]] virtual SignalSpan rate_limit() const = 0;
   [[nodiscard]] virtual std::vector<std::pair<std::uint32_t, bool>> receive_ids() const = 0;
+
+  // A protocol with machinery of its own (CANopen: NMT, configuration by
+  // SDO, heartbeats, SYNC). The reference table needs none of it. Frames to
+  // send go to `out`, and go out as command frames do.
+  /// The run starts (not in observe mode: an observer sends nothing).
+  virtual void start(double /*now_s*/, std::vector<can::Frame>& /*out*/) {}
+  /// Timeouts and periodic frames; called from the main loop's tick.
+  virtual void tick(double /*now_s*/, std::vector<can::Frame>& /*out*/) {}
+  /// Frames that answer frames decode() was given (a handshake's next
+  /// step), moved to `out`.
+  virtual void take_frames(std::vector<can::Frame>& /*out*/) {}
+  /// A sample beyond the one decode() returned (a status change that came
+  /// with an encoder sample, or from a timeout in tick()); NotMine: none.
+  virtual Decoded pending() { return {}; }
 };
 
 }  // namespace turncal

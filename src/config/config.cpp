@@ -37,7 +37,12 @@ constexpr std::array<std::string_view, kRoleCount> kRoleKeys = {"ins_vel_east",
                                                                 "table_command_target",
                                                                 "table_command_rate_limit",
                                                                 "heartbeat_counter",
-                                                                "heartbeat_state"};
+                                                                "heartbeat_state",
+                                                                "table_controlword",
+                                                                "table_target_position",
+                                                                "table_statusword",
+                                                                "table_position_actual",
+                                                                "table_velocity_actual"};
 
 constexpr std::array<std::string_view, kRoleCount> kReferenceRoles = {"INS_VelE.VelE",
                                                                       "INS_VelE.TimeTag",
@@ -62,7 +67,12 @@ constexpr std::array<std::string_view, kRoleCount> kReferenceRoles = {"INS_VelE.
                                                                       "TBL_Command.Target",
                                                                       "TBL_Command.RateLimit",
                                                                       "HOST_Heartbeat.Counter",
-                                                                      "HOST_Heartbeat.HostState"};
+                                                                      "HOST_Heartbeat.HostState",
+                                                                      "",
+                                                                      "",
+                                                                      "",
+                                                                      "",
+                                                                      ""};
 
 Status check_interface(const Reader& r, std::string_view key, const std::string& name) {
   const toml::node* n = r.table().get(key);
@@ -160,6 +170,8 @@ bool role_is_output(Role role) {
     case Role::TableCommandRateLimit:
     case Role::HeartbeatCounter:
     case Role::HeartbeatState:
+    case Role::TableControlword:
+    case Role::TableTargetPosition:
       return true;
     default:
       return false;
@@ -239,10 +251,106 @@ Status read_ins(const toml::table& t, const std::string& file, InsLayout& ins) {
   return Status{Ok{}};
 }
 
+Status read_cia402(const toml::table& t, const std::string& file, Cia402Settings& c) {
+  Reader r(t, file, "table.cia402.");
+  TURNCAL_TRY(r.no_unknown_keys({"node_id",
+                                 "host_node_id",
+                                 "counts_per_revolution",
+                                 "gear_ratio",
+                                 "profile_acceleration_dps2",
+                                 "profile_deceleration_dps2",
+                                 "quick_stop_deceleration_dps2",
+                                 "quick_stop_option_code",
+                                 "abort_connection_option_code",
+                                 "host_heartbeat_ms",
+                                 "host_heartbeat_consumer_ms",
+                                 "drive_heartbeat_ms",
+                                 "drive_heartbeat_timeout_ms",
+                                 "sync_period_ms",
+                                 "tpdo_event_timer_ms",
+                                 "configure_mapping",
+                                 "velocity_pdo",
+                                 "change_set_immediately",
+                                 "sdo_timeout_ms",
+                                 "boot_timeout_ms"}));
+  std::uint32_t node = c.node_id, host = c.host_node_id;
+  TURNCAL_TRY(r.integer("node_id", node, 1, 127));
+  TURNCAL_TRY(r.integer("host_node_id", host, 1, 127));
+  if (node == host)
+    return r.error_at(
+        *t.get(t.get("host_node_id") != nullptr ? "host_node_id" : "node_id"),
+        t.get("host_node_id") != nullptr ? "host_node_id" : "node_id",
+        "the drive and the host cannot be the same node (" + std::to_string(node) + ")");
+  c.node_id = static_cast<std::uint8_t>(node);
+  c.host_node_id = static_cast<std::uint8_t>(host);
+  // counts per table turn must fit the drive's s32 position several turns over
+  TURNCAL_TRY(r.number("counts_per_revolution", c.counts_per_revolution, 1, 1u << 30));
+  TURNCAL_TRY(r.number("gear_ratio", c.gear_ratio, 1e-3, 1e5));
+  for (auto [key, out] : {std::pair{"profile_acceleration_dps2", &c.profile_acceleration_rps2},
+                          {"profile_deceleration_dps2", &c.profile_deceleration_rps2},
+                          {"quick_stop_deceleration_dps2", &c.quick_stop_deceleration_rps2}}) {
+    double dps2 = *out / kDegRad;
+    TURNCAL_TRY(r.number(key, dps2, 0.01, 1e5));
+    *out = dps2 * kDegRad;
+  }
+  std::uint32_t qs = static_cast<std::uint32_t>(c.quick_stop_option_code),
+                ac = static_cast<std::uint32_t>(c.abort_connection_option_code);
+  // 0x605A: 0 disable drive, 1/2 slow down/quick stop ramp then disable,
+  // 5/6 the same and stay in quick stop active (CiA 402 values 0 to 8)
+  TURNCAL_TRY(r.integer("quick_stop_option_code", qs, 0, 8));
+  // 0x6007: 0 nothing (not allowed here: a lost host must stop the table)
+  TURNCAL_TRY(r.integer("abort_connection_option_code", ac, 1, 3));
+  c.quick_stop_option_code = static_cast<std::int16_t>(qs);
+  c.abort_connection_option_code = static_cast<std::int16_t>(ac);
+  struct Ms {
+    const char* key;
+    double* out;
+    double lo, hi;
+  };
+  for (const Ms& m : {Ms{"host_heartbeat_ms", &c.host_heartbeat_period_s, 1, 65535},
+                      Ms{"host_heartbeat_consumer_ms", &c.host_heartbeat_timeout_s, 1, 65535},
+                      Ms{"drive_heartbeat_ms", &c.drive_heartbeat_period_s, 1, 65535},
+                      Ms{"drive_heartbeat_timeout_ms", &c.drive_heartbeat_timeout_s, 1, 65535},
+                      Ms{"sync_period_ms", &c.sync_period_s, 0, 10000},
+                      Ms{"tpdo_event_timer_ms", &c.tpdo_event_timer_s, 1, 65535},
+                      Ms{"sdo_timeout_ms", &c.sdo_timeout_s, 1, 60000},
+                      Ms{"boot_timeout_ms", &c.boot_timeout_s, 1, 600000}}) {
+    double ms = *m.out * 1e3;
+    TURNCAL_TRY(r.number(m.key, ms, m.lo, m.hi));
+    *m.out = ms * 1e-3;
+  }
+  // a consumer time within our period would time out between two heartbeats
+  if (!(c.host_heartbeat_timeout_s > c.host_heartbeat_period_s)) {
+    const char* key = t.get("host_heartbeat_consumer_ms") != nullptr ? "host_heartbeat_consumer_ms"
+                                                                     : "host_heartbeat_ms";
+    return r.error_at(*t.get(key), key,
+                      "the drive's consumer time must be longer than our heartbeat period");
+  }
+  if (!(c.drive_heartbeat_timeout_s > c.drive_heartbeat_period_s)) {
+    const char* key = t.get("drive_heartbeat_timeout_ms") != nullptr ? "drive_heartbeat_timeout_ms"
+                                                                     : "drive_heartbeat_ms";
+    return r.error_at(*t.get(key), key,
+                      "the wait for the drive's heartbeat must be longer than its period");
+  }
+  TURNCAL_TRY(r.boolean("configure_mapping", c.configure_mapping));
+  TURNCAL_TRY(r.boolean("velocity_pdo", c.velocity_pdo));
+  TURNCAL_TRY(r.boolean("change_set_immediately", c.change_set_immediately));
+  return Status{Ok{}};
+}
+
 Status read_table(const toml::table& t, const std::string& file, TableProtocol& table) {
   Reader r(t, file, "table.");
-  TURNCAL_TRY(r.no_unknown_keys({"protocol"}));
-  return choice(r, "protocol", {"reference"}, table.name);
+  TURNCAL_TRY(r.no_unknown_keys({"protocol", "cia402"}));
+  TURNCAL_TRY(choice(r, "protocol", {"reference", "cia402"}, table.name));
+  if (const toml::node* n = t.get("cia402")) {
+    if (!n->is_table()) return r.error_at(*n, "cia402", "expected a table");
+    if (!table.is_cia402())
+      return r.error_at(
+          *n, "cia402",
+          "[table.cia402] is for protocol = \"cia402\", and protocol is \"" + table.name + "\"");
+    TURNCAL_TRY(read_cia402(*n->as_table(), file, table.cia402));
+  }
+  return Status{Ok{}};
 }
 
 Status read_stand(const toml::table& t, const std::string& file, StandConfig& s) {
@@ -527,6 +635,28 @@ bool role_used(const CanConfig& cfg, Role role) {
                cfg.roles[static_cast<std::size_t>(Role::InsVelNorthTimeTag)].empty());
     case Role::InsTime:
       return cfg.ins.time == InsTimeSource::TimeFrame;
+    // the reference table's frames (can-icd.md), and its host heartbeat
+    case Role::EncoderAngle:
+    case Role::EncoderTimeTag:
+    case Role::TableState:
+    case Role::TableAck:
+    case Role::TableFault:
+    case Role::TableRate:
+    case Role::TableCommand:
+    case Role::TableCommandSeq:
+    case Role::TableCommandTarget:
+    case Role::TableCommandRateLimit:
+    case Role::HeartbeatCounter:
+    case Role::HeartbeatState:
+      return !cfg.table.is_cia402();
+    // a CiA 402 drive's PDOs
+    case Role::TableControlword:
+    case Role::TableTargetPosition:
+    case Role::TableStatusword:
+    case Role::TablePositionActual:
+      return cfg.table.is_cia402();
+    case Role::TableVelocityActual:
+      return cfg.table.is_cia402() && cfg.table.cia402.velocity_pdo;
     default:
       return true;
   }

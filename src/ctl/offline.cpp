@@ -273,7 +273,11 @@ int plan(int argc, char** argv, int i, bool as_json) {
     q.profile = p->profile;
     q.start_angle_rad = p->start_angle_rad;
     q.limits = cfg->stand.limits;
-    q.commands = run::command_signals(*roles);
+    {
+      // the command signals of the stand's own table protocol
+      const drivers::Devices dev = drivers::make_devices(cfg->can, *roles, {}, 1);
+      q.commands = run::command_signals(*dev.ins, *dev.table);
+    }
     if (const std::string bad = run::check_plan(q); !bad.empty()) {
       std::fprintf(stderr, "turncalctl: %s: the stand would refuse this plan: %s\n",
                    profile.c_str(), bad.c_str());
@@ -340,6 +344,8 @@ int check(int argc, char** argv, int i, bool as_json) {
   if (!or_say(db)) return kUsage;
   auto roles = resolve_roles(cfg->can, *db);
   if (!or_say(roles)) return kUsage;
+  // a CiA 402 drive's PDO layouts, as the daemon checks them at start-up
+  if (auto layouts = drivers::check_cia402_table(cfg->can, *roles); !or_say(layouts)) return kUsage;
   json out;
   out["config"] = so.config;
   out["dbc"] = json::array();

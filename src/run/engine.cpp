@@ -98,7 +98,16 @@ void Engine::feed(const Event& e, std::vector<OutFrame>& out) {
 }
 
 void Engine::start(std::int64_t now_ns, std::vector<OutFrame>& out) {
-  feed(StartRequest{stand_s(now_ns)}, out);
+  const double t = stand_s(now_ns);
+  // a protocol's own start (CANopen: NMT reset, configuration); an
+  // observer sends nothing
+  if (!seq_.settings().observe) {
+    driver_frames_.clear();
+    ingest_.table().start(t, driver_frames_);
+    for (const can::Frame& f : driver_frames_) out.push_back({false, f});
+  }
+  feed(StartRequest{t}, out);
+  driver_output(t, out);
 }
 
 void Engine::abort(std::int64_t now_ns, const std::string& reason, std::vector<OutFrame>& out) {
@@ -126,6 +135,21 @@ void Engine::on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out) {
   last_frame_s_ = t;
   if (!implausible_fed_) check_plausible(t, out);
   if (t > record_end_s()) record_complete_ = true;
+  use(s, t, out);
+  // a protocol's answers to the frame, and the samples it held back
+  driver_output(Ingest::host_seconds(scaled.time_ns), out);
+}
+
+void Engine::driver_output(double host_s, std::vector<OutFrame>& out) {
+  driver_frames_.clear();
+  ingest_.table().take_frames(driver_frames_);
+  for (const can::Frame& f : driver_frames_) out.push_back({false, f});
+  for (Sample p = ingest_.poll(host_s); !std::holds_alternative<std::monostate>(p);
+       p = ingest_.poll(host_s))
+    use(p, host_s, out);
+}
+
+void Engine::use(const Sample& s, double t, std::vector<OutFrame>& out) {
   if (std::holds_alternative<std::monostate>(s)) return;
   const Phase p = seq_.phase();
   const bool running = p == Phase::Prepare || p == Phase::Align || p == Phase::Hold ||
@@ -211,6 +235,11 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out) {
   k.encoder_stale = ingest_.health(kEncoder).stale(t, floor);
   k.table_status_stale = ingest_.health(kTableStatus).stale(t, floor);
   feed(k, out);
+  // a protocol's timeouts and periodic frames (CANopen heartbeat, SYNC)
+  driver_frames_.clear();
+  ingest_.table().tick(t, driver_frames_);
+  for (const can::Frame& f : driver_frames_) out.push_back({false, f});
+  driver_output(t, out);
 }
 
 std::vector<OutFrame> Engine::heartbeat() {

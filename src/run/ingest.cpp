@@ -320,6 +320,12 @@ Sample Ingest::on_frame(const can::TimedFrame& f) {
   return {};
 }
 
+Sample Ingest::poll(double host_s) {
+  Decoded d = table_->pending();
+  if (d.verdict != Decoded::Verdict::Taken) return {};
+  return take(std::move(d), host_s);
+}
+
 Sample Ingest::take(Decoded d, double host) {
   switch (d.stream) {
     case kVelocity:

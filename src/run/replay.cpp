@@ -67,9 +67,18 @@ std::vector<std::string> missing_roles(const Engine& e, const RoleMap& roles) {
   for (int s = 0; s < kStreams; ++s) {
     if (e.ingest().health(static_cast<Stream>(s)).frames > 0) continue;
     const auto& rs = kOf[static_cast<std::size_t>(s)];
-    std::string names(role_key(rs[0]));
-    if (rs[1] != rs[0]) names += ", " + std::string(role_key(rs[1]));
-    const can::Message* m = roles[rs[0]].message;
+    std::array<Role, 2> r = rs;
+    // a CiA 402 drive's TPDO1 carries the table's encoder and status
+    if (roles[r[0]].message == nullptr && roles.has(Role::TablePositionActual))
+      r = s == kEncoder ? std::array<Role, 2>{Role::TablePositionActual, Role::TablePositionActual}
+                        : std::array<Role, 2>{Role::TableStatusword, Role::TableStatusword};
+    std::string names(role_key(r[0]));
+    if (r[1] != r[0]) names += ", " + std::string(role_key(r[1]));
+    const can::Message* m = roles[r[0]].message;
+    if (m == nullptr) {
+      out.push_back(names);
+      continue;
+    }
     char id[16];
     std::snprintf(id, sizeof id, m->extended ? "0x%08X" : "0x%03X", m->id);
     out.push_back(names + " (message " + m->name + ", id " + id + ")");

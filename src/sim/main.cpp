@@ -77,7 +77,13 @@ constexpr const char* kFaultHelp =
     "  table-drift=AT:DEG         the table at rest turns DEG by itself, still holding\n"
     "  garbage=HZ                 frames of wrong length and of unknown IDs\n"
     "  flood=AT:SECONDS[:HZ]      a flood of unknown frames (default 5000 Hz)\n"
-    "  clock-jump=ins|table:AT:S  a device clock jumps by S seconds\n";
+    "  clock-jump=ins|table:AT:S  a device clock jumps by S seconds\n"
+    "with [table] protocol = \"cia402\" the table is a CiA 402 drive; its faults:\n"
+    "  table-fault=AT             a drive fault: EMCY 0x2310, Fault\n"
+    "  drive-following-error=AT   statusword bit 13, EMCY 0x8611, Fault\n"
+    "  drive-silent=AT:SECONDS    the drive neither sends nor hears: it loses the host\n"
+    "                             heartbeat (EMCY 0x8130, 0x6007), the host loses its\n"
+    "  drive-refuse-moves=1       set-points are never acknowledged\n";
 
 /// Numbers separated by ':'.
 bool numbers(const std::string& text, std::vector<double>& out) {
@@ -95,10 +101,38 @@ bool numbers(const std::string& text, std::vector<double>& out) {
   return true;
 }
 
+/// A CiA 402 drive's faults; false when `name` is none of them.
+bool apply_drive_fault(const std::string& name, const std::vector<double>& v,
+                       stand::StandSetup& s) {
+  stand::Drive402Faults& d = s.drive_faults;
+  if (name == "table-fault" && v.size() == 1) {
+    d.fault_at_s = v[0];
+  } else if (name == "drive-following-error" && v.size() == 1) {
+    d.following_error_at_s = v[0];
+  } else if (name == "drive-silent" && v.size() == 2 && v[1] > 0) {
+    d.silent_at_s = v[0];
+    d.silent_until_s = v[0] + v[1];
+  } else if (name == "drive-refuse-moves" && v.size() == 1) {
+    d.refuse_moves = v[0] != 0;
+  } else {
+    return false;
+  }
+  return true;
+}
+
 Status apply_fault(const std::string& spec, stand::StandSetup& s) {
   const std::size_t eq = spec.find('=');
   const std::string name = spec.substr(0, eq);
   std::string value = eq == std::string::npos ? "" : spec.substr(eq + 1);
+  if (s.cia402 &&
+      (name.starts_with("table-") || name.starts_with("drive-") || name == "encoder-silent" ||
+       (name == "clock-jump" && value.starts_with("table")))) {
+    // the drive has faults of its own; the reference table's do not apply
+    std::vector<double> v;
+    if (numbers(value, v) && apply_drive_fault(name, v, s)) return Status{Ok{}};
+    return make_error("--fault " + spec + ": not a fault of a CiA 402 drive, or wrong values\n" +
+                      kFaultHelp);
+  }
   stand::DeviceClock* clock = nullptr;
   if (name == "clock-jump") {
     const std::size_t c = value.find(':');
@@ -389,6 +423,14 @@ Result<World> load_world(const Options& o) {
   }
   setup.seed = o.seed;
   setup.ins_layout = w.cfg.can.ins;
+  if (w.cfg.can.table.is_cia402()) {
+    // the table is a CiA 402 drive of the configured node and scale
+    const Cia402Settings& c = w.cfg.can.table.cia402;
+    setup.cia402 = true;
+    setup.drive.node_id = c.node_id;
+    setup.drive.counts_per_rev = c.counts_per_revolution;
+    setup.drive.gear_ratio = c.gear_ratio;
+  }
   if (!o.truth_in.empty()) TURNCAL_TRY(read_truth(o.truth_in, setup.ins.sim));
   for (const std::string& f : o.faults) TURNCAL_TRY(apply_fault(f, setup));
   TURNCAL_TRY(apply_clock("--ins-clock", o.ins_clock, setup.ins_clock));
@@ -425,6 +467,10 @@ int fail(const Error& e) {
 int offline(const Options& o) {
   auto w = load_world(o);
   if (!w) return fail(w.error());
+  if (w->setup.cia402)
+    return fail(make_error(
+        "--offline scripts the reference table's host; a CiA 402 stand runs live, with turncald "
+        "as its CANopen master"));
   // the roles point into the database: resolve them where it now lives
   auto roles = resolve_roles(w->cfg.can, w->db);
   if (!roles) return fail(roles.error());
@@ -560,7 +606,21 @@ int live(const Options& o) {
       off_half += std::abs(g - mean_gap) > 0.5 * mean_gap;
     }
     const auto st = loop.stand().table().status(now);
+    nlohmann::json drive = nullptr;
+    if (const stand::VirtualDrive402* d = loop.stand().drive()) {
+      // the CiA 402 drive's own state: what a test of the host's faults checks
+      drive = {{"state", cia402::to_string(d->state())},
+               {"statusword", d->statusword()},
+               {"nmt", static_cast<int>(d->nmt())},
+               {"angle_deg", d->angle(now) / kDeg},
+               {"moving", d->moving(now)},
+               {"emcy", d->emcy_sent()},
+               {"quick_stops", d->counts().quick_stops},
+               {"host_heartbeat_lost", d->counts().host_heartbeat_lost},
+               {"set_points", d->counts().set_points}};
+    }
     const nlohmann::json j = {
+        {"drive", drive},
         {"stand_time_s", now},
         {"table",
          {{"state", static_cast<int>(st.state)},

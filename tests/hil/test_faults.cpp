@@ -806,3 +806,67 @@ TEST_SUITE("faults") {
     CHECK(st["table"]["state"] != kTableFault);
   }
 }
+
+namespace {
+
+/// The shipped CiA 402 stand's [ins], [table], [table.cia402] and roles,
+/// for write_stand's `extra`.
+std::string cia402_sections() {
+  const std::string conf = slurp(hil::fs::path(kSrc) / "config/stands/cia402/turncal.toml");
+  const auto from = conf.find("\n[ins]");
+  const auto to = conf.find("\n[daemon]");
+  REQUIRE(from != std::string::npos);
+  REQUIRE(to != std::string::npos);
+  return conf.substr(from, to - from) + "\n";
+}
+
+}  // namespace
+
+TEST_SUITE("faults of a CiA 402 drive through the daemon") {
+  TEST_CASE(
+      "a CiA 402 stand: the run done with turncald as the CANopen master; its faults stop it") {
+    struct Case {
+      const char* name;
+      std::vector<std::string> sim;  ///< turncal-sim's fault, none: the whole run
+      const char* reason;            ///< a part of the report's reason; null: done
+    };
+    const std::vector<Case> cases = {
+        {"no fault: the run is done", {}, nullptr},
+        {"a drive fault with EMCY in hold 1", {"--fault", "table-fault=30"}, "EMCY 0x2310"},
+        {"a following error in hold 1", {"--fault", "drive-following-error=30"}, "following error"},
+        {"the drive silent in hold 1: each loses the other's heartbeat",
+         {"--fault", "drive-silent=30:5"},
+         "heartbeat"},
+    };
+    for (const Case& k : cases) SUBCASE(k.name) {
+        hil::TempDir dir;
+        write_stand(dir.path, hil::if0(), false, 40, 30, "config/stands/cia402/cia402.dbc",
+                    cia402_sections());
+        std::vector<std::string> args = {"--state-out", "stand.json"};
+        args.insert(args.end(), k.sim.begin(), k.sim.end());
+        Child sim = start_sim(dir.path, "5", args);
+        Child daemon = start_daemon(dir.path);
+        REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+        const std::string id = start_run(dir.path);
+        CHECK(ctl(dir.path, {"watch"}, "w.out", 120000ms) == (k.reason == nullptr ? 0 : 1));
+        const json r = report_of(dir.path, id);
+        const std::string reason = r.value("reason", std::string());
+        CAPTURE(reason);
+        CHECK(r["status"] == (k.reason == nullptr ? "done" : "failed"));
+        if (k.reason != nullptr) CHECK(reason.find(k.reason) != std::string::npos);
+        daemon.terminate();
+        CHECK(daemon.wait(10000ms) == 0);
+        const json st = stand_state(sim, dir.path);
+        REQUIRE(st["drive"].is_object());
+        CHECK(st["drive"]["moving"] == false);
+        if (k.reason == nullptr) {
+          CHECK(st["drive"]["emcy"].empty());
+          CHECK(st["drive"]["quick_stops"] == 0);
+          CHECK(std::abs(st["drive"]["angle_deg"].get<double>() - 180) < 0.01);
+        } else {
+          // the drive is not left enabled
+          CHECK(st["drive"]["state"] != "operation enabled");
+        }
+      }
+  }
+}

@@ -15,6 +15,7 @@
 
 #include "scenarios.hpp"
 #include "turncal/can/candump.hpp"
+#include "turncal/drivers/reference.hpp"
 #include "turncal/drivers/scripted_host.hpp"
 #include "turncal/run/engine.hpp"
 #include "turncal/run/html.hpp"
@@ -62,6 +63,31 @@ const RoleMap& stand_roles() {
   return r;
 }
 
+/// The shipped CiA 402 stand (config/stands/cia402): a CiA 402 drive as the
+/// table, an INS of one North-West-Down frame timed by a time frame.
+const Stand& cia402_stand() {
+  static const Stand s = [] {
+    Stand st;
+    auto cfg = load_config(std::string(TURNCAL_SOURCE_DIR) + "/config/stands/cia402/turncal.toml");
+    REQUIRE_MESSAGE(cfg.ok(), (cfg.ok() ? "" : cfg.error().describe()));
+    st.cfg = *cfg;
+    auto db = load_databases(st.cfg.can);
+    REQUIRE(db.ok());
+    st.db = std::move(*db);
+    return st;
+  }();
+  return s;
+}
+
+const RoleMap& cia402_roles() {
+  static const RoleMap r = [] {
+    auto roles = resolve_roles(cia402_stand().cfg.can, cia402_stand().db);
+    REQUIRE_MESSAGE(roles.ok(), (roles.ok() ? "" : roles.error().describe()));
+    return *roles;
+  }();
+  return r;
+}
+
 Plan load(const std::string& name) {
   auto p = load_plan(std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/" + name);
   REQUIRE(p.ok());
@@ -91,6 +117,9 @@ struct ClosedLoop {
   Plan plan;
   stand::StandSetup setup;
   run::SequencerSettings settings;
+  /// Another stand than the reference one (null: the reference stand).
+  const Stand* other_stand = nullptr;
+  const RoleMap* other_roles = nullptr;
   stand::StandLoop loop;
   std::unique_ptr<run::Engine> engine;
   std::vector<can::Frame> to_stand;
@@ -122,8 +151,25 @@ struct ClosedLoop {
         settings(q ? *q : settings_of(plan, s)),
         loop(setup, reference_stand().db, stand_roles(), nullptr),
         engine(new_engine()) {}
+  /// On another stand: its devices as the configuration names them.
+  ClosedLoop(Plan p, const stand::StandSetup& s, const Stand& other, const RoleMap& roles)
+      : plan(std::move(p)),
+        setup(s),
+        settings(settings_of(plan, s)),
+        other_stand(&other),
+        other_roles(&roles),
+        loop(setup, other.db, roles, nullptr),
+        engine(new_engine()) {}
 
   [[nodiscard]] std::unique_ptr<run::Engine> new_engine() const {
+    if (other_stand != nullptr) {
+      auto dev = drivers::make_devices(other_stand->cfg.can, *other_roles,
+                                       run::plausibility_of(other_stand->cfg), 1);
+      return std::make_unique<run::Engine>(other_stand->db, std::move(dev.ins),
+                                           std::move(dev.table), plan, settings,
+                                           run::BuildSettings{}, run::TimeBase{kEpochNs / 1000, 1},
+                                           run::plausibility_of(other_stand->cfg));
+    }
     return std::make_unique<run::Engine>(reference_stand().db, stand_roles(), plan, settings,
                                          run::BuildSettings{}, run::TimeBase{kEpochNs / 1000, 1},
                                          run::plausibility_of(reference_stand().cfg));
@@ -1459,5 +1505,132 @@ TEST_SUITE("run engine on the virtual stand") {
     MESSAGE(compared << " values of the golden report compared");
     CHECK(compared == leaves(golden));
     CHECK(golden["estimates"].size() == 22);
+  }
+}
+
+namespace {
+
+/// The virtual stand with a CiA 402 drive as its table, as the shipped
+/// CiA 402 stand configures it.
+stand::StandSetup cia402_setup_of(const Plan& plan, std::uint64_t seed) {
+  stand::StandSetup s = setup_of(plan, seed);
+  const Cia402Settings& c = cia402_stand().cfg.can.table.cia402;
+  s.ins_layout = cia402_stand().cfg.can.ins;
+  s.cia402 = true;
+  s.drive.node_id = c.node_id;
+  s.drive.counts_per_rev = c.counts_per_revolution;
+  s.drive.gear_ratio = c.gear_ratio;
+  return s;
+}
+
+}  // namespace
+
+TEST_SUITE("run engine on the virtual CiA 402 stand") {
+  TEST_CASE("the short experiment through the CANopen master: estimates against the truth") {
+    // given the shipped CiA 402 stand, its drive 10 deg off the start angle
+    const Plan plan = short_plan();
+    ClosedLoop c(plan, cia402_setup_of(plan, 7), cia402_stand(), cia402_roles());
+    // when the engine runs the whole experiment on it
+    c.run_until(200);
+    // then it ends done, with the turn the plan asked for, seen by the drive's encoder
+    REQUIRE_MESSAGE(c.phase() == run::Phase::Done, c.course().reason, c.estimation_error);
+    REQUIRE(c.result);
+    REQUIRE(c.input->turns.size() == 1);
+    CHECK(c.input->turns[0].angle_rad == doctest::Approx(std::numbers::pi).epsilon(1e-4));
+    const est::EstimationResult& r = *c.result;
+    const auto truth = truth_of(c.setup.ins.sim);
+    int determined = 0;
+    for (int i = 0; i < est::sx::kParams; ++i) {
+      const auto& p = r.parameters[static_cast<std::size_t>(i)];
+      if (!(p.sigma < 0.5 * p.prior_sigma)) continue;
+      ++determined;
+      CAPTURE(p.name);
+      CHECK(std::abs(p.value - truth[static_cast<std::size_t>(i)]) <= 4 * p.sigma);
+    }
+    CHECK(determined >= 4);
+    // and the drive itself: configured, moved twice (to the start angle and
+    // the turn), at rest at 180 deg, never quick-stopped nor in fault
+    const stand::VirtualDrive402* d = c.loop.stand().drive();
+    REQUIRE(d != nullptr);
+    const double t = c.loop.next_time();
+    CHECK(d->counts().set_points == 2);
+    CHECK(d->counts().quick_stops == 0);
+    CHECK(d->emcy_sent().empty());
+    CHECK(d->state() != cia402::State::Fault);
+    CHECK_FALSE(d->moving(t));
+    CHECK(d->angle(t) == doctest::Approx(std::numbers::pi).epsilon(1e-5));
+    CHECK(d->value(cia402::obj::kModesOfOperation, 0) == 1);  // profile position
+    // the host heartbeat reached the drive all along
+    CHECK(d->counts().host_heartbeat_lost == 0);
+    CHECK(d->counts().host_heartbeats > 0);
+  }
+
+  TEST_CASE("a drive fault (EMCY) in hold 1: the run fails naming the EMCY, the drive stops") {
+    // given the drive faults with EMCY 0x2310 during the first hold
+    const Plan plan = short_plan();
+    stand::StandSetup s = cia402_setup_of(plan, 7);
+    s.drive_faults.fault_at_s = 40;  // align 20 s from ~5 s: hold 1 runs to t0 + 60 s
+    s.drive_faults.fault_code = 0x2310;
+    ClosedLoop c(plan, s, cia402_stand(), cia402_roles());
+    // when the engine runs it
+    c.run_until(200);
+    // then the run fails with the EMCY's text in its reason
+    CHECK(c.phase() == run::Phase::Failed);
+    CHECK_MESSAGE(c.course().reason.find("0x2310") != std::string::npos, c.course().reason);
+    // and the drive is not enabled, at rest where it was
+    const stand::VirtualDrive402* d = c.loop.stand().drive();
+    REQUIRE(d != nullptr);
+    const double t = c.loop.next_time();
+    CHECK(d->state() != cia402::State::OperationEnabled);
+    CHECK_FALSE(d->moving(t));
+    CHECK(d->emcy_sent().at(0) == 0x2310);
+    CHECK(d->counts().set_points == 1);  // the move to the start angle only
+    CHECK(std::abs(d->angle(t)) < 1e-3);
+  }
+}
+
+TEST_SUITE("run engine on the virtual CiA 402 stand") {
+  TEST_CASE("replay of a CiA 402 run in observe mode: the same input, sending nothing") {
+    // given a live run on the CiA 402 stand, every frame of both directions kept
+    const Plan plan = short_plan();
+    ClosedLoop live(plan, cia402_setup_of(plan, 7), cia402_stand(), cia402_roles());
+    live.run_until(200);
+    REQUIRE_MESSAGE(live.phase() == run::Phase::Done, live.course().reason);
+    REQUIRE(live.input);
+    // when an observer's engine replays them (the drive's frames, ours echoed)
+    run::SequencerSettings q = ClosedLoop::settings_of(plan, live.setup);
+    q.observe = true;
+    auto dev = drivers::make_devices(cia402_stand().cfg.can, cia402_roles(), {}, 1);
+    run::Engine replay(cia402_stand().db, std::move(dev.ins), std::move(dev.table), plan, q,
+                       run::BuildSettings{}, run::TimeBase{kEpochNs / 1000, 1});
+    std::vector<run::OutFrame> out;
+    replay.start(live.log.front().f.time_ns, out);
+    std::optional<run::BuiltInput> in;
+    for (const Logged& l : live.log) {
+      replay.on_frame(l.f, out);
+      replay.tick(l.f.time_ns, out);
+      if (replay.estimation_due()) {
+        auto b = replay.take_estimation_input();
+        REQUIRE(b.ok());
+        in = std::move(*b);
+        break;
+      }
+    }
+    // then it sent nothing, and built the live run's input
+    CHECK(out.empty());
+    REQUIRE(in);
+    CHECK(replay.ingest().counters().unknown_id == 0);  // CANopen's frames are the driver's
+    const auto& a = live.input->input;
+    const auto& b = in->input;
+    REQUIRE(a.velocity.size() == b.velocity.size());
+    for (std::size_t i = 0; i < a.velocity.size(); ++i) {
+      CHECK(a.velocity[i].t_s == b.velocity[i].t_s);
+      CHECK(a.velocity[i].ve == b.velocity[i].ve);
+    }
+    REQUIRE(a.timeline.encoder.size() == b.timeline.encoder.size());
+    for (std::size_t i = 0; i < a.timeline.encoder.size(); ++i) {
+      CHECK(a.timeline.encoder[i].t_s == b.timeline.encoder[i].t_s);
+      CHECK(a.timeline.encoder[i].psi_rad == b.timeline.encoder[i].psi_rad);
+    }
   }
 }

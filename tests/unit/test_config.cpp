@@ -306,3 +306,117 @@ TEST_CASE("config: one soft limit alone that crosses the other's default names i
   CHECK(c.error().describe() ==
         "t.toml:2:17: key 'stand.angle_min_deg': must be below angle_max_deg");
 }
+
+TEST_CASE("config: [table] protocol = \"cia402\" and [table.cia402]") {
+  SUBCASE("the shipped CiA 402 stand loads; only the drive's roles resolve") {
+    auto cfg = load_config(kSrc + "/config/stands/cia402/turncal.toml");
+    REQUIRE_MESSAGE(cfg.ok(), (cfg.ok() ? "" : cfg.error().describe()));
+    REQUIRE(cfg->can.table.is_cia402());
+    const Cia402Settings& c = cfg->can.table.cia402;
+    CHECK(c.node_id == 1);
+    CHECK(c.host_node_id == 127);
+    CHECK(c.quick_stop_deceleration_rps2 ==
+          doctest::Approx(90 * std::numbers::pi / 180).epsilon(1e-12));
+    CHECK(c.host_heartbeat_timeout_s == doctest::Approx(0.5).epsilon(1e-12));
+    auto db = load_databases(cfg->can);
+    REQUIRE_MESSAGE(db.ok(), (db.ok() ? "" : db.error().describe()));
+    auto roles = resolve_roles(cfg->can, *db);
+    REQUIRE_MESSAGE(roles.ok(), (roles.ok() ? "" : roles.error().describe()));
+    CHECK((*roles)[Role::TableStatusword].message->id == 0x181);
+    CHECK((*roles)[Role::TableControlword].message->id == 0x201);
+    CHECK_FALSE(roles->has(Role::EncoderAngle));         // the reference table's: not used
+    CHECK_FALSE(roles->has(Role::HeartbeatCounter));     // ... nor its heartbeat
+    CHECK_FALSE(roles->has(Role::TableVelocityActual));  // velocity_pdo is off
+    // the statusword's message is received, the controlword's sent
+    const auto tbl = roles->receive_ids(false);
+    CHECK(tbl.size() == 1);
+    CHECK(tbl.at(0).first == 0x181);
+    CHECK(role_is_output(Role::TableControlword));
+    CHECK(role_is_output(Role::TableTargetPosition));
+    CHECK_FALSE(role_is_output(Role::TableStatusword));
+    CHECK_FALSE(role_is_ins(Role::TableVelocityActual));
+    CHECK(role_is_ins(Role::InsCommandSeq));
+  }
+  SUBCASE("the reference protocol does not use the drive's roles, nor cia402 the reference's") {
+    auto ref = parse_config("", "/x/turncal.toml");
+    REQUIRE(ref.ok());
+    CHECK_FALSE(role_used(ref->can, Role::TableStatusword));
+    CHECK(role_used(ref->can, Role::EncoderAngle));
+    auto cia = parse_config("[table]\nprotocol = \"cia402\"\n", "/x/turncal.toml");
+    REQUIRE(cia.ok());
+    CHECK(role_used(cia->can, Role::TableStatusword));
+    CHECK_FALSE(role_used(cia->can, Role::EncoderAngle));
+    CHECK_FALSE(role_used(cia->can, Role::TableVelocityActual));
+    auto vel = parse_config("[table]\nprotocol = \"cia402\"\n[table.cia402]\nvelocity_pdo = true\n",
+                            "/x/turncal.toml");
+    REQUIRE(vel.ok());
+    CHECK(role_used(vel->can, Role::TableVelocityActual));
+  }
+  SUBCASE("defaults, and values in the file's units") {
+    auto cfg = parse_config(
+        "[table]\nprotocol = \"cia402\"\n[table.cia402]\nnode_id = 5\nsync_period_ms = 4\n"
+        "profile_acceleration_dps2 = 20\nconfigure_mapping = true\n",
+        "/x/turncal.toml");
+    REQUIRE_MESSAGE(cfg.ok(), (cfg.ok() ? "" : cfg.error().describe()));
+    const Cia402Settings& c = cfg->can.table.cia402;
+    CHECK(c.node_id == 5);
+    CHECK(c.sync_period_s == doctest::Approx(0.004).epsilon(1e-12));
+    CHECK(c.profile_acceleration_rps2 ==
+          doctest::Approx(20 * std::numbers::pi / 180).epsilon(1e-12));
+    CHECK(c.configure_mapping);
+    CHECK_FALSE(c.velocity_pdo);
+    CHECK(c.counts_per_revolution == 131072);
+    CHECK(c.drive_heartbeat_timeout_s == doctest::Approx(0.3).epsilon(1e-12));
+  }
+  SUBCASE("a drive role not given is named by its key") {
+    auto cfg = load_config(kSrc + "/config/stands/cia402/turncal.toml");
+    REQUIRE(cfg.ok());
+    cfg->can.roles[static_cast<std::size_t>(Role::TableStatusword)] =
+        SignalRef{"", "", {"f", 3, 1}};
+    auto db = load_databases(cfg->can);
+    REQUIRE(db.ok());
+    auto roles = resolve_roles(cfg->can, *db);
+    REQUIRE_FALSE(roles.ok());
+    CHECK(roles.error().message.find("can.roles.table_statusword") != std::string::npos);
+    CHECK(roles.error().where.line == 3);
+  }
+  struct Bad {
+    const char* text;
+    const char* key;
+    int line;
+  };
+  const std::string head = "[table]\nprotocol = \"cia402\"\n[table.cia402]\n";
+  for (const Bad& b : {
+           Bad{"node_id = 0\n", "table.cia402.node_id", 4},
+           Bad{"node_id = 128\n", "table.cia402.node_id", 4},
+           Bad{"host_node_id = 1\n", "table.cia402.host_node_id", 4},
+           Bad{"counts_per_revolution = 0\n", "table.cia402.counts_per_revolution", 4},
+           Bad{"gear_ratio = -2\n", "table.cia402.gear_ratio", 4},
+           Bad{"quick_stop_deceleration_dps2 = 0\n", "table.cia402.quick_stop_deceleration_dps2",
+               4},
+           Bad{"quick_stop_option_code = 9\n", "table.cia402.quick_stop_option_code", 4},
+           Bad{"abort_connection_option_code = 0\n", "table.cia402.abort_connection_option_code",
+               4},
+           Bad{"host_heartbeat_ms = 100\nhost_heartbeat_consumer_ms = 100\n",
+               "table.cia402.host_heartbeat_consumer_ms", 5},
+           Bad{"drive_heartbeat_ms = 400\n", "table.cia402.drive_heartbeat_ms", 4},
+           Bad{"sync_period_ms = -1\n", "table.cia402.sync_period_ms", 4},
+           Bad{"sdo_timeout_ms = 0\n", "table.cia402.sdo_timeout_ms", 4},
+           Bad{"velocity_pdo = 1\n", "table.cia402.velocity_pdo", 4},
+           Bad{"nodeid = 1\n", "table.cia402.nodeid", 4},
+       }) {
+    CAPTURE(b.text);
+    Error e = parse_error(head + b.text);
+    CHECK(e.where.file == "/etc/turncal/turncal.toml");
+    CHECK(e.where.line == b.line);
+    CHECK(e.message.find(b.key) != std::string::npos);
+  }
+  SUBCASE("an unknown protocol, and [table.cia402] for the reference protocol") {
+    Error e = parse_error("[table]\nprotocol = \"canopen\"\n");
+    CHECK(e.where.line == 2);
+    CHECK(e.message.find("\"cia402\"") != std::string::npos);
+    Error f = parse_error("[table]\nprotocol = \"reference\"\n[table.cia402]\nnode_id = 2\n");
+    CHECK(f.where.line == 3);
+    CHECK(f.message.find("table.cia402") != std::string::npos);
+  }
+}

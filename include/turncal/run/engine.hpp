@@ -119,6 +119,11 @@ class Engine {
 
  private:
   void feed(const Event& e, std::vector<OutFrame>& out);
+  /// A sample of the ingest: the record, the live view, the sequencer.
+  void use(const Sample& s, double t, std::vector<OutFrame>& out);
+  /// The table driver's own frames and held-back samples.
+  void driver_output(double host_s, std::vector<OutFrame>& out);
+  std::vector<can::Frame> driver_frames_;
   Plan plan_;
   BuildSettings build_;
   TimeBase time_;

@@ -203,6 +203,10 @@ class Ingest {
   /// to microseconds as a candump log keeps it, so that a replay of the
   /// log sees exactly what the live run saw.
   Sample on_frame(const can::TimedFrame& f);
+  /// A sample the table driver holds beyond the frames' (a status change
+  /// that came with an encoder sample, or from a timeout), at host_s;
+  /// monostate when none. Call until monostate after each frame and tick.
+  Sample poll(double host_s);
   [[nodiscard]] const StreamHealth& health(Stream s) const { return health_[s]; }
   [[nodiscard]] const IngestCounters& counters() const { return counters_; }
   [[nodiscard]] InsDriver& ins() { return *ins_; }

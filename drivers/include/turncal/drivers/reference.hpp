@@ -24,5 +24,15 @@ Devices make_devices(const CanConfig& can, const RoleMap& roles, Plausibility pl
                      double time_scale);
 std::unique_ptr<InsDriver> make_reference_ins(const RoleMap& roles, Plausibility plausibility);
 std::unique_ptr<TableDriver> make_reference_table(const RoleMap& roles, Plausibility plausibility);
+/// A CiA 402 drive's table ([table] protocol = "cia402", cia402_table.cpp):
+/// the CANopen master of drivers/cia402.hpp behind the TableDriver
+/// interface, its PDO layouts from the roles. Settings or layouts that do
+/// not fit leave the master inert: start() latches a configuration fault
+/// that says why (check_cia402_table() says it before a run).
+std::unique_ptr<TableDriver> make_cia402_table(const Cia402Settings& settings,
+                                               const RoleMap& roles);
+/// Whether the settings and the DBC's PDO layouts fit a CiA 402 drive, or
+/// why not (the configuration key where one is to blame).
+Status check_cia402_table(const CanConfig& can, const RoleMap& roles);
 
 }  // namespace turncal::drivers

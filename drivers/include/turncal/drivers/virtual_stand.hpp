@@ -7,11 +7,13 @@
 
 #include <cmath>
 #include <cstdint>
+#include <optional>
 #include <random>
 #include <vector>
 
 #include "turncal/can/dbc.hpp"
 #include "turncal/config.hpp"
+#include "turncal/drivers/virtual_drive402.hpp"
 #include "turncal/drivers/virtual_ins.hpp"
 #include "turncal/drivers/virtual_table.hpp"
 
@@ -62,6 +64,13 @@ struct StandSetup {
   double encoder_hz = 200;
   double table_status_hz = 20;
   std::uint64_t seed = 1;  ///< for drops and garbage
+  /// The table is a CiA 402 drive ([table] protocol = "cia402"): the INS
+  /// turns with the drive's motion, the table side's frames are the
+  /// drive's (CANopen), stepped at encoder_hz; the reference table, its
+  /// limits and faults are not used.
+  bool cia402 = false;
+  Drive402Setup drive;  ///< its angle at power-on is table_angle0_rad
+  Drive402Faults drive_faults;
 };
 
 struct StandFrame {
@@ -91,6 +100,8 @@ class VirtualStand {
   void receive(double t, const can::Frame& frame);
   [[nodiscard]] const VirtualTable& table() const { return table_; }
   [[nodiscard]] const VirtualIns& ins() const { return ins_; }
+  /// The CiA 402 drive, when the stand has one (else nullptr).
+  [[nodiscard]] const VirtualDrive402* drive() const { return drive_ ? &*drive_ : nullptr; }
   [[nodiscard]] const StandCounts& counts() const { return counts_; }
 
  private:
@@ -110,6 +121,8 @@ class VirtualStand {
   const RoleMap& roles_;
   can::FrameCodec codec_;
   VirtualTable table_;
+  std::optional<VirtualDrive402> drive_;  // before ins_: the INS turns with its motion
+  std::vector<DriveFrame> drive_out_;     // the drive's frames not yet emitted
   VirtualIns ins_;
   std::mt19937_64 rng_;
   double now_ = 0;

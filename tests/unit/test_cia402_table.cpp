@@ -1,0 +1,275 @@
+// The CiA 402 table driver (TableDriver over the CANopen master) against
+// the virtual CiA 402 drive, with the shipped CiA 402 stand's configuration
+// and DBC: what the ingest and the engine see of it.
+#include <doctest/doctest.h>
+
+#include <cmath>
+#include <numbers>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "turncal/config.hpp"
+#include "turncal/drivers/canopen.hpp"
+#include "turncal/drivers/reference.hpp"
+#include "turncal/drivers/virtual_drive402.hpp"
+
+using namespace turncal;
+
+namespace {
+
+const std::string kSrc = TURNCAL_SOURCE_DIR;
+constexpr double kDeg = std::numbers::pi / 180;
+
+struct Stand402 {
+  Config cfg;
+  can::Database db;
+  RoleMap roles;
+};
+
+const Stand402& stand402() {
+  static const Stand402 s = [] {
+    Stand402 x;
+    auto cfg = load_config(kSrc + "/config/stands/cia402/turncal.toml");
+    REQUIRE(cfg.ok());
+    x.cfg = *cfg;
+    auto db = load_databases(x.cfg.can);
+    REQUIRE(db.ok());
+    x.db = std::move(*db);
+    return x;
+  }();
+  return s;
+}
+
+/// The driver and the drive on one bus; the driver sees the drive's frames
+/// and its own (a bus echo), as the ingest hands them over.
+struct Bus {
+  explicit Bus(stand::Drive402Faults faults = {}, bool observer = false)
+      : codec(stand402().db), drive(setup(), faults), observe(observer) {
+    auto roles = resolve_roles(stand402().cfg.can, stand402().db);
+    REQUIRE(roles.ok());
+    roles_ = *roles;
+    driver = drivers::make_cia402_table(stand402().cfg.can.table.cia402, roles_);
+    values.resize(16);
+  }
+  static stand::Drive402Setup setup() {
+    stand::Drive402Setup d;
+    d.node_id = 1;
+    d.counts_per_rev = 131072;
+    return d;
+  }
+
+  can::FrameCodec codec;
+  RoleMap roles_;
+  std::unique_ptr<TableDriver> driver;
+  stand::VirtualDrive402 drive;
+  bool observe;
+  double t = 0;
+  std::vector<double> values;
+  std::vector<can::Frame> to_drive;
+  std::vector<stand::DriveFrame> from_drive;
+  std::vector<EncoderSample> encoder;
+  std::vector<TableStatusSample> status;
+  std::uint64_t malformed = 0, own = 0;
+
+  void see(const can::Frame& f, double at) {
+    const can::TimedFrame tf{static_cast<std::int64_t>(std::llround(at * 1e9)), f};
+    const can::Message* m = nullptr;
+    const can::DecodeStatus st = codec.decode(f, values, &m);
+    const FrameView v{tf, at, m, st, values};
+    Decoded d = driver->decode(v);
+    if (d.verdict == Decoded::Verdict::Malformed) ++malformed;
+    if (d.verdict == Decoded::Verdict::Taken && d.stream == kStreams) ++own;
+    if (const auto* e = std::get_if<EncoderSample>(&d.sample)) encoder.push_back(*e);
+    drain();
+  }
+  void drain() {
+    if (!observe) driver->take_frames(to_drive);
+    for (Decoded p = driver->pending(); p.verdict == Decoded::Verdict::Taken; p = driver->pending())
+      status.push_back(std::get<TableStatusSample>(p.sample));
+  }
+  void deliver() {
+    while (!to_drive.empty() || !from_drive.empty()) {
+      std::vector<can::Frame> m;
+      m.swap(to_drive);
+      for (const can::Frame& f : m) {
+        drive.receive(t, f, from_drive);
+        see(f, t);  // our own frame, echoed
+      }
+      std::vector<stand::DriveFrame> d;
+      d.swap(from_drive);
+      for (const stand::DriveFrame& f : d) see(f.frame, f.t_s);
+    }
+  }
+  void step(double dt = 1e-3) {
+    t += dt;
+    drive.advance(t, from_drive);
+    deliver();
+    if (!observe) {
+      driver->tick(t, to_drive);
+      // the daemon's heartbeat timer, 10 Hz
+      if (std::fmod(t + 1e-9, 0.1) < dt)
+        for (const can::Frame& f : driver->heartbeat(0, 1)) to_drive.push_back(f);
+    }
+    drain();
+    deliver();
+  }
+  void start() {
+    driver->start(t, to_drive);
+    drain();
+    deliver();
+  }
+  [[nodiscard]] std::optional<TableStatusSample> last() const {
+    if (status.empty()) return std::nullopt;
+    return status.back();
+  }
+  template <class Pred>
+  bool run_until(Pred done, double timeout) {
+    const double end = t + timeout;
+    while (t < end) {
+      if (done()) return true;
+      step();
+    }
+    return done();
+  }
+  bool state_is(TableState s, int ack, double timeout = 3.0) {
+    return run_until(
+        [&] { return last() && last()->state == static_cast<int>(s) && last()->ack == ack; },
+        timeout);
+  }
+  Status command(TableCommandCode c, std::uint8_t seq, double target = 0, double rate = 0) {
+    auto f = driver->command(TableCommand{c, seq, target, rate});
+    if (!f) return f.error();
+    for (const can::Frame& x : *f) to_drive.push_back(x);
+    drain();
+    deliver();
+    return Status{Ok{}};
+  }
+};
+
+}  // namespace
+
+TEST_SUITE("cia402 table driver") {
+  TEST_CASE("enable and a move through the driver: encoder and status samples") {
+    Bus b;
+    b.start();
+    REQUIRE(b.command(TableCommandCode::Enable, 1));
+    REQUIRE(b.state_is(TableState::Holding, 1));
+    CHECK(b.drive.state() == cia402::State::OperationEnabled);
+    REQUIRE(b.command(TableCommandCode::MoveAbsolute, 2, 30 * kDeg, 10 * kDeg));
+    REQUIRE(b.state_is(TableState::InPosition, 2, 10));
+    REQUIRE_FALSE(b.encoder.empty());
+    const double last = b.encoder.back().angle_rad;
+    CHECK(last == doctest::Approx(30 * kDeg).epsilon(1e-4));
+    CHECK(b.drive.angle(b.t) == doctest::Approx(30 * kDeg).epsilon(1e-4));
+    // every TPDO1 is a status sample too: the status stream never goes quiet
+    CHECK(b.status.size() >= b.encoder.size());
+    // our own frames, echoed, are recognised and nothing else
+    CHECK(b.own > 0);
+    CHECK(b.malformed == 0);
+    // encoder times: the TPDO's receive time (no SYNC), non-decreasing
+    for (std::size_t i = 1; i < b.encoder.size(); ++i)
+      CHECK(b.encoder[i].t_table_s >= b.encoder[i - 1].t_table_s);
+  }
+
+  TEST_CASE(
+      "a drive fault with EMCY: the status is a fault named by the EMCY; a quick stop holds") {
+    stand::Drive402Faults f;
+    f.fault_at_s = 1.5;
+    f.fault_code = 0x2310;
+    Bus b(f);
+    b.start();
+    REQUIRE(b.command(TableCommandCode::Enable, 1));
+    REQUIRE(b.state_is(TableState::Holding, 1));
+    REQUIRE(
+        b.run_until([&] { return b.last()->state == static_cast<int>(TableState::Fault); }, 3.0));
+    CHECK(b.last()->fault_name.find("0x2310") != std::string::npos);
+    REQUIRE(b.command(TableCommandCode::QuickStop, 2));
+    b.run_until([] { return false; }, 0.3);
+    CHECK(b.drive.state() != cia402::State::OperationEnabled);
+    CHECK(b.last()->state == static_cast<int>(TableState::Fault));
+  }
+
+  TEST_CASE("a malformed TPDO1 is counted and skipped; another node's frames are not ours") {
+    Bus b;
+    can::Frame short_tpdo;
+    short_tpdo.id = 0x181;
+    short_tpdo.len = 2;
+    b.see(short_tpdo, 0.01);
+    CHECK(b.malformed == 1);
+    CHECK(b.encoder.empty());
+    can::Frame other;
+    other.id = 0x182;  // node 2's TPDO1
+    other.len = 6;
+    const can::TimedFrame tf{10000000, other};
+    std::vector<double> v(16);
+    const FrameView view{tf, 0.01, nullptr, can::DecodeStatus::UnknownId, v};
+    CHECK(b.driver->decode(view).verdict == Decoded::Verdict::NotMine);
+  }
+
+  TEST_CASE("observe mode: nothing sent, the status read from the statuswords") {
+    // a relative move on a live pair, and an observer of the drive's frames
+    Bus live;
+    Bus watcher({}, true);
+    live.start();
+    REQUIRE(live.command(TableCommandCode::Enable, 1));
+    REQUIRE(live.state_is(TableState::Holding, 1));
+    REQUIRE(live.command(TableCommandCode::MoveRelative, 2, -20 * kDeg, 10 * kDeg));
+    const std::size_t enc0 = live.encoder.size();
+    REQUIRE(live.state_is(TableState::InPosition, 2, 10));
+    CHECK(live.encoder.size() > enc0);
+    std::vector<can::Frame> nothing;
+    watcher.driver->tick(live.t, nothing);
+    watcher.driver->take_frames(nothing);
+    CHECK(nothing.empty());
+    // a statusword of Operation enabled, target reached: in position
+    can::Frame tpdo;
+    tpdo.id = 0x181;
+    tpdo.len = 6;
+    const std::uint16_t sw = cia402::state_bits(cia402::State::OperationEnabled) |
+                             cia402::sw::kTargetReached | cia402::sw::kVoltageEnabled |
+                             cia402::sw::kQuickStop;
+    tpdo.data[0] = static_cast<std::uint8_t>(sw & 0xFF);
+    tpdo.data[1] = static_cast<std::uint8_t>(sw >> 8);
+    watcher.see(tpdo, 0.5);
+    REQUIRE(watcher.last());
+    CHECK(watcher.last()->state == static_cast<int>(TableState::InPosition));
+    REQUIRE(watcher.encoder.size() == 1);
+    CHECK(watcher.encoder[0].angle_rad == 0);
+    // an EMCY, then a statusword in fault: a fault named by the EMCY
+    watcher.see(canopen::emcy_frame(1, 0x2310, 0x01, {}), 0.6);
+    can::Frame fault = tpdo;
+    const std::uint16_t fw = cia402::state_bits(cia402::State::Fault);
+    fault.data[0] = static_cast<std::uint8_t>(fw & 0xFF);
+    fault.data[1] = static_cast<std::uint8_t>(fw >> 8);
+    watcher.see(fault, 0.61);
+    CHECK(watcher.last()->state == static_cast<int>(TableState::Fault));
+    CHECK(watcher.last()->fault_name.find("0x2310") != std::string::npos);
+    watcher.driver->take_frames(nothing);
+    CHECK(nothing.empty());
+  }
+
+  TEST_CASE("settings the DBC's layout does not fit leave the driver inert with the reason") {
+    Config cfg = stand402().cfg;
+    cfg.can.roles[static_cast<std::size_t>(Role::TableTargetPosition)] =
+        SignalRef{"DRV_RPDO1", "Controlword", {}};
+    auto roles = resolve_roles(cfg.can, stand402().db);
+    REQUIRE(roles.ok());
+    const Status st = drivers::check_cia402_table(cfg.can, *roles);
+    REQUIRE_FALSE(st.ok());
+    // named at the key of the role whose message does not fit
+    CHECK(st.error().message.find("can.roles.table_controlword") != std::string::npos);
+    CHECK(st.error().message.find("cia402") != std::string::npos);
+    CHECK(st.error().where.file.ends_with("stands/cia402/turncal.toml"));
+    CHECK(st.error().where.line > 0);
+    auto driver = drivers::make_cia402_table(cfg.can.table.cia402, *roles);
+    std::vector<can::Frame> out;
+    driver->start(0, out);
+    CHECK(out.empty());
+    auto cmd = driver->command(TableCommand{TableCommandCode::Enable, 1});
+    REQUIRE_FALSE(cmd.ok());
+    const Decoded d = driver->pending();
+    REQUIRE(d.verdict == Decoded::Verdict::Taken);
+    CHECK(std::get<TableStatusSample>(d.sample).state == static_cast<int>(TableState::Fault));
+  }
+}
