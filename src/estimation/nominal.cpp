@@ -40,6 +40,9 @@ Result<std::vector<VelocityObs>> strapdown_nominal(const EstimationInput& in,
   c.profile.align_s = in.priors.align_s;
   c.motion = &motion;
   c.motion_t0_s = 0;
+  if (!(in.second_pass.nominal_imu_rate_hz >= c.output_rate_hz))
+    return make_error("the nominal's IMU rate must be at least its output rate");
+  c.imu_rate_hz = in.second_pass.nominal_imu_rate_hz;
   c.errors.nu0 = Eigen::Vector3d(params[0], params[1], params[2]);
   for (int i = 0; i < 3; ++i)
     for (int j = 0; j < 3; ++j)

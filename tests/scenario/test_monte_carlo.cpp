@@ -81,10 +81,10 @@ TEST_SUITE("monte carlo") {
     // runs on each of these runs by its criterion and brings df_obs to RMS
     // z within 3 standard errors of 1 (1 +- 3/sqrt(2N): [0.70, 1.30] for
     // N = 50; 1.03 and 1.08 here) and mean z within 3/sqrt(N) = 0.42 of 0.
-    // It reaches its 0.01 sigma in 41 of these 50 runs within its 5
+    // It reaches its 0.01 sigma in 40 of these 50 runs within its 5
     // iterations (the model about the nominal is itself linearised, so
     // the iteration converges linearly); the rest stop at 5, calibrated
-    // all the same. The seeds are fixed: 35 is a band about 41, not a
+    // all the same. The seeds are fixed: 35 is a band about 40, not a
     // sampling bound.
     const MonteCarlo& mc = recommended(1.0);
     REQUIRE(mc.errors.empty());
