@@ -686,7 +686,7 @@ void Master::latch(FaultCode code, std::string name, bool needs_comm_reset) {
 
 void Master::tick(double now_s, std::vector<can::Frame>& out) {
   now_ = std::max(now_, now_s);
-  if (host_hb_on_ && phase_ != CommPhase::Idle && now_s >= next_host_hb_) {
+  if (sends_host_heartbeat() && now_s >= next_host_hb_) {
     out.push_back(canopen::heartbeat_frame(s_.host_node_id, canopen::NmtState::Operational));
     next_host_hb_ += s_.host_heartbeat_period_s;
     if (next_host_hb_ <= now_s) next_host_hb_ = now_s + s_.host_heartbeat_period_s;
@@ -788,7 +788,12 @@ void Master::on_emcy(const can::Frame& f, double t_s) {
     return;
   }
   ++counts_.emcy;
-  emcy_.push_back(*e);
+  // a drive that repeats an EMCY without end may not grow us without end:
+  // the first ones kept, the last slot always the newest
+  if (emcy_.size() < kEmcyKept)
+    emcy_.push_back(*e);
+  else
+    emcy_.back() = *e;
   if (e->code == 0) return;  // error reset or no error
   if (fault_ == FaultCode::DriveFault) {
     // the statusword said fault first; the EMCY says why

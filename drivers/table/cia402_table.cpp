@@ -101,12 +101,11 @@ class Cia402Table final : public TableDriver {
     if (ours(f.id)) return Decoded::taken(kStreams, NAN, std::monostate{});
     if (!drives(f.id)) return Decoded{};
     const cia402::MasterCounts before = master_.counts();
-    const std::size_t emcy_before = master_.emergencies().size();
     master_.on_frame(f, v.host_s, tx_);
     if (!started_) tx_.clear();  // an observer sends nothing
     const cia402::MasterCounts& after = master_.counts();
     if (after.malformed != before.malformed) return Decoded::malformed();
-    if (master_.emergencies().size() != emcy_before) {
+    if (after.emcy != before.emcy) {
       const canopen::Emcy& e = master_.emergencies().back();
       last_emcy_ = e.code != 0 ? e.text : std::string();
     }
@@ -134,9 +133,15 @@ class Cia402Table final : public TableDriver {
 
   [[nodiscard]] std::vector<can::Frame> heartbeat(std::uint8_t /*counter*/,
                                                   int /*host_state*/) const override {
-    // CANopen's heartbeat has no counter: the NMT state of the host
+    // Once started, the master sends our heartbeat from tick() at its own
+    // period (host_heartbeat_ms, which the drive's 0x1016 watches); before,
+    // the caller's timer does. CANopen's heartbeat has no counter: the NMT
+    // state of the host.
+    if (started_) return {};
     return {canopen::heartbeat_frame(s_.host_node_id, canopen::NmtState::Operational)};
   }
+
+  void set_heartbeat(bool on) override { master_.set_host_heartbeat(on); }
 
   [[nodiscard]] SignalSpan target() const override {
     // position actual and target position are s32 counts

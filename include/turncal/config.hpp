@@ -243,6 +243,12 @@ Result<TimeScale> time_unit(const can::Signal& sig);
 /// Whether the INS layout and the table protocol of `cfg` use the role.
 bool role_used(const CanConfig& cfg, Role role);
 
+struct RoleMap;
+/// The INS velocity and time roles whose signal has no unit in the DBC,
+/// each a sentence saying what it is read as (m/s, microseconds): a DBC
+/// without units is usable, but the user should know what was assumed.
+std::vector<std::string> unitless_role_warnings(const RoleMap& roles);
+
 /// A role resolved against a DBC database (null members: not used).
 struct ResolvedRole {
   const can::Message* message = nullptr;

@@ -209,6 +209,11 @@ class TableDriver {
   virtual void start(double /*now_s*/, std::vector<can::Frame>& /*out*/) {}
   /// Timeouts and periodic frames; called from the main loop's tick.
   virtual void tick(double /*now_s*/, std::vector<can::Frame>& /*out*/) {}
+  /// Whether a heartbeat the protocol's own machinery sends from tick()
+  /// (CANopen's) may go out: off once the host has given up stopping the
+  /// table, so that the table stops itself on losing it. A protocol whose
+  /// heartbeat is heartbeat()'s alone ignores it (the caller stops calling).
+  virtual void set_heartbeat(bool /*on*/) {}
   /// Frames that answer frames decode() was given (a handshake's next
   /// step), moved to `out`.
   virtual void take_frames(std::vector<can::Frame>& /*out*/) {}

@@ -298,8 +298,18 @@ Status read_cia402(const toml::table& t, const std::string& file, Cia402Settings
   // 0x605A: 0 disable drive, 1/2 slow down/quick stop ramp then disable,
   // 5/6 the same and stay in quick stop active (CiA 402 values 0 to 8)
   TURNCAL_TRY(r.integer("quick_stop_option_code", qs, 0, 8));
-  // 0x6007: 0 nothing (not allowed here: a lost host must stop the table)
+  // a quick stop must brake the table, not let it coast
+  if (qs == 0)
+    return r.error_at(*t.get("quick_stop_option_code"), "quick_stop_option_code",
+                      "0 (disable drive function) lets the table coast on a quick stop: use 1, 2 "
+                      "or 5, 6 (a ramp), or 3, 4, 7, 8 (current or voltage limit)");
+  // 0x6007: 0 nothing, 2 disable voltage (the table coasts): not allowed
+  // here, a lost host must stop the table
   TURNCAL_TRY(r.integer("abort_connection_option_code", ac, 1, 3));
+  if (ac == 2)
+    return r.error_at(*t.get("abort_connection_option_code"), "abort_connection_option_code",
+                      "2 (disable voltage) lets the table coast when the drive loses the host: "
+                      "use 3 (quick stop) or 1 (fault, the drive's fault reaction)");
   c.quick_stop_option_code = static_cast<std::int16_t>(qs);
   c.abort_connection_option_code = static_cast<std::int16_t>(ac);
   struct Ms {
@@ -495,6 +505,23 @@ Result<Config> parse_config(std::string_view text, const std::string& file) {
   if (const toml::table* t = section(root, "table", st, file))
     TURNCAL_TRY(read_table(*t, file, cfg.can.table));
   TURNCAL_TRY(st);
+  // A drive's own ramps move the table, whatever a plan asks: they may not
+  // exceed what the stand allows.
+  if (cfg.can.table.is_cia402()) {
+    const Cia402Settings& d = cfg.can.table.cia402;
+    for (auto [key, v] : {std::pair{"profile_acceleration_dps2", d.profile_acceleration_rps2},
+                          {"profile_deceleration_dps2", d.profile_deceleration_rps2}}) {
+      if (v <= cfg.stand.limits.max_accel_rps2 * (1 + 1e-9)) continue;
+      const toml::node* n = root.at_path(std::string("table.cia402.") + key).node();
+      if (n == nullptr) n = root.at_path("stand.max_accel_dps2").node();
+      char msg[200];
+      std::snprintf(msg, sizeof msg,
+                    "key 'table.cia402.%s': the drive's %g deg/s^2 exceed the stand's "
+                    "max_accel_dps2 of %g deg/s^2",
+                    key, v / kDegRad, cfg.stand.limits.max_accel_rps2 / kDegRad);
+      return make_error(msg, n != nullptr ? pos_of(n->source(), file) : SourcePos{file, 0, 0});
+    }
+  }
   return cfg;
 }
 
@@ -620,6 +647,19 @@ Result<TimeScale> time_unit(const can::Signal& sig) {
                    ? std::ldexp(1.0, static_cast<int>(sig.length)) * sig.factor * s.to_us
                    : std::numeric_limits<double>::infinity();
   return s;
+}
+
+std::vector<std::string> unitless_role_warnings(const RoleMap& roles) {
+  std::vector<std::string> out;
+  for (const Role r : {Role::InsVelEast, Role::InsVelNorth, Role::InsVelEastTimeTag,
+                       Role::InsVelNorthTimeTag, Role::InsStatusTimeTag, Role::InsTime}) {
+    const ResolvedRole& rr = roles[r];
+    if (rr.signal == nullptr || !rr.signal->unit.empty()) continue;
+    const bool speed = r == Role::InsVelEast || r == Role::InsVelNorth;
+    out.push_back(rr.message->name + "." + rr.signal->name + " (role " + std::string(role_key(r)) +
+                  ") has no unit in the DBC: read as " + (speed ? "m/s" : "microseconds"));
+  }
+  return out;
 }
 
 bool role_used(const CanConfig& cfg, Role role) {

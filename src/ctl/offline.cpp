@@ -193,6 +193,20 @@ int replay(int argc, char** argv, int i, bool as_json) {
         return kUsage;
       }
       std::fprintf(stderr, "turncalctl: replaying with the settings of %s\n", report_path.c_str());
+      // The frames are read by the configuration given here (its DBC, its
+      // roles, its INS layout), not by the one the run recorded with: say
+      // so when they differ, or a changed layout reads other numbers.
+      const std::string recorded = live.contains("config") && live["config"].is_object()
+                                       ? live["config"].value("sha256", std::string())
+                                       : std::string();
+      const auto here = run::sha256_file(cfg->source.string());
+      if (!recorded.empty() && here.ok() && here->sha256 != recorded)
+        std::fprintf(stderr,
+                     "turncalctl: warning: the run was recorded with the configuration %s "
+                     "(sha256 %.12s...), this replay reads its frames by %s (sha256 %.12s...), "
+                     "which differs: its DBC, roles and [ins] layout apply\n",
+                     live["config"].value("file", std::string("?")).c_str(), recorded.c_str(),
+                     cfg->source.string().c_str(), here->sha256.c_str());
     }
   }
   json truth;
@@ -364,15 +378,7 @@ int check(int argc, char** argv, int i, bool as_json) {
         (r.signal->unit.empty() ? "" : " [" + r.signal->unit + "]");
   }
   // a DBC without units: read as m/s and us, which the user should know
-  for (const Role r : {Role::InsVelEast, Role::InsVelNorth, Role::InsVelEastTimeTag,
-                       Role::InsVelNorthTimeTag, Role::InsStatusTimeTag, Role::InsTime}) {
-    const ResolvedRole& rr = (*roles)[r];
-    if (rr.signal == nullptr || !rr.signal->unit.empty()) continue;
-    const bool speed = r == Role::InsVelEast || r == Role::InsVelNorth;
-    out["dbc_warnings"].push_back(rr.message->name + "." + rr.signal->name + " (role " +
-                                  std::string(role_key(r)) + ") has no unit in the DBC: read as " +
-                                  (speed ? "m/s" : "microseconds"));
-  }
+  for (std::string& w : unitless_role_warnings(*roles)) out["dbc_warnings"].push_back(std::move(w));
   const InsLayout& ins = cfg->can.ins;
   const char* time = ins.time == InsTimeSource::Tag         ? "tag"
                      : ins.time == InsTimeSource::TimeFrame ? "time-frame"

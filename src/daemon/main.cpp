@@ -1144,6 +1144,7 @@ Status Daemon::setup() {
   for (const can::Diagnostic& w : db.warnings)
     say(w.severity == can::Diagnostic::Severity::Note ? LOG_NOTICE : LOG_WARNING, "", "idle",
         w.describe());
+  for (const std::string& w : unitless_role_warnings(roles)) say(LOG_WARNING, "", "idle", w);
   state.emplace(cfg.daemon.state_directory);
   TURNCAL_TRY(state->create());
   state->release_stale();

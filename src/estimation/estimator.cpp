@@ -510,6 +510,8 @@ Result<EstimationResult> estimate(const EstimationInput& in) {
     pass.reason =
         sp.mode == SecondPassSettings::Mode::Always ? "asked for; " + predicted : predicted;
     ParamArray p = params_of(r.x);
+    const EstimationResult first = r;
+    double previous_change = INFINITY;
     while (pass.iterations < std::max(1, sp.max_iterations)) {
       auto next = pass_about(in, p);
       if (!next) {  // the first pass, or the last iteration, stands
@@ -528,6 +530,19 @@ Result<EstimationResult> estimate(const EstimationInput& in) {
         if (sigma > 0) change = std::max(change, std::abs(d) / sigma);
       }
       pass.last_change_sigma = change;
+      // a change of half a sigma or more that grows is an iteration that
+      // diverges: what it gives is no estimate, and the first pass stands
+      // (said in the reason). Changes that wander near the tolerance are
+      // the linearisation's floor, not a divergence.
+      if (change > previous_change && change >= 0.5) {
+        pass.reason += "; it diverged (the change grew from " + fixed(previous_change, 3) + " to " +
+                       fixed(change, 3) + " sigma at iteration " + std::to_string(pass.iterations) +
+                       "): the first pass's estimates stand";
+        r = first;
+        pass.iterations = 0;
+        break;
+      }
+      previous_change = change;
       p = params_of(ri.x);
       r = std::move(ri);
       if (change < sp.tolerance_sigma) {

@@ -235,7 +235,10 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out) {
   k.encoder_stale = ingest_.health(kEncoder).stale(t, floor);
   k.table_status_stale = ingest_.health(kTableStatus).stale(t, floor);
   feed(k, out);
-  // a protocol's timeouts and periodic frames (CANopen heartbeat, SYNC)
+  // a protocol's timeouts and periodic frames (CANopen heartbeat, SYNC);
+  // no heartbeat once the stop could not be confirmed: the table stops
+  // itself on losing it
+  ingest_.table().set_heartbeat(!seq_.course().quick_stop_gave_up);
   driver_frames_.clear();
   ingest_.table().tick(t, driver_frames_);
   for (const can::Frame& f : driver_frames_) out.push_back({false, f});

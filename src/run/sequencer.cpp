@@ -381,10 +381,11 @@ void Sequencer::on_table(const TableStatusEvent& e, std::vector<Command>& out) {
   if (stopping_) {
     // done when the table says it stopped: one of our quick stops
     // acknowledged, the table not moving, and its own rate at rest (an
-    // acknowledgement alone is a table that has begun to stop)
+    // acknowledgement alone is a table that has begun to stop); a rate not
+    // known (NaN: a drive whose position data went quiet) is no rest
     const bool stop_acked = static_cast<std::uint8_t>(e.ack - stop_first_seq_) <=
                             static_cast<std::uint8_t>(seq_ - stop_first_seq_);
-    const bool at_rest = std::isnan(e.rate_rps) || std::abs(e.rate_rps) < kTableAtRestRps;
+    const bool at_rest = std::abs(e.rate_rps) < kTableAtRestRps;
     if ((acked || stop_acked) && e.state != kMoving && at_rest) {
       course_.quick_stop_acked = true;
       stopping_ = false;

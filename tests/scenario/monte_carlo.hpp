@@ -5,6 +5,7 @@
 #pragma once
 
 #include <algorithm>
+#include <cstdlib>
 #include <thread>
 #include <vector>
 
@@ -102,10 +103,18 @@ inline RunZ one_run(const Scenario& s, std::uint64_t seed,
   return out;
 }
 
+/// The Monte Carlo's threads: TURNCAL_THREADS when set (scripts/test runs
+/// the scenario tier beside the hil tier on one thread fewer than the
+/// machine has), else one per hardware thread.
+inline unsigned default_threads() {
+  if (const char* e = std::getenv("TURNCAL_THREADS"); e != nullptr && std::atoi(e) > 0)
+    return static_cast<unsigned>(std::atoi(e));
+  return std::max(1u, std::thread::hardware_concurrency());
+}
+
 /// Runs seeds first_seed .. first_seed + runs - 1 on `threads` threads.
 inline MonteCarlo monte_carlo(
-    const Scenario& s, int runs, std::uint64_t first_seed,
-    unsigned threads = std::max(1u, std::thread::hardware_concurrency()),
+    const Scenario& s, int runs, std::uint64_t first_seed, unsigned threads = default_threads(),
     est::SecondPassSettings::Mode mode = est::SecondPassSettings::Mode::Auto) {
   std::vector<RunZ> z(static_cast<std::size_t>(runs));
   std::vector<std::thread> pool;

@@ -40,10 +40,9 @@ int main(int argc, char** argv) {
     if (which != "all" && which != name) continue;
     Scenario s = given;
     for (double& p : s.priors.params) p *= scale;
-    const MonteCarlo mc =
-        threads > 0
-            ? monte_carlo(s, runs, seed, static_cast<unsigned>(threads), mode)
-            : monte_carlo(s, runs, seed, std::max(1u, std::thread::hardware_concurrency()), mode);
+    const MonteCarlo mc = threads > 0
+                              ? monte_carlo(s, runs, seed, static_cast<unsigned>(threads), mode)
+                              : monte_carlo(s, runs, seed, default_threads(), mode);
     std::printf("%s (prior x %g, second pass %s): %d runs, seeds %llu..%llu\n", name, scale,
                 pass.c_str(), runs, static_cast<unsigned long long>(seed),
                 static_cast<unsigned long long>(seed + static_cast<std::uint64_t>(runs) - 1));

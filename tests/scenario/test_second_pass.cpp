@@ -41,9 +41,48 @@ Simulated recommended_run(double scale, std::uint64_t seed) {
   return out;
 }
 
+/// A nominal that is the strapdown's plus an East ramp that flips sign
+/// and grows tenfold at each call: an iteration about it must diverge.
+int g_diverging_calls = 0;
+Result<std::vector<est::VelocityObs>> diverging_nominal(
+    const est::EstimationInput& in, const std::array<double, est::sx::kParams>& p) {
+  auto v = est::strapdown_nominal(in, p);
+  if (!v) return v;
+  const double slope =
+      (g_diverging_calls % 2 == 0 ? 1.0 : -1.0) * 1e-5 * std::pow(10.0, g_diverging_calls);
+  ++g_diverging_calls;
+  for (est::VelocityObs& o : *v) o.ve += slope * o.t_s;
+  return v;
+}
+
 }  // namespace
 
 TEST_SUITE("second pass") {
+  TEST_CASE("an iteration that diverges is no estimate: the first pass stands, and says so") {
+    // Given the recommended plan at the full prior, seed 2000, where the
+    // second pass runs, and a nominal whose error grows at each call: the
+    // change grows from one iteration to the next, the iteration stops,
+    // and the result is the first pass's, bit for bit, its reason saying
+    // why.
+    Simulated run = recommended_run(1.0, 2000);
+    est::EstimationInput off = run.in;
+    off.second_pass.mode = est::SecondPassSettings::Mode::Off;
+    const auto linear = est::estimate(off);
+    g_diverging_calls = 0;
+    run.in.second_pass.nominal = &diverging_nominal;
+    const auto r = est::estimate(run.in);
+    REQUIRE(linear.ok());
+    REQUIRE(r.ok());
+    MESSAGE(r->second_pass.reason);
+    CHECK(g_diverging_calls >= 2);
+    CHECK_FALSE(r->second_pass.ran);
+    CHECK_FALSE(r->second_pass.converged);
+    CHECK(r->second_pass.reason.find("diverged") != std::string::npos);
+    CHECK(r->second_pass.reason.find("the first pass's estimates stand") != std::string::npos);
+    CHECK(r->x == linear->x);
+    CHECK(r->p == linear->p);
+  }
+
   TEST_CASE("it runs where the first pass predicts a linearisation error, and converges") {
     // Given the recommended plan at the full tactical prior (velocities of
     // 100 m/s, a 10-revolution azimuth jump of degrees), seed 2000: the

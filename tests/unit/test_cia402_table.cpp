@@ -190,6 +190,51 @@ TEST_SUITE("cia402 table driver") {
     CHECK(b.last()->state == static_cast<int>(TableState::Fault));
   }
 
+  TEST_CASE("one heartbeat, the master's; switched off, the drive loses us and stops the table") {
+    Bus b;
+    b.start();
+    REQUIRE(b.command(TableCommandCode::Enable, 1));
+    REQUIRE(b.state_is(TableState::Holding, 1));
+    // started: the caller's heartbeat() gives nothing, the master's tick
+    // sends ours at host_heartbeat_ms (100 ms): 10 in a second, not 20
+    CHECK(b.driver->heartbeat(0, 1).empty());
+    std::size_t beats = 0;
+    for (int i = 0; i < 1000; ++i) {
+      b.t += 1e-3;
+      b.drive.advance(b.t, b.from_drive);
+      std::vector<can::Frame> out;
+      b.driver->tick(b.t, out);
+      for (const can::Frame& f : out)
+        if (f.id == 0x700u + 127u) ++beats;
+      b.to_drive.insert(b.to_drive.end(), out.begin(), out.end());
+      b.drain();
+      b.deliver();
+    }
+    CHECK(beats >= 9);
+    CHECK(beats <= 11);
+    REQUIRE(b.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 10 * kDeg));
+    REQUIRE(b.run_until([&] { return std::abs(b.drive.angle(b.t)) > 5 * kDeg; }, 3.0));
+    // the host gave up stopping the table: no more heartbeat from us, and
+    // the drive's consumer (500 ms) acts per 0x6007 (3: quick stop)
+    b.driver->set_heartbeat(false);
+    beats = 0;
+    for (int i = 0; i < 1500; ++i) {
+      b.t += 1e-3;
+      b.drive.advance(b.t, b.from_drive);
+      std::vector<can::Frame> out;
+      b.driver->tick(b.t, out);
+      for (const can::Frame& f : out)
+        if (f.id == 0x700u + 127u) ++beats;
+      b.to_drive.insert(b.to_drive.end(), out.begin(), out.end());
+      b.drain();
+      b.deliver();
+    }
+    CHECK(beats == 0);
+    CHECK(b.drive.counts().host_heartbeat_lost == 1);
+    CHECK(b.drive.counts().quick_stops >= 1);
+    CHECK(b.drive.state() != cia402::State::OperationEnabled);
+  }
+
   TEST_CASE("a malformed TPDO1 is counted and skipped; another node's frames are not ours") {
     Bus b;
     can::Frame short_tpdo;

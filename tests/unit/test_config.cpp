@@ -397,6 +397,9 @@ TEST_CASE("config: [table] protocol = \"cia402\" and [table.cia402]") {
            Bad{"quick_stop_option_code = 9\n", "table.cia402.quick_stop_option_code", 4},
            Bad{"abort_connection_option_code = 0\n", "table.cia402.abort_connection_option_code",
                4},
+           Bad{"abort_connection_option_code = 2\n", "table.cia402.abort_connection_option_code",
+               4},
+           Bad{"quick_stop_option_code = 0\n", "table.cia402.quick_stop_option_code", 4},
            Bad{"host_heartbeat_ms = 100\nhost_heartbeat_consumer_ms = 100\n",
                "table.cia402.host_heartbeat_consumer_ms", 5},
            Bad{"drive_heartbeat_ms = 400\n", "table.cia402.drive_heartbeat_ms", 4},
@@ -410,6 +413,17 @@ TEST_CASE("config: [table] protocol = \"cia402\" and [table.cia402]") {
     CHECK(e.where.file == "/etc/turncal/turncal.toml");
     CHECK(e.where.line == b.line);
     CHECK(e.message.find(b.key) != std::string::npos);
+  }
+  SUBCASE("the drive's ramps above the stand's acceleration") {
+    Error e =
+        parse_error("[stand]\nmax_accel_dps2 = 20\n" + head + "profile_deceleration_dps2 = 25\n");
+    CHECK(e.where.line == 6);
+    CHECK(e.message.find("table.cia402.profile_deceleration_dps2") != std::string::npos);
+    CHECK(e.message.find("exceed the stand's max_accel_dps2 of 20 deg/s^2") != std::string::npos);
+    // the default ramp (10 deg/s^2) under a stand's limit of 5: named at the limit
+    Error f = parse_error("[stand]\nmax_accel_dps2 = 5\n" + head);
+    CHECK(f.where.line == 2);
+    CHECK(f.message.find("profile_acceleration_dps2") != std::string::npos);
   }
   SUBCASE("an unknown protocol, and [table.cia402] for the reference protocol") {
     Error e = parse_error("[table]\nprotocol = \"canopen\"\n");

@@ -425,6 +425,10 @@ TEST_SUITE("sequencer") {
     CHECK(q.host_state() == 2);
     CHECK_FALSE(q.course().quick_stop_acked);
     CHECK(q.phase() != Phase::Failed);
+    // quick-stopped, its rate not known (its position data quiet): not stopped
+    q.step(TableStatusEvent{2.62, 5, stop, 0, "", std::nan("")}, out);
+    CHECK_FALSE(q.course().quick_stop_acked);
+    CHECK(q.host_state() == 2);
     // at rest: done
     q.step(TableStatusEvent{2.65, 5, stop, 0, "", 0.0}, out);
     CHECK(q.course().quick_stop_acked);

@@ -205,6 +205,17 @@ TEST_SUITE("INS layouts") {
     CHECK(w.device_s - d.device_s == doctest::Approx(0.0003).epsilon(1e-6));
   }
 
+  TEST_CASE("a role's signal without a unit is read as m/s or us, and that is said") {
+    // what turncalctl check and turncald's log print for a unitless DBC
+    CHECK(unitless_role_warnings(Nav().roles).empty());  // every unit given
+    const Nav counter("ins_time = \"INS_TimeStamp.TimeMs\"",
+                      "ins_time = \"INS_TimeStamp.Counter\"");
+    const auto w = unitless_role_warnings(counter.roles);
+    REQUIRE(w.size() == 1);
+    CHECK(w[0] ==
+          "INS_TimeStamp.Counter (role ins_time) has no unit in the DBC: read as microseconds");
+  }
+
   TEST_CASE("a layout that cannot be is refused, naming the file, line and key") {
     auto body = refusal("velocity_axes = \"navigation\"", "velocity_axes = \"body\"");
     CHECK(body.find("turncal.toml:") != std::string::npos);

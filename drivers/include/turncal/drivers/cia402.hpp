@@ -422,8 +422,10 @@ class Master {
   [[nodiscard]] CommPhase phase() const { return phase_; }
   /// True when the configuration wrote the PDO mappings.
   [[nodiscard]] bool configured_mapping() const { return configured_mapping_; }
-  /// Every EMCY received, with its time and text.
+  /// The EMCYs received, with their time and text: the first kEmcyKept,
+  /// the last of them always the newest (counts().emcy counts them all).
   [[nodiscard]] const std::vector<canopen::Emcy>& emergencies() const { return emcy_; }
+  static constexpr std::size_t kEmcyKept = 64;
   /// Moves the encoder samples received since the last call to `out`.
   void take_samples(std::vector<EncoderSample>& out);
   /// The last position actual, as a table angle (NaN before any).
@@ -434,9 +436,14 @@ class Master {
   [[nodiscard]] const canopen::SdoCounts& sdo_counts() const { return sdo_.counts(); }
   [[nodiscard]] const MasterSettings& settings() const { return s_; }
 
-  /// Our heartbeat on or off (on after start()). Off: the drive's consumer
-  /// times out and it acts per 0x6007.
-  void set_host_heartbeat(bool on) { host_hb_on_ = on; }
+  /// Our heartbeat allowed or not (allowed unless said; it goes out from
+  /// start() on). Off: the drive's consumer times out and it acts per
+  /// 0x6007; a later start() or communication reset does not turn it on.
+  void set_host_heartbeat(bool on) { host_hb_allowed_ = on; }
+  /// Whether tick() sends our heartbeat (started, and allowed).
+  [[nodiscard]] bool sends_host_heartbeat() const {
+    return host_hb_on_ && host_hb_allowed_ && phase_ != CommPhase::Idle;
+  }
   /// Any SDO access, queued behind the others; `done` gets its outcome.
   void read(std::uint16_t index, std::uint8_t sub, canopen::SdoClient::Callback done);
   void write(std::uint16_t index, std::uint8_t sub, std::vector<std::uint8_t> data,
@@ -494,6 +501,7 @@ class Master {
   bool configured_mapping_ = false;
   // heartbeats
   bool host_hb_on_ = false;
+  bool host_hb_allowed_ = true;
   double next_host_hb_ = 0;
   double last_drive_hb_ = 0;
   double started_at_ = 0;  // NMT start sent
