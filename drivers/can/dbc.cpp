@@ -399,6 +399,19 @@ class Parser {
       if (n.kind == Token::Punct && n.text == ";") return;
     }
   }
+  /// Skips an unknown statement begun on `line`: to its ';', or to the
+  /// next line whose first word is a keyword (indented or not).
+  void skip_unknown(std::uint32_t line) {
+    std::uint32_t prev = line;
+    for (;;) {
+      const Token& t = lx_.peek();
+      if (t.kind == Token::End) return;
+      if (t.line != prev && t.kind == Token::Ident && is_keyword(t.text)) return;
+      const Token n = lx_.next();
+      prev = n.line;
+      if (n.kind == Token::Punct && n.text == ";") return;
+    }
+  }
   /// Skips the rest of the line of `line`.
   void skip_line(std::uint32_t line) {
     while (lx_.peek().kind != Token::End && lx_.peek().line == line) lx_.next();
@@ -437,6 +450,8 @@ class Parser {
   std::string file_;
   Database db_;
   std::optional<std::size_t> current_;  // index of the message SG_ lines belong to
+  bool discarding_ = false;             // the SG_ lines of a message left out follow
+  bool interrupted_ = false;            // a CM_, VAL_, BA_ ... came since the last SG_ line
   std::unordered_map<std::uint32_t, std::size_t> by_key_;
   std::vector<PendingValType> valtypes_;
   std::vector<PendingValues> values_;
@@ -453,10 +468,14 @@ Status Parser::parse_message(const Token& kw) {
   TURNCAL_ASSIGN(raw_id, message_id());
   TURNCAL_ASSIGN(name, expect(Token::Ident, "a message name"));
   TURNCAL_TRY(expect_punct(':'));
-  const Token size_tok = lx_.peek();
   TURNCAL_ASSIGN(size, unsigned_number("the message size"));
+  discarding_ = false;
+  interrupted_ = false;
+  // what makes a message unusable leaves it out, its SG_ lines with it,
+  // with a warning; a role naming it is refused with the reason
+  std::string left_out;
   if (size > kMaxFdLen || !is_valid_fd_len(size))
-    return err(size_tok, "message size " + std::to_string(size) + " is not a CAN or CAN FD length");
+    left_out = "message size " + std::to_string(size) + " is not a CAN or CAN FD length";
   std::string transmitter;
   if (lx_.peek().kind == Token::Ident && lx_.peek().line == kw.line) transmitter = lx_.next().text;
   const bool independent = name.text == kIndependentSignals;
@@ -476,8 +495,26 @@ Status Parser::parse_message(const Token& kw) {
                         " is above 0x7FF without the extended flag (bit 31): read as extended");
     }
   }
-  if (by_key_.count(key) != 0)
-    return err(kw, "message ID " + std::to_string(m.id) + " defined twice");
+  if (left_out.empty() && by_key_.count(key) != 0) {
+    // which of the two the frames are is not known: neither may serve a role
+    Message& first = db_.messages[by_key_[key]];
+    left_out = "its ID " + std::to_string(m.id) + " is also message '" + first.name + "''s (line " +
+               std::to_string(first.line) + ")";
+    first.unread.push_back(Diagnostic{Diagnostic::Severity::Warning, SourcePos{file_, kw.line, 0},
+                                      "its ID " + std::to_string(m.id) +
+                                          " is defined again, by message '" +
+                                          std::string(name.text) + "'"});
+  }
+  if (!left_out.empty()) {
+    warn(kw.line,
+         "message '" + std::string(name.text) + "' left out with its signals: " + left_out);
+    db_.left_out.push_back(
+        Diagnostic{Diagnostic::Severity::Warning, SourcePos{file_, kw.line, 0},
+                   "message '" + std::string(name.text) + "' was left out: " + left_out});
+    current_.reset();
+    discarding_ = true;
+    return Status{Ok{}};
+  }
   m.name = name.text;
   m.size = static_cast<std::uint32_t>(size);
   m.fd = m.size > kMaxClassicLen;
@@ -943,7 +980,16 @@ Result<Database> Parser::run() {
         db_.nodes.emplace_back(lx_.next().text);
     } else if (t.text == "BO_") {
       st = parse_message(t);
+    } else if (t.text == "SG_" && discarding_) {
+      skip_line(t.line);  // a signal of a message left out
+    } else if (t.text == "SG_" && !current_) {
+      warn(t.line, "SG_ outside a BO_ message: skipped");
+      skip_line(t.line);
     } else if (t.text == "SG_") {
+      if (interrupted_)
+        warn(t.line, "SG_ line after other statements: read as a signal of message '" +
+                         db_.messages[*current_].name + "', the BO_ above");
+      interrupted_ = false;
       st = parse_signal(t);
       // An SG_ line that cannot be read, with its error on that line, is
       // skipped: its message keeps the line, and a role in that message is
@@ -970,12 +1016,33 @@ Result<Database> Parser::run() {
       st = parse_mux_values(t);
     } else if (is_keyword(t.text)) {
       current_.reset();
+      discarding_ = false;
       skip_statement();
     } else {
-      return err(t, "unknown keyword '" + std::string(t.text) + "'");
+      // a keyword of another tool or version: skipped to its ';', or to
+      // the next line that begins with a keyword. Between a message's SG_
+      // lines it may be a signal mistyped: no role may be in that message.
+      const std::string what = "unknown keyword '" + std::string(t.text) + "': skipped";
+      warn(t.line, what);
+      if (current_)
+        db_.messages[*current_].unread.push_back(
+            Diagnostic{Diagnostic::Severity::Warning, SourcePos{file_, t.line, t.column}, what});
+      skip_unknown(t.line);
+      interrupted_ = interrupted_ || current_.has_value() || discarding_;
+      continue;
     }
     if (!st) return std::move(st).error();
-    if (t.text != "BO_" && t.text != "SG_") current_.reset();
+    // comments, value tables and attributes may sit between a message's
+    // SG_ lines (hand-edited files): the SG_ lines after them are still
+    // that message's
+    const bool between = t.text == "CM_" || t.text == "VAL_" || t.text == "SIG_VALTYPE_" ||
+                         t.text == "BA_" || t.text == "SG_MUL_VAL_";
+    if (between && (current_ || discarding_)) {
+      interrupted_ = true;
+    } else if (t.text != "BO_" && t.text != "SG_") {
+      current_.reset();
+      discarding_ = false;
+    }
   }
   TURNCAL_TRY(finish(db_));
   return std::move(db_);

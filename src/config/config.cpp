@@ -521,6 +521,17 @@ Result<Config> parse_config(std::string_view text, const std::string& file) {
                     key, v / kDegRad, cfg.stand.limits.max_accel_rps2 / kDegRad);
       return make_error(msg, n != nullptr ? pos_of(n->source(), file) : SourcePos{file, 0, 0});
     }
+    // SYNC goes out from the daemon's timer: a shorter period would be
+    // the timer's without a word
+    if (d.sync_period_s > 0 && d.sync_period_s < 1 / cfg.daemon.heartbeat_hz - 1e-9) {
+      const toml::node* n = root.at_path("table.cia402.sync_period_ms").node();
+      char msg[200];
+      std::snprintf(msg, sizeof msg,
+                    "key 'table.cia402.sync_period_ms': %g ms is shorter than the daemon's "
+                    "timer period (daemon.heartbeat_hz = %g: %g ms), from which SYNC goes out",
+                    d.sync_period_s * 1e3, cfg.daemon.heartbeat_hz, 1e3 / cfg.daemon.heartbeat_hz);
+      return make_error(msg, n != nullptr ? pos_of(n->source(), file) : SourcePos{file, 0, 0});
+    }
   }
   return cfg;
 }
@@ -604,6 +615,7 @@ Result<can::Database> load_databases(const CanConfig& cfg) {
     for (auto& n : db->nodes) merged.nodes.push_back(n);
     merged.node_long_names.merge(db->node_long_names);
     for (auto& w : db->warnings) merged.warnings.push_back(std::move(w));
+    for (auto& w : db->left_out) merged.left_out.push_back(std::move(w));
     for (auto& m : db->messages) {
       for (std::size_t i = 0; i < merged.messages.size(); ++i) {
         const can::Message& o = merged.messages[i];
@@ -728,14 +740,18 @@ Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
           ref.where);
     }
     const can::Message* m = db.find(ref.message);
-    if (m == nullptr)
+    if (m == nullptr) {
+      for (const can::Diagnostic& d : db.left_out)
+        if (d.text.starts_with("message '" + ref.message + "' "))
+          return make_error("key '" + key + "'" + at(ref.where) + ": " + d.text, d.where);
       return make_error("key '" + key + "': no message '" + ref.message + "' in the DBC",
                         ref.where);
+    }
     // a message with an SG_ line that could not be read is not the
     // message the file meant: a role may not be in it
     if (!m->unread.empty())
       return make_error("key '" + key + "'" + at(ref.where) + ": message '" + m->name +
-                            "' has an SG_ line that could not be read: " + m->unread[0].text,
+                            "' was not read whole, so no role may be in it: " + m->unread[0].text,
                         m->unread[0].where);
     const can::Signal* s = m->find_signal(ref.signal);
     if (s == nullptr)

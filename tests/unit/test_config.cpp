@@ -167,7 +167,21 @@ TEST_SUITE("config") {
       CHECK(roles.error().where.file == (dir / "stand.dbc").string());
       CHECK(roles.error().where.line == angle_line - 1);
       CHECK(roles.error().message.find("can.roles.encoder_") != std::string::npos);
-      CHECK(roles.error().message.find("could not be read") != std::string::npos);
+      CHECK(roles.error().message.find("was not read whole, so no role may be in it: SG_ line "
+                                       "of message 'TBL_Encoder' not read") != std::string::npos);
+    }
+    SUBCASE("a role's message left out (its ID defined twice): an error naming why") {
+      std::string text = current + "\nBO_ 513 TBL_Again: 8 TBL\n";
+      auto [cfg, db] = load(text);
+      const can::Message* enc = db.find("TBL_Encoder");
+      REQUIRE(enc != nullptr);
+      INFO("TBL_Encoder's ID: " << enc->id);
+      REQUIRE_FALSE(db.left_out.empty());
+      auto roles = resolve_roles(cfg.can, db);
+      REQUIRE_FALSE(roles.ok());
+      CHECK(roles.error().message.find("can.roles.encoder_") != std::string::npos);
+      CHECK(roles.error().message.find("is defined again, by message 'TBL_Again'") !=
+            std::string::npos);
     }
     std::filesystem::remove_all(dir);
   }
@@ -354,13 +368,13 @@ TEST_CASE("config: [table] protocol = \"cia402\" and [table.cia402]") {
   }
   SUBCASE("defaults, and values in the file's units") {
     auto cfg = parse_config(
-        "[table]\nprotocol = \"cia402\"\n[table.cia402]\nnode_id = 5\nsync_period_ms = 4\n"
+        "[table]\nprotocol = \"cia402\"\n[table.cia402]\nnode_id = 5\nsync_period_ms = 200\n"
         "profile_acceleration_dps2 = 20\nconfigure_mapping = true\n",
         "/x/turncal.toml");
     REQUIRE_MESSAGE(cfg.ok(), (cfg.ok() ? "" : cfg.error().describe()));
     const Cia402Settings& c = cfg->can.table.cia402;
     CHECK(c.node_id == 5);
-    CHECK(c.sync_period_s == doctest::Approx(0.004).epsilon(1e-12));
+    CHECK(c.sync_period_s == doctest::Approx(0.2).epsilon(1e-12));
     CHECK(c.profile_acceleration_rps2 ==
           doctest::Approx(20 * std::numbers::pi / 180).epsilon(1e-12));
     CHECK(c.configure_mapping);
@@ -424,6 +438,16 @@ TEST_CASE("config: [table] protocol = \"cia402\" and [table.cia402]") {
     Error f = parse_error("[stand]\nmax_accel_dps2 = 5\n" + head);
     CHECK(f.where.line == 2);
     CHECK(f.message.find("profile_acceleration_dps2") != std::string::npos);
+  }
+  SUBCASE("a SYNC period shorter than the daemon's timer that sends it") {
+    Error e = parse_error(head + "sync_period_ms = 20\n");  // heartbeat_hz 10: 100 ms
+    CHECK(e.where.line == 4);
+    CHECK(e.message.find("table.cia402.sync_period_ms") != std::string::npos);
+    CHECK(e.message.find("100 ms") != std::string::npos);
+    // at the timer's period it is accepted
+    CHECK(parse_config("[daemon]\nheartbeat_hz = 50\n" + head + "sync_period_ms = 20\n",
+                       "/etc/turncal/turncal.toml")
+              .ok());
   }
   SUBCASE("an unknown protocol, and [table.cia402] for the reference protocol") {
     Error e = parse_error("[table]\nprotocol = \"canopen\"\n");

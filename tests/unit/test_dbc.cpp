@@ -295,17 +295,15 @@ TEST_SUITE("dbc") {
       std::uint32_t line;
     };
     // (a signal that does not fit, or cannot be decoded, an SG_ line that
-    // cannot be read, and an ID above 0x7FF without the extended flag are
-    // read with a warning now: see the test cases below)
+    // cannot be read, an ID above 0x7FF without the extended flag, a
+    // message of no CAN size or an ID defined twice, an unknown keyword and
+    // an SG_ line outside a message are read with a warning now: see the
+    // test cases below)
     const Case cases[] = {
         {"BO_ 1 M: 8 A\n SG_ S : 0|8@1+ (1,0) [0|1]\n SG_ T : 8|8@1+ (1,0) [0|1] \"\" B\n", 3},
-        {"BO_ 1 M: 9 A\n", 1},
-        {"BO_ 1 M: 8 A\nBO_ 1 N: 8 A\n", 2},
-        {"\n SG_ S : 0|8@1+ (1,0) [0|1] \"\" B\n", 2},
         {"BO_ 1 M: 8 A\n SG_ S : 0|8@1+ (1,0) [0|1] \"unterminated\n", 2},
         {"BO_ 536870912 M: 8 A\n", 1},   // above 0x1FFFFFFF: not a CAN ID with or without the flag
         {"BO_ 2684354560 M: 8 A\n", 1},  // the flag and 0x20000000
-        {"VERSION \"x\"\nFOO_ bar;\n", 2},
         {"BO_ 1 M: 8 A\n SG_ S M : 0|8@1+ (1,0) [0|1] \"\" B\n\nSG_MUL_VAL_ 1 S S 1+2;\n", 4},
     };
     for (const Case& c : cases) {
@@ -613,6 +611,81 @@ TEST_SUITE("dbc") {
     CHECK(m->unread[0].where.file == "vendor.dbc");
     CHECK(db.find("N")->unread.empty());
     CHECK(decoded(db, 1, false, {1, 2, 3, 4, 5, 6, 7, 8}) == Values{{"U", 3}, {"V", 5}});
+    CHECK(decoded(db, 2, false, {9}) == Values{{"W", 9}});
+  }
+
+  TEST_CASE("a message of no CAN size, or an ID defined twice, is left out; the rest reads") {
+    const Database db = parsed(
+        "BO_ 1 M: 9 A\n"  // 1: no CAN or CAN FD length
+        " SG_ S : 0|8@1+ (1,0) [0|1] \"\" B\n"
+        "BO_ 2 N: 8 A\n"  // 3
+        " SG_ T : 0|8@1+ (1,0) [0|255] \"\" B\n"
+        "BO_ 2 O: 8 A\n"  // 5: N's ID again
+        " SG_ U : 0|8@1+ (1,0) [0|255] \"\" B\n"
+        "BO_ 3 P: 1 A\n"  // 7
+        " SG_ W : 0|8@1+ (1,0) [0|255] \"\" B\n");
+    CHECK(warning_lines(db) == std::vector<std::uint32_t>{1, 5});
+    CHECK(warned(db, 1, "message 'M' left out with its signals: message size 9 is not a CAN"));
+    CHECK(warned(db, 5, "message 'O' left out with its signals: its ID 2 is also message 'N''s"));
+    CHECK(db.find("M") == nullptr);
+    CHECK(db.find("O") == nullptr);
+    REQUIRE(db.left_out.size() == 2);
+    CHECK(db.left_out[1].text.starts_with("message 'O' was left out"));
+    // N stays, and decodes, but which of N and O the frames are is not
+    // known: it is marked so that no role may be in it
+    REQUIRE(db.find("N") != nullptr);
+    REQUIRE(db.find("N")->unread.size() == 1);
+    CHECK(db.find("N")->unread[0].where.line == 5);
+    CHECK(db.find("N")->signals.size() == 1);  // U went with O
+    CHECK(decoded(db, 2, false, {7, 0, 0, 0, 0, 0, 0, 0}) == Values{{"T", 7}});
+    CHECK(decoded(db, 3, false, {9}) == Values{{"W", 9}});
+  }
+
+  TEST_CASE("an unknown keyword or a stray SG_ line is skipped with a warning") {
+    const Database db = parsed(
+        "VERSION \"x\"\n"
+        "FOO_ bar baz;\n"  // 2: another tool's statement, to its ';'
+        "BO_ 1 M: 8 A\n"
+        " SG_ S : 0|8@1+ (1,0) [0|255] \"\" B\n"
+        " SGX_ T : 8|8@1+ (1,0) [0|255] \"\" B\n"  // 5: a signal mistyped, no ';'
+        " SG_ U : 16|8@1+ (1,0) [0|255] \"\" B\n"
+        "BO_ 2 N: 1 A\n"
+        " SG_ W : 0|8@1+ (1,0) [0|255] \"\" B\n"
+        "CM_ \"the file\";\n"
+        "BA_DEF_ \"X\" INT 0 1;\n"
+        " SG_ V : 0|8@1+ (1,0) [0|255] \"\" B\n");  // 11: after BA_DEF_, no message
+    CHECK(warning_lines(db) == std::vector<std::uint32_t>{2, 5, 6, 11});
+    CHECK(warned(db, 2, "unknown keyword 'FOO_': skipped"));
+    CHECK(warned(db, 11, "SG_ outside a BO_ message: skipped"));
+    // the SG_ line after the unknown one is still M's, said so; M can
+    // serve no role (the unknown line may have been one of its signals)
+    CHECK(warned(db, 6, "read as a signal of message 'M'"));
+    const Message* m = db.find("M");
+    REQUIRE(m != nullptr);
+    CHECK(m->signals.size() == 2);
+    REQUIRE(m->unread.size() == 1);
+    CHECK(m->unread[0].text == "unknown keyword 'SGX_': skipped");
+    CHECK(db.find("N")->unread.empty());
+    CHECK(decoded(db, 1, false, {1, 2, 3, 4, 5, 6, 7, 8}) == Values{{"S", 1}, {"U", 3}});
+  }
+
+  TEST_CASE("a comment between a message's SG_ lines: the lines after it are still its own") {
+    const Database db = parsed(
+        "BO_ 1 M: 8 A\n"
+        " SG_ S : 0|8@1+ (1,0) [0|255] \"\" B\n"
+        "CM_ SG_ 1 S \"speed\";\n"
+        " SG_ T : 8|8@1+ (1,0) [0|255] \"\" B\n"  // 4
+        "VAL_ 1 T 0 \"off\" 1 \"on\";\n"
+        " SG_ U : 16|8@1+ (1,0) [0|255] \"\" B\n"  // 6
+        "BO_ 2 N: 1 A\n"
+        " SG_ W : 0|8@1+ (1,0) [0|255] \"\" B\n");
+    CHECK(warning_lines(db) == std::vector<std::uint32_t>{4, 6});
+    const Message* m = db.find("M");
+    REQUIRE(m != nullptr);
+    CHECK(m->unread.empty());  // read as written: roles may use it
+    CHECK(m->find_signal("S")->comment == "speed");
+    CHECK(m->find_signal("T")->values.at(1) == "on");
+    CHECK(decoded(db, 1, false, {1, 2, 3, 4, 5, 6, 7, 8}) == Values{{"S", 1}, {"T", 2}, {"U", 3}});
     CHECK(decoded(db, 2, false, {9}) == Values{{"W", 9}});
   }
 
