@@ -1590,6 +1590,37 @@ TEST_SUITE("run engine on the virtual CiA 402 stand") {
 }
 
 TEST_SUITE("run engine on the virtual CiA 402 stand") {
+  TEST_CASE("an EMCY that only warns, in the turn: the host quick-stops a drive that goes on") {
+    // given a drive that sends an EMCY warning (0x4210) in the middle of
+    // the turn (t0 at about 21.5 s, the turn from t0 + 60 s, 180 deg
+    // at 30 deg/s: about 81.5 to 88.5 s) and would itself keep moving
+    const Plan plan = short_plan();
+    stand::StandSetup s = cia402_setup_of(plan, 7);
+    s.drive_faults.warning_at_s = 85;
+    s.drive_faults.warning_code = 0x4210;
+    ClosedLoop c(plan, s, cia402_stand(), cia402_roles());
+    // when the engine runs it
+    c.run_until(200);
+    // then the run fails naming the EMCY, the quick stop confirmed
+    CHECK(c.phase() == run::Phase::Failed);
+    CHECK_MESSAGE(c.course().reason.find("0x4210") != std::string::npos, c.course().reason);
+    CHECK(c.course().quick_stop_acked);
+    CHECK_FALSE(c.course().quick_stop_gave_up);
+    // and the drive was stopped by us, in the turn: quick stop active, at
+    // rest short of the target, never in fault of its own
+    const stand::VirtualDrive402* d = c.loop.stand().drive();
+    REQUIRE(d != nullptr);
+    const double t = c.loop.next_time();
+    CHECK(d->counts().quick_stops >= 1);
+    CHECK(d->state() == cia402::State::QuickStopActive);
+    CHECK_FALSE(d->moving(t));
+    const double deg = d->angle(t) * 180 / std::numbers::pi;
+    MESSAGE("stopped at " << deg << " deg");
+    CHECK(deg > 5);
+    CHECK(deg < 175);
+    CHECK(d->emcy_sent().at(0) == 0x4210);
+  }
+
   TEST_CASE("replay of a CiA 402 run in observe mode: the same input, sending nothing") {
     // given a live run on the CiA 402 stand, every frame of both directions kept
     const Plan plan = short_plan();
