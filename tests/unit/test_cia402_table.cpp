@@ -198,18 +198,23 @@ TEST_SUITE("cia402 table driver") {
     // started: the caller's heartbeat() gives nothing, the master's tick
     // sends ours at host_heartbeat_ms (100 ms): 10 in a second, not 20
     CHECK(b.driver->heartbeat(0, 1).empty());
-    std::size_t beats = 0;
-    for (int i = 0; i < 1000; ++i) {
-      b.t += 1e-3;
-      b.drive.advance(b.t, b.from_drive);
-      std::vector<can::Frame> out;
-      b.driver->tick(b.t, out);
-      for (const can::Frame& f : out)
-        if (f.id == 0x700u + 127u) ++beats;
-      b.to_drive.insert(b.to_drive.end(), out.begin(), out.end());
-      b.drain();
-      b.deliver();
-    }
+    // `ms` of the driver's own ticks, no caller heartbeat: our heartbeats (0x77F) sent
+    const auto beats_in = [&b](int ms) {
+      std::size_t beats = 0;
+      for (int i = 0; i < ms; ++i) {
+        b.t += 1e-3;
+        b.drive.advance(b.t, b.from_drive);
+        std::vector<can::Frame> out;
+        b.driver->tick(b.t, out);
+        for (const can::Frame& f : out)
+          if (f.id == 0x700u + 127u) ++beats;
+        b.to_drive.insert(b.to_drive.end(), out.begin(), out.end());
+        b.drain();
+        b.deliver();
+      }
+      return beats;
+    };
+    std::size_t beats = beats_in(1000);
     CHECK(beats >= 9);
     CHECK(beats <= 11);
     REQUIRE(b.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 10 * kDeg));
@@ -217,18 +222,7 @@ TEST_SUITE("cia402 table driver") {
     // the host gave up stopping the table: no more heartbeat from us, and
     // the drive's consumer (500 ms) acts per 0x6007 (3: quick stop)
     b.driver->set_heartbeat(false);
-    beats = 0;
-    for (int i = 0; i < 1500; ++i) {
-      b.t += 1e-3;
-      b.drive.advance(b.t, b.from_drive);
-      std::vector<can::Frame> out;
-      b.driver->tick(b.t, out);
-      for (const can::Frame& f : out)
-        if (f.id == 0x700u + 127u) ++beats;
-      b.to_drive.insert(b.to_drive.end(), out.begin(), out.end());
-      b.drain();
-      b.deliver();
-    }
+    beats = beats_in(1500);
     CHECK(beats == 0);
     CHECK(b.drive.counts().host_heartbeat_lost == 1);
     CHECK(b.drive.counts().quick_stops >= 1);
