@@ -129,6 +129,9 @@ void VirtualDrive402::build_dictionary() {
   add(obj::kControlword, 0, uns(2, true, 0, true));
   add(obj::kStatusword, 0, uns(2, false, 0, true));
   add(obj::kQuickStopOption, 0, sgn(2, true, 2, false, 0, 8));
+  // 0 (the default of many drives): the power stage lets go at once
+  add(obj::kShutdownOption, 0, sgn(2, true, 0, false, -32768, 1));
+  add(obj::kDisableOperationOption, 0, sgn(2, true, 0, false, -32768, 1));
   add(obj::kModesOfOperation, 0, sgn(1, true, 0, false, -128, 127));
   add(obj::kModesDisplay, 0, sgn(1, false, 0, false, -128, 127));
   add(obj::kPositioningOption, 0, uns(2, true, setup_.positioning_option));
@@ -708,6 +711,22 @@ void VirtualDrive402::stop_motion(double t, double decel_counts, Motion why) {
   demand_ = std::llround(motion_.at(rest_at_).angle * cpr_);
 }
 
+void VirtualDrive402::coast(double t) {
+  if (!moving(t)) return;
+  ++counts_.coasts;
+  buffered_.reset();
+  rest_at_ = motion_.stop(t, setup_.coast_deceleration_rps2);
+  motion_kind_ = Motion::Coast;
+  demand_ = std::llround(motion_.at(rest_at_).angle * cpr_);
+}
+
+void VirtualDrive402::ramp_or_coast(double t, std::uint16_t option_index) {
+  if (static_cast<std::int16_t>(u32(option_index)) == 1)
+    stop_motion(t, u32(obj::kProfileDeceleration), Motion::Stop);
+  else
+    coast(t);
+}
+
 void VirtualDrive402::start_move(double t, std::int64_t target) {
   demand_ = target;
   const double t0 = std::max(t, motion_.rest_time());
@@ -761,8 +780,14 @@ void VirtualDrive402::on_controlword(double t, std::uint16_t c, std::vector<Driv
   const std::uint16_t prev = cw_;
   cw_ = c;
   set(obj::kControlword, 0, c);
-  const cia402::Command cmd = cia402::decode_command(c, prev);
   using C = cia402::Command;
+  cia402::Command cmd = cia402::decode_command(c, prev);
+  // Bit 7's edge resets a fault; outside Fault this drive reads the word's
+  // other bits as usual, as many drives do (0x0080 is then Disable voltage).
+  if (cmd == C::FaultReset && state_ != State::Fault) {
+    constexpr auto kOthers = static_cast<std::uint16_t>(~cw::kFaultReset);
+    cmd = cia402::decode_command(c & kOthers, prev & kOthers);
+  }
   const State before = state_;
   const std::uint32_t quick = u32(obj::kQuickStopDeceleration);
   switch (state_) {
@@ -780,20 +805,20 @@ void VirtualDrive402::on_controlword(double t, std::uint16_t c, std::vector<Driv
       if (cmd == C::DisableVoltage || cmd == C::QuickStop) enter(State::SwitchOnDisabled);  // 10
       break;
     case State::OperationEnabled:
-      if (cmd == C::SwitchOn) {  // 5: disable operation
-        stop_motion(t, u32(obj::kProfileDeceleration), Motion::Stop);
+      if (cmd == C::SwitchOn) {  // 5: disable operation, per 0x605C
+        ramp_or_coast(t, obj::kDisableOperationOption);
         enter(State::SwitchedOn);
-      } else if (cmd == C::Shutdown) {  // 8
-        stop_motion(t, quick, Motion::Stop);
+      } else if (cmd == C::Shutdown) {  // 8, per 0x605B
+        ramp_or_coast(t, obj::kShutdownOption);
         enter(State::ReadyToSwitchOn);
-      } else if (cmd == C::DisableVoltage) {  // 9
-        stop_motion(t, quick, Motion::Stop);
+      } else if (cmd == C::DisableVoltage) {  // 9: the power stage lets go
+        coast(t);
         enter(State::SwitchOnDisabled);
       } else if (cmd == C::QuickStop) {  // 11
         const auto option = static_cast<std::int16_t>(u32(obj::kQuickStopOption));
         set_point_ack_ = false;
         if (option == 0) {  // disable drive function
-          stop_motion(t, quick, Motion::Stop);
+          coast(t);
           enter(State::SwitchOnDisabled);
         } else {
           const bool slow = option == 1 || option == 5;
@@ -803,7 +828,10 @@ void VirtualDrive402::on_controlword(double t, std::uint16_t c, std::vector<Driv
       }
       break;
     case State::QuickStopActive:
-      if (cmd == C::DisableVoltage) enter(State::SwitchOnDisabled);  // 12
+      if (cmd == C::DisableVoltage) {  // 12: still braking, it coasts from here
+        coast(t);
+        enter(State::SwitchOnDisabled);
+      }
       if (cmd == C::EnableOperation && u32(obj::kQuickStopOption) >= 5 && t >= rest_at_)
         enter(State::OperationEnabled);  // 16
       break;
@@ -848,10 +876,9 @@ void VirtualDrive402::host_heartbeat_lost(double t, std::vector<DriveFrame>& out
   const auto option = static_cast<std::int16_t>(u32(obj::kAbortConnectionOption));
   if (option == 1) return fault(t, 0x8130, out);
   emcy(t, 0x8130, 0x11, out);
-  const std::uint32_t quick = u32(obj::kQuickStopDeceleration);
   if (option == 2 && (state_ == State::ReadyToSwitchOn || state_ == State::SwitchedOn ||
                       state_ == State::OperationEnabled || state_ == State::QuickStopActive)) {
-    stop_motion(t, quick, Motion::Stop);
+    coast(t);  // disable voltage
     enter(State::SwitchOnDisabled);
   } else if (option == 3 && state_ == State::OperationEnabled) {
     // the quick stop command, as from the controlword
@@ -888,6 +915,7 @@ void VirtualDrive402::at_rest(double t, std::vector<DriveFrame>& out) {
       if (state_ == State::FaultReactionActive) enter(State::Fault);  // 14
       break;
     case Motion::Stop:
+    case Motion::Coast:
     case Motion::Rest:
       break;
   }

@@ -371,6 +371,15 @@ void SdoClient::upload(std::uint16_t index, std::uint8_t sub, Callback done) {
   queue_.push_back(Transfer{index, sub, true, {}, std::move(done)});
 }
 
+void SdoClient::download_urgent(std::uint16_t index, std::uint8_t sub,
+                                std::vector<std::uint8_t> data, Callback done) {
+  Transfer t{index, sub, false, std::move(data), std::move(done)};
+  t.urgent = true;
+  const auto after =
+      std::find_if(queue_.begin(), queue_.end(), [](const Transfer& q) { return !q.urgent; });
+  queue_.insert(after, std::move(t));
+}
+
 can::Frame SdoClient::request() const {
   can::Frame f = data_frame(kSdoRxBase + node_, 8);
   if (active_) {
@@ -474,8 +483,10 @@ void SdoClient::cancel_all(std::vector<can::Frame>& out, std::uint32_t code) {
 void SdoClient::fail_queued(std::uint32_t code) {
   std::deque<Transfer> dropped;
   dropped.swap(queue_);
+  for (Transfer& t : dropped)  // urgent ones stay, first, before a callback queues anew
+    if (t.urgent) queue_.push_back(std::move(t));
   for (Transfer& t : dropped) {
-    if (!t.done) continue;
+    if (t.urgent || !t.done) continue;
     SdoResult r;
     r.index = t.index;
     r.subindex = t.sub;

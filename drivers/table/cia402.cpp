@@ -122,6 +122,10 @@ const char* object_name(std::uint16_t index) {
       return "statusword";
     case obj::kQuickStopOption:
       return "quick stop option code";
+    case obj::kShutdownOption:
+      return "shutdown option code";
+    case obj::kDisableOperationOption:
+      return "disable operation option code";
     case obj::kModesOfOperation:
       return "modes of operation";
     case obj::kModesDisplay:
@@ -510,6 +514,9 @@ void Master::reset_comm(double now_s, std::vector<can::Frame>& out) {
   // the configuration's and a waiting move's transfers end here: their
   // callbacks see a stale generation or no move waiting, and do nothing
   ++config_generation_;
+  ++status_read_gen_;    // and a fault reset's read of the statusword: asked
+  status_read_.reset();  // again once the drive runs
+  if (recovery_ == Recovery::ReadStatus) recovery_ = Recovery::SendReset;
   mode_poll_at_ = INFINITY;  // a poll of the configuration that ends here
   config_complete_ = false;
   move_ = MoveStep::None;
@@ -558,6 +565,12 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
        le_bytes(u32(s_.quick_stop_deceleration_rps2, "q", obj::kQuickStopDeceleration), 4)});
   steps.push_back(
       {obj::kQuickStopOption, 0, le_bytes(static_cast<std::uint16_t>(s_.quick_stop_option), 2)});
+  // Shutdown (transition 8) and disable operation (5) slow down on the
+  // profile deceleration before the power stage lets go (code 1), where
+  // many drives' default, 0, lets a moving table coast. The master sends
+  // neither while it knows the table moves; this holds when it does not.
+  steps.push_back({obj::kShutdownOption, 0, le_bytes(1, 2)});
+  steps.push_back({obj::kDisableOperationOption, 0, le_bytes(1, 2)});
   steps.push_back({obj::kAbortConnectionOption, 0,
                    le_bytes(static_cast<std::uint16_t>(s_.abort_connection_option), 2)});
   const auto host_ms = static_cast<std::uint32_t>(std::round(s_.host_heartbeat_timeout_s * 1000));
@@ -817,7 +830,18 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
   const auto word = static_cast<std::uint16_t>(get_le(p, tpdo_.statusword.offset, 2));
   sw_ = word;
   ++sw_seq_;
+  const State before = state_;
   state_ = decode_state(word);
+  // Out of operation enabled by itself while asked to stay (safe torque
+  // off, another node's controlword, the drive's own quick stop): its power
+  // stage may be off and the table coasting. Never enabled again behind the
+  // operator's back: a fault until the next Enable.
+  if (before == State::OperationEnabled && goal_ == Goal::Enabled &&
+      (state_ == State::SwitchOnDisabled || state_ == State::ReadyToSwitchOn ||
+       state_ == State::SwitchedOn || state_ == State::NotReadyToSwitchOn ||
+       state_ == State::QuickStopActive))
+    latch(FaultCode::LeftEnabled, std::string("the drive left operation enabled by itself, to ") +
+                                      to_string(state_) + " (statusword " + hex(word, 4) + ")");
   const auto raw = static_cast<std::int32_t>(get_le(p, tpdo_.position_actual.offset, 4));
   if (have_pos_) {
     // the drive's s32 wraps; the step between two samples does not
@@ -886,25 +910,57 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
       // the drive first (its statusword after NMT start is fresh, sw_ was
       // cleared with the reset), for a little while.
       if (!cw_sent_ && !sw_ && now_s - low_t_ < s_.fault_reset_low_s) return;
-      // A fault of the communication (heartbeat, NMT state, boot-up,
-      // configuration), not of the drive: a drive whose fresh statusword
-      // shows no fault needs no reset, and a 0x0000 would let it coast.
-      const bool comm_fault = fault_ == FaultCode::DriveHeartbeatLost ||
-                              fault_ == FaultCode::DriveNmtState || fault_ == FaultCode::NoBootUp ||
-                              fault_ == FaultCode::Configuration;
-      if (comm_fault && !cw_sent_ && sw_ && (word & (sw::kFault | sw::kFollowingError)) == 0 &&
-          state_ != State::Fault && state_ != State::FaultReactionActive &&
-          state_ != State::Unknown) {
+      if (now_s < status_read_at_) return;
+      // Whether the drive is in fault, from its own statusword read by SDO:
+      // a TPDO may be stale (a drive in fault whose last PDO still says
+      // operation enabled), and the fault reset's controlwords, 0x0000 and
+      // 0x0080, are Disable voltage to a drive that is not in fault: a
+      // moving table would coast.
+      const std::uint64_t gen = ++status_read_gen_;
+      status_read_.reset();
+      recovery_ = Recovery::ReadStatus;
+      sdo_.upload(obj::kStatusword, 0, [this, gen](const canopen::SdoResult& r) {
+        if (gen == status_read_gen_ && recovery_ == Recovery::ReadStatus) status_read_ = r;
+      });
+      return;
+    }
+    case Recovery::ReadStatus: {
+      if (!status_read_) return;
+      const canopen::SdoResult r = std::move(*status_read_);
+      status_read_.reset();
+      if (!r.ok() || r.data.size() != 2) {
+        // nothing known, nothing sent: the latch stays, the next Enable
+        // tries again (a silent drive latches its heartbeat loss)
+        recovery_ = Recovery::None;
+        return;
+      }
+      const auto read = static_cast<std::uint16_t>(get_le(r.data, 0, 2));
+      const State drive = decode_state(read);
+      if (drive == State::FaultReactionActive) {
+        // the drive still reacts to its fault (it may be braking): ask again
+        recovery_ = Recovery::SendReset;
+        status_read_at_ = now_s + s_.fault_reset_low_s;
+        return;
+      }
+      if (drive != State::Fault && drive != State::Unknown) {
+        if ((read & sw::kFollowingError) != 0) {
+          recovery_ = Recovery::None;  // a following error that lasts: the latch stays
+          return;
+        }
+        // Not in fault, by the drive's own word (a lost heartbeat, an EMCY
+        // that only warned, a set-point timeout): nothing to reset. A cause
+        // that lasts latches again.
         fault_ = FaultCode::None;
         fault_name_.clear();
         needs_comm_reset_ = false;
         recovery_ = Recovery::None;
         break;
       }
-      // The fault reset is a rising edge of bit 7, and RPDO1 an overwrite
-      // buffer the drive samples once a cycle: a 0x0000 sent with 0x0080
-      // right behind it may never be seen. Bit 7 low first, when the drive
-      // may hold it high (or we do not know), and the edge later.
+      // In fault, its power stage off: the reset is a rising edge of bit 7,
+      // and RPDO1 an overwrite buffer the drive samples once a cycle: a
+      // 0x0000 sent with 0x0080 right behind it may never be seen. Bit 7 low
+      // first, when the drive may hold it high (or we do not know), and the
+      // edge later.
       if (!cw_sent_ || (cw_ & cw::kFaultReset) != 0) {
         send_rpdo(cw::kCmdDisableVoltage, out);
         low_seq_ = sw_seq_;
@@ -1101,9 +1157,11 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
       ack_on_ = AckOn::Stopped;
       ack_after_ = sw_seq_;
       // a fault reset under way gives way; the next Enable tries again
-      if (recovery_ == Recovery::SendReset || recovery_ == Recovery::ResetLow ||
-          recovery_ == Recovery::WaitFresh)
+      if (recovery_ == Recovery::SendReset || recovery_ == Recovery::ReadStatus ||
+          recovery_ == Recovery::ResetLow || recovery_ == Recovery::WaitFresh) {
         recovery_ = Recovery::None;
+        ++status_read_gen_;  // its statusword read counts no more
+      }
       if (running) {
         // at once, whatever the fault latch: the drive is told to stop, and
         // the ack waits for a statusword that shows it (quick stop active,
@@ -1122,19 +1180,20 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
       {
         const std::uint8_t qs_seq = seq;
         sdo_quick_stop_ = true;
-        sdo_.download(obj::kControlword, 0, le_bytes(cw::kCmdQuickStop, 2),
-                      [this, qs_seq](const canopen::SdoResult& r) {
-                        sdo_quick_stop_ = false;
-                        if (ack_on_ != AckOn::Stopped || ack_seq_ != qs_seq) return;
-                        if (r.ok()) {
-                          ack_ = qs_seq;
-                          ack_on_ = AckOn::None;
-                        } else {
-                          ack_on_ = AckOn::None;
-                          latch(FaultCode::Sdo,
-                                "quick stop by SDO (0x6040) failed: " + r.describe());
-                        }
-                      });
+        // before the configuration's queued writes, and kept when it fails
+        sdo_.download_urgent(obj::kControlword, 0, le_bytes(cw::kCmdQuickStop, 2),
+                             [this, qs_seq](const canopen::SdoResult& r) {
+                               sdo_quick_stop_ = false;
+                               if (ack_on_ != AckOn::Stopped || ack_seq_ != qs_seq) return;
+                               if (r.ok()) {
+                                 ack_ = qs_seq;
+                                 ack_on_ = AckOn::None;
+                               } else {
+                                 ack_on_ = AckOn::None;
+                                 latch(FaultCode::Sdo,
+                                       "quick stop by SDO (0x6040) failed: " + r.describe());
+                               }
+                             });
         sdo_.tick(now_s, out);
       }
       return Ok{};

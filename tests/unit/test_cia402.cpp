@@ -63,9 +63,15 @@ struct Loop {
   std::vector<can::Frame> sent;  ///< everything the master sent
   std::vector<cia402::EncoderSample> samples;
   bool saw_moving = false;
+  /// From when the master configures, the drive's frames are held back
+  /// (the drive still hears everything): a drive slow to answer.
+  bool hold_when_configuring = false;
 
   void deliver() {
-    while (!from_master.empty() || !from_drive.empty()) {
+    const auto held = [&] {
+      return hold_when_configuring && master.phase() == cia402::CommPhase::Configuring;
+    };
+    while (!from_master.empty() || (!from_drive.empty() && !held())) {
       std::vector<can::Frame> m;
       m.swap(from_master);
       for (const can::Frame& f : m) {
@@ -73,6 +79,7 @@ struct Loop {
         if (f.id == canopen::kSyncId) sync_times.push_back(t);
         drive.receive(t, f, from_drive);
       }
+      if (held()) continue;
       std::vector<stand::DriveFrame> d;
       d.swap(from_drive);
       for (const stand::DriveFrame& f : d) master.on_frame(f.frame, f.t_s, from_master);
@@ -301,8 +308,9 @@ TEST_SUITE("cia402") {
     REQUIRE(l.running());
     CHECK(l.drive.nmt() == canopen::NmtState::Operational);
     using W = std::pair<std::uint16_t, std::uint8_t>;
-    const std::vector<W> order{{0x6060, 0}, {0x60F2, 0}, {0x6081, 0}, {0x6083, 0}, {0x6084, 0},
-                               {0x6085, 0}, {0x605A, 0}, {0x6007, 0}, {0x1016, 1}, {0x1017, 0}};
+    const std::vector<W> order{{0x6060, 0}, {0x60F2, 0}, {0x6081, 0}, {0x6083, 0},
+                               {0x6084, 0}, {0x6085, 0}, {0x605A, 0}, {0x605B, 0},
+                               {0x605C, 0}, {0x6007, 0}, {0x1016, 1}, {0x1017, 0}};
     CHECK(l.drive.sdo_writes() == order);
     const double cpr = 1e6 / kTwoPi;
     CHECK(*l.drive.value(0x6060, 0) == 1);
@@ -313,6 +321,8 @@ TEST_SUITE("cia402") {
     CHECK(*l.drive.value(0x6084, 0) == std::llround(40 * kDeg * cpr));
     CHECK(*l.drive.value(0x6085, 0) == std::llround(180 * kDeg * cpr));
     CHECK(*l.drive.value(0x605A, 0) == 6);
+    CHECK(*l.drive.value(0x605B, 0) == 1);  // shutdown slows down on 0x6084 first
+    CHECK(*l.drive.value(0x605C, 0) == 1);  // and so does disable operation
     CHECK(*l.drive.value(0x6007, 0) == 3);
     CHECK(*l.drive.value(0x1016, 1) == (127 << 16 | 500));
     CHECK(*l.drive.value(0x1017, 0) == 100);
@@ -753,7 +763,7 @@ TEST_SUITE("cia402") {
     CHECK(l.master.counts().nmt_resets == 2);
     CHECK(l.drive.counts().nmt_resets == 1);
     CHECK(l.master.counts().configurations == configs + 1);
-    CHECK(l.drive.sdo_writes().size() == writes + 10);
+    CHECK(l.drive.sdo_writes().size() == writes + 12);      // the configuration again
     CHECK(*l.drive.value(0x1016, 1) == (127 << 16 | 500));  // watched again
     CHECK(*l.drive.value(0x1017, 0) == 100);
     CHECK(l.drive.state() == State::OperationEnabled);
@@ -1313,6 +1323,39 @@ TEST_SUITE("cia402") {
     CHECK((l.drive.controlword() & 0x8F) == 0x02);  // and by PDO once running
   }
 
+  TEST_CASE("a quick stop while the configuration is queued goes next, and outlives its failure") {
+    stand::Drive402Faults df;
+    bool fails = false;
+    SUBCASE("the configuration goes on") {}
+    SUBCASE("the configuration's first write is refused") {
+      fails = true;
+      df.refuse_objects[0x606000] = 0x06090030;  // value range exceeded
+    }
+    Loop l(master_settings(), drive_setup(), df);
+    l.hold_when_configuring = true;
+    l.start();
+    REQUIRE(l.run_until([&] { return l.master.phase() == cia402::CommPhase::Configuring; }, 0.5));
+    // the first write (0x6060) is under way, its answer held; the rest queued
+    REQUIRE(l.drive.sdo_writes().size() <= 1);
+    REQUIRE(l.command(TableCommandCode::QuickStop, 8));
+    l.hold_when_configuring = false;
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 8; }, 0.1));
+    CHECK(*l.drive.value(0x6040, 0) == 0x0002);
+    using W = std::pair<std::uint16_t, std::uint8_t>;
+    const auto& writes = l.drive.sdo_writes();  // those the drive took
+    if (fails) {
+      CHECK(l.master.phase() == cia402::CommPhase::Failed);
+      CHECK(l.master.status().fault == FaultCode::Configuration);
+      // the quick stop, and nothing of the configuration after its failure
+      CHECK(writes == std::vector<W>{{0x6040, 0}});
+    } else {
+      REQUIRE(writes.size() > 2);
+      CHECK(writes[0] == W{0x6060, 0});
+      CHECK(writes[1] == W{0x6040, 0});  // right behind the one under way
+      CHECK(l.running());
+    }
+  }
+
   TEST_CASE("an EMCY that only warns: the quick stop waits for a statusword that shows it") {
     stand::Drive402Setup ds = drive_setup();
     ds.cycle_s = 0.004;
@@ -1333,6 +1376,95 @@ TEST_SUITE("cia402") {
     REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.1));
     CHECK(l.drive.state() == State::QuickStopActive);
     CHECK((l.drive.controlword() & 0x8F) == 0x02);
+  }
+
+  TEST_CASE("a latched warning, then Enable while the table turns: no fault reset, no coasting") {
+    stand::Drive402Faults df;
+    df.warning_at_s = 1.0;
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
+    l.run_for(1.5);
+    REQUIRE(l.master.status().fault == FaultCode::Emcy);
+    REQUIRE(l.drive.state() == State::OperationEnabled);
+    REQUIRE(l.drive.moving(l.t));
+    const auto from = l.sent.size();
+    // the fault reset's 0x0000 or 0x0080 would be Disable voltage to this
+    // drive: only its own statusword, read by SDO, may decide
+    REQUIRE(l.command(TableCommandCode::Enable, 3));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.5));
+    CHECK(l.master.status().fault == FaultCode::None);
+    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.moving(l.t));
+    CHECK(l.drive.counts().coasts == 0);
+    CHECK(l.drive.counts().fault_resets == 0);
+    bool read_statusword = false;
+    for (std::size_t i = from; i < l.sent.size(); ++i) {
+      const can::Frame& f = l.sent[i];
+      if (f.id == canopen::kSdoRxBase + 5 && f.data[0] == 0x40 && f.data[1] == 0x41 &&
+          f.data[2] == 0x60)
+        read_statusword = true;
+      if (f.id == canopen::kRpdo1Base + 5) CHECK((f.data[0] & 0x8F) == 0x0F);
+    }
+    CHECK(read_statusword);
+  }
+
+  TEST_CASE("the virtual drive's power stage let go while turning: the table coasts") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
+    l.run_for(2.0);
+    REQUIRE(std::fabs(l.drive.rate(l.t)) == doctest::Approx(30 * kDeg).epsilon(1e-4));
+    can::Frame f;  // Disable voltage, as another node might send it
+    f.id = canopen::kRpdo1Base + 5;
+    f.len = 6;
+    l.drive.receive(l.t, f, l.from_drive);
+    CHECK(l.drive.state() == State::SwitchOnDisabled);
+    CHECK(l.drive.counts().coasts == 1);
+    // on friction alone (2 deg/s^2), not the quick stop's 180 deg/s^2
+    CHECK(std::fabs(l.drive.rate(l.t + 1)) == doctest::Approx(28 * kDeg).epsilon(1e-3));
+    CHECK(l.drive.moving(l.t + 14));
+    CHECK_FALSE(l.drive.moving(l.t + 16));
+  }
+
+  TEST_CASE("the drive leaves operation enabled by itself: a fault, not enabled again unasked") {
+    std::uint8_t word = 0;
+    State left_to = State::Unknown;
+    SUBCASE("quick stop, by another node") {
+      word = 0x02;
+      left_to = State::QuickStopActive;
+    }
+    SUBCASE("disable voltage, by another node") {
+      word = 0x00;
+      left_to = State::SwitchOnDisabled;
+    }
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    can::Frame f;
+    f.id = canopen::kRpdo1Base + 5;
+    f.len = 6;
+    f.data[0] = word;
+    l.drive.receive(l.t, f, l.from_drive);
+    REQUIRE(l.drive.state() == left_to);
+    REQUIRE(l.run_until([&] { return l.master.status().fault == FaultCode::LeftEnabled; }, 0.1));
+    CHECK(l.master.status().fault_name.find(std::string("the drive left operation enabled by "
+                                                        "itself, to ") +
+                                            cia402::to_string(left_to)) == 0);
+    const auto from = l.sent.size();
+    l.run_for(0.5);
+    CHECK(l.drive.state() == left_to);  // not enabled again behind anyone's back
+    CHECK(l.master.status().state == TableState::Fault);
+    for (std::size_t i = from; i < l.sent.size(); ++i)
+      CHECK(l.sent[i].id != canopen::kRpdo1Base + 5);
+    REQUIRE(l.enabled(2));  // asked: enabled again
+    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.master.status().fault == FaultCode::None);
   }
 
   TEST_CASE("disable: refused while moving; from quick stop active nothing before rest") {

@@ -147,6 +147,11 @@ class SdoClient {
   void download(std::uint16_t index, std::uint8_t sub, std::vector<std::uint8_t> data,
                 Callback done);
   void upload(std::uint16_t index, std::uint8_t sub, Callback done);
+  /// A download that goes next, before those queued (behind the one under
+  /// way and any urgent one queued earlier), and that fail_queued() leaves
+  /// queued: a quick stop written while a configuration fills the queue.
+  void download_urgent(std::uint16_t index, std::uint8_t sub, std::vector<std::uint8_t> data,
+                       Callback done);
   /// Starts the next queued transfer if none is under way and times out the
   /// one under way; frames to send go to `out`.
   void tick(double now_s, std::vector<can::Frame>& out);
@@ -157,8 +162,9 @@ class SdoClient {
   void cancel_all(std::vector<can::Frame>& out, std::uint32_t code = abort_code::kGeneral);
   /// Drops the queued transfers, not the one under way (safe in a callback).
   void drop_queued() { queue_.clear(); }
-  /// Ends the queued transfers, not the one under way (safe in a callback):
-  /// each callback gets `code`, none is lost; a callback may queue anew.
+  /// Ends the queued transfers but urgent ones, not the one under way (safe
+  /// in a callback): each callback gets `code`, none is lost; a callback may
+  /// queue anew.
   void fail_queued(std::uint32_t code = abort_code::kGeneral);
   [[nodiscard]] bool idle() const { return !active_ && queue_.empty(); }
   [[nodiscard]] std::size_t pending() const { return queue_.size() + (active_ ? 1 : 0); }
@@ -179,6 +185,7 @@ class SdoClient {
     bool toggle = false;
     bool initiated = false;
     double deadline = 0;
+    bool urgent = false;
   };
   void start(double now_s, std::vector<can::Frame>& out);
   void send_segment(std::vector<can::Frame>& out);

@@ -102,6 +102,8 @@ inline constexpr std::uint16_t kErrorCode = 0x603F;
 inline constexpr std::uint16_t kControlword = 0x6040;
 inline constexpr std::uint16_t kStatusword = 0x6041;
 inline constexpr std::uint16_t kQuickStopOption = 0x605A;
+inline constexpr std::uint16_t kShutdownOption = 0x605B;
+inline constexpr std::uint16_t kDisableOperationOption = 0x605C;
 inline constexpr std::uint16_t kModesOfOperation = 0x6060;
 inline constexpr std::uint16_t kModesDisplay = 0x6061;
 inline constexpr std::uint16_t kPositionActual = 0x6064;
@@ -343,6 +345,9 @@ enum class FaultCode : std::uint8_t {
   NoBootUp = 7,            ///< no boot-up message after the NMT reset
   Sdo = 8,                 ///< the SDO a move needed (profile velocity) failed
   SetPointTimeout = 9,     ///< no set-point acknowledge (bit 12) in time
+  /// The drive left operation enabled, or quick-stopped, by itself while
+  /// asked to stay enabled (safe torque off, another node's controlword).
+  LeftEnabled = 10,
 };
 
 /// What the sequencer's TableStatusEvent carries (icd.hpp, can-icd.md).
@@ -460,7 +465,19 @@ class Master {
     Halting,  ///< halt set, decelerating until bit 10
     Done,     ///< target reached (or halted at rest)
   };
-  enum class Recovery : std::uint8_t { None, AfterComm, SendReset, ResetLow, WaitFresh };
+  /// The way out of a latched fault, started by Enable: AfterComm (a
+  /// communication reset and reconfiguration first), SendReset (the
+  /// statusword to be read), ReadStatus (0x6041 read by SDO, its answer
+  /// awaited), ResetLow (controlword 0x0000 sent, bit 7 low), WaitFresh
+  /// (0x0080 sent, a statusword after it awaited).
+  enum class Recovery : std::uint8_t {
+    None,
+    AfterComm,
+    SendReset,
+    ReadStatus,
+    ResetLow,
+    WaitFresh
+  };
   enum class AckOn : std::uint8_t { None, Enabled, Disabled, Stopped, Halted };
   struct PendingMove {
     std::uint8_t seq = 0;
@@ -520,7 +537,10 @@ class Master {
   std::string fault_name_;
   bool needs_comm_reset_ = false;
   Recovery recovery_ = Recovery::None;
-  std::uint64_t reset_seq_ = 0;  // sw_seq_ when the fault reset went out
+  std::uint64_t reset_seq_ = 0;                    // sw_seq_ when the fault reset went out
+  std::uint64_t status_read_gen_ = 0;              // the statusword read that counts
+  std::optional<canopen::SdoResult> status_read_;  // its answer, for evaluate()
+  double status_read_at_ = 0;                      // not before: a drive still in fault reaction
   // commands
   Goal goal_ = Goal::Disabled;
   bool quick_stopped_ = false;  // our quick stop is the last command

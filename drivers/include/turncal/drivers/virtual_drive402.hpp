@@ -71,6 +71,10 @@ struct Drive402Setup {
   /// 0x60F2 after a reset; bits 0-1 = 00 (the default of many drives): a
   /// relative target counts from the last target; 01: from position actual.
   std::uint16_t positioning_option = 0;
+  /// With its power stage off (Disable voltage, or an option code of 0 on
+  /// shutdown, disable operation or quick stop) the drive no longer brakes:
+  /// the table runs down on its bearings' friction alone, this slowly.
+  double coast_deceleration_rps2 = 0.0349;  // 2 deg/s^2
 };
 
 /// What TPDO1 does while the drive is in fault (the stale-PDO trap).
@@ -114,6 +118,8 @@ struct Drive402Counts {
   std::uint64_t quick_stops = 0;  ///< entries into quick stop active
   std::uint64_t set_points = 0;   ///< acknowledged
   std::uint64_t fault_resets = 0;
+  /// Power stage switched off while the table turned: it coasts.
+  std::uint64_t coasts = 0;
 };
 
 class VirtualDrive402 {
@@ -159,7 +165,7 @@ class VirtualDrive402 {
     std::int64_t min = 0, max = 0;
     std::vector<std::uint8_t> value;
   };
-  enum class Motion : std::uint8_t { Rest, Move, Halt, QuickStop, FaultStop, Stop };
+  enum class Motion : std::uint8_t { Rest, Move, Halt, QuickStop, FaultStop, Stop, Coast };
   struct SetPoint {
     std::int64_t target = 0;  // absolute counts
   };
@@ -190,6 +196,11 @@ class VirtualDrive402 {
   void take_set_point(double t, std::uint16_t c);
   void start_move(double t, std::int64_t target);
   void stop_motion(double t, double decel_counts, Motion why);
+  /// The power stage off while turning: the table runs down on friction.
+  void coast(double t);
+  /// Stops on the profile deceleration when the option object holds 1,
+  /// else coasts (0x605B, 0x605C: 0 disables the drive function at once).
+  void ramp_or_coast(double t, std::uint16_t option_index);
   void fault(double t, std::uint16_t code, std::vector<DriveFrame>& out);
   void host_heartbeat_lost(double t, std::vector<DriveFrame>& out);
   void at_rest(double t, std::vector<DriveFrame>& out);
