@@ -509,8 +509,9 @@ Status Parser::parse_message(const Token& kw) {
     warn(kw.line,
          "message '" + std::string(name.text) + "' left out with its signals: " + left_out);
     db_.left_out.push_back(
-        Diagnostic{Diagnostic::Severity::Warning, SourcePos{file_, kw.line, 0},
-                   "message '" + std::string(name.text) + "' was left out: " + left_out});
+        {std::string(name.text),
+         Diagnostic{Diagnostic::Severity::Warning, SourcePos{file_, kw.line, 0},
+                    "message '" + std::string(name.text) + "' was left out: " + left_out}});
     current_.reset();
     discarding_ = true;
     return Status{Ok{}};

@@ -147,8 +147,7 @@ void VirtualDrive402::build_dictionary() {
   add(obj::kProfileAcceleration, 0, uns(4, true, counts(10 * kDeg), false, 1));
   add(obj::kProfileDeceleration, 0, uns(4, true, counts(10 * kDeg), false, 1));
   add(obj::kQuickStopDeceleration, 0, uns(4, true, counts(90 * kDeg), false, 1));
-  for (const auto& [k, e] : od_)
-    if (index_of(k) < 0x2000) comm_defaults_[k] = e;
+  for (const auto& [k, e] : od_) (index_of(k) < 0x2000 ? comm_defaults_ : app_defaults_)[k] = e;
 }
 
 std::int64_t VirtualDrive402::integer(const Entry& e) const {
@@ -179,7 +178,7 @@ std::optional<std::int64_t> VirtualDrive402::value(std::uint16_t index, std::uin
 }
 
 std::int64_t VirtualDrive402::position_counts(double t) const {
-  return std::llround(motion_.at(t).angle * cpr_);
+  return std::llround(sense() * motion_.at(t).angle * cpr_);
 }
 
 std::uint16_t VirtualDrive402::statusword() const {
@@ -360,9 +359,12 @@ void VirtualDrive402::on_nmt(double t, const can::Frame& f, std::vector<DriveFra
       nmt_ = canopen::NmtState::PreOperational;
       break;
     case canopen::NmtCommand::ResetNode:
-      if (state_ == State::OperationEnabled || state_ == State::QuickStopActive)
-        stop_motion(t, u32(obj::kQuickStopDeceleration), Motion::Stop);
+      coast(t);  // the application restarts: its power stage lets go
       enter(State::SwitchOnDisabled);
+      // its objects to their power-on values too (0x6041, 0x6064 and the
+      // like are refreshed from the drive's state when read)
+      for (const auto& [k, e] : app_defaults_) od_[k] = e;
+      mode_at_ = std::numeric_limits<double>::infinity();
       reset_communication(t);
       break;
     case canopen::NmtCommand::ResetCommunication:
@@ -585,8 +587,8 @@ void VirtualDrive402::refresh(double t) {
   const std::int64_t pos = position_counts(t);
   set(obj::kPositionActual, 0, static_cast<std::int32_t>(static_cast<std::uint32_t>(pos)));
   set(obj::kVelocityActual, 0,
-      static_cast<std::int32_t>(
-          std::clamp<double>(std::round(motion_.at(t).rate * cpr_), -2147483648.0, 2147483647.0)));
+      static_cast<std::int32_t>(std::clamp<double>(std::round(sense() * motion_.at(t).rate * cpr_),
+                                                   -2147483648.0, 2147483647.0)));
 }
 
 bool VirtualDrive402::tpdo_valid() const {
@@ -708,7 +710,7 @@ void VirtualDrive402::stop_motion(double t, double decel_counts, Motion why) {
   buffered_.reset();
   rest_at_ = motion_.stop(t, std::max(decel_counts, 1.0) / cpr_);
   motion_kind_ = why;
-  demand_ = std::llround(motion_.at(rest_at_).angle * cpr_);
+  demand_ = std::llround(sense() * motion_.at(rest_at_).angle * cpr_);
 }
 
 void VirtualDrive402::coast(double t) {
@@ -717,7 +719,7 @@ void VirtualDrive402::coast(double t) {
   buffered_.reset();
   rest_at_ = motion_.stop(t, setup_.coast_deceleration_rps2);
   motion_kind_ = Motion::Coast;
-  demand_ = std::llround(motion_.at(rest_at_).angle * cpr_);
+  demand_ = std::llround(sense() * motion_.at(rest_at_).angle * cpr_);
 }
 
 void VirtualDrive402::ramp_or_coast(double t, std::uint16_t option_index) {
@@ -730,7 +732,7 @@ void VirtualDrive402::ramp_or_coast(double t, std::uint16_t option_index) {
 void VirtualDrive402::start_move(double t, std::int64_t target) {
   demand_ = target;
   const double t0 = std::max(t, motion_.rest_time());
-  const double delta = static_cast<double>(target) / cpr_ - motion_.at(t0).angle;
+  const double delta = sense() * static_cast<double>(target) / cpr_ - motion_.at(t0).angle;
   const double v = u32(obj::kProfileVelocity) / cpr_;
   const double a = u32(obj::kProfileAcceleration) / cpr_;
   const double d = u32(obj::kProfileDeceleration) / cpr_;
@@ -766,6 +768,10 @@ void VirtualDrive402::take_set_point(double t, std::uint16_t c) {
   set_point_ack_ = true;
   target_reached_ = false;
   ++counts_.set_points;
+  if (!std::isnan(faults_.warning_after_move_s)) {  // armed by this move, once
+    faults_.warning_at_s = t + faults_.warning_after_move_s;
+    faults_.warning_after_move_s = NAN;
+  }
   if (in_motion && (c & cia402::cw::kChangeImmediately) == 0) {
     buffered_ = SetPoint{abs};
     return;
@@ -781,13 +787,13 @@ void VirtualDrive402::on_controlword(double t, std::uint16_t c, std::vector<Driv
   cw_ = c;
   set(obj::kControlword, 0, c);
   using C = cia402::Command;
-  cia402::Command cmd = cia402::decode_command(c, prev);
   // Bit 7's edge resets a fault; outside Fault this drive reads the word's
-  // other bits as usual, as many drives do (0x0080 is then Disable voltage).
-  if (cmd == C::FaultReset && state_ != State::Fault) {
-    constexpr auto kOthers = static_cast<std::uint16_t>(~cw::kFaultReset);
-    cmd = cia402::decode_command(c & kOthers, prev & kOthers);
-  }
+  // other bits as usual, bit 7 high or not, as many drives do (0x0080 is
+  // then Disable voltage).
+  constexpr auto kOthers = static_cast<std::uint16_t>(~cw::kFaultReset);
+  const cia402::Command cmd = state_ == State::Fault
+                                  ? cia402::decode_command(c, prev)
+                                  : cia402::decode_command(c & kOthers, prev & kOthers);
   const State before = state_;
   const std::uint32_t quick = u32(obj::kQuickStopDeceleration);
   switch (state_) {

@@ -540,6 +540,7 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
     std::uint16_t index;
     std::uint8_t sub;
     std::vector<std::uint8_t> data;
+    bool optional = false;  // the drive may not have it: counted, not a failure
   };
   const double per_deg = cpr_ / kRadToDeg;
   auto u32 = [&](double v_rad, const char* what, std::uint16_t index) {
@@ -569,8 +570,10 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
   // profile deceleration before the power stage lets go (code 1), where
   // many drives' default, 0, lets a moving table coast. The master sends
   // neither while it knows the table moves; this holds when it does not.
-  steps.push_back({obj::kShutdownOption, 0, le_bytes(1, 2)});
-  steps.push_back({obj::kDisableOperationOption, 0, le_bytes(1, 2)});
+  // Both are optional in CiA 402: a drive without them is configured all
+  // the same (counted), since the master never disables a turning table.
+  steps.push_back({obj::kShutdownOption, 0, le_bytes(1, 2), true});
+  steps.push_back({obj::kDisableOperationOption, 0, le_bytes(1, 2), true});
   steps.push_back({obj::kAbortConnectionOption, 0,
                    le_bytes(static_cast<std::uint16_t>(s_.abort_connection_option), 2)});
   const auto host_ms = static_cast<std::uint32_t>(std::round(s_.host_heartbeat_timeout_s * 1000));
@@ -611,10 +614,19 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
   const std::size_t n = steps.size();
   for (std::size_t i = 0; i < n; ++i) {
     const bool last = i + 1 == n;
+    const bool optional = steps[i].optional;
     sdo_.download(steps[i].index, steps[i].sub, std::move(steps[i].data),
-                  [this, gen, last, vel](const canopen::SdoResult& r) {
+                  [this, gen, last, vel, optional](const canopen::SdoResult& r) {
                     if (gen != config_generation_) return;
-                    if (!r.ok()) return config_failed(r, "");
+                    // the drive's answer that it lacks the object or the value
+                    const bool lacks =
+                        r.aborted_by_server && (r.abort == 0x06020000u || r.abort == 0x06090011u ||
+                                                r.abort == 0x06090030u || r.abort == 0x06090031u);
+                    if (!r.ok() && optional && lacks) {
+                      ++counts_.ramp_options_refused;
+                    } else if (!r.ok()) {
+                      return config_failed(r, "");
+                    }
                     if (last) {
                       velocity_written_ = vel;
                       check_options(gen);
@@ -682,6 +694,7 @@ void Master::config_done(double now_s, std::vector<can::Frame>& out) {
   drive_hb_lost_ = false;
   configured_mapping_ = s_.configure_mapping;
   ++counts_.configurations;
+  needs_comm_reset_ = false;  // configured afresh
   cw_sent_ = false;
   if (recovery_ == Recovery::AfterComm) {
     recovery_ = Recovery::SendReset;
@@ -689,11 +702,20 @@ void Master::config_done(double now_s, std::vector<can::Frame>& out) {
   }
 }
 
+void Master::abandon_recovery() {
+  // a fault reset under way gives way (not a communication reset: that
+  // ends in a configuration, which the next Enable needs anyway)
+  if (recovery_ == Recovery::AfterComm || recovery_ == Recovery::None) return;
+  recovery_ = Recovery::None;
+  ++status_read_gen_;  // its statusword read counts no more
+}
+
 void Master::latch(FaultCode code, std::string name, bool needs_comm_reset) {
   if (needs_comm_reset) needs_comm_reset_ = true;
   if (fault_ != FaultCode::None) return;  // the first cause stays
   fault_ = code;
   fault_name_ = std::move(name);
+  fault_base_ = fault_name_;
   recovery_ = Recovery::None;
 }
 
@@ -746,7 +768,7 @@ void Master::on_frame(const can::Frame& f, double t_s, std::vector<can::Frame>& 
       return;
     }
     ++counts_.velocity_pdo;
-    velocity_ = static_cast<std::int32_t>(get_le(f.payload(), v.offset, 4)) / cpr_;
+    velocity_ = sense() * static_cast<std::int32_t>(get_le(f.payload(), v.offset, 4)) / cpr_;
     velocity_t_ = t_s;
     return;
   } else {
@@ -779,7 +801,16 @@ void Master::on_heartbeat(const can::Frame& f, double t_s, std::vector<can::Fram
     if (phase_ == CommPhase::WaitBootUp) {
       out.push_back(canopen::nmt_frame(canopen::NmtCommand::EnterPreOperational, s_.node_id));
       configure(t_s, out);
-    } else if (phase_ == CommPhase::Running || phase_ == CommPhase::Configuring) {
+    } else if (phase_ == CommPhase::Configuring) {
+      // its objects are its defaults again: the configuration starts over
+      // (a quick stop queued by SDO stays, first)
+      latch(FaultCode::DriveNmtState, "drive booted again during its configuration");
+      ++config_generation_;  // the queued configuration's callbacks do nothing
+      mode_poll_at_ = INFINITY;
+      sdo_.fail_queued();
+      out.push_back(canopen::nmt_frame(canopen::NmtCommand::EnterPreOperational, s_.node_id));
+      configure(t_s, out);
+    } else if (phase_ == CommPhase::Running) {
       latch(FaultCode::DriveNmtState, "drive booted again (boot-up while running)", true);
     }
     return;
@@ -836,7 +867,9 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
   // off, another node's controlword, the drive's own quick stop): its power
   // stage may be off and the table coasting. Never enabled again behind the
   // operator's back: a fault until the next Enable.
+  if (state_ == State::OperationEnabled) last_enabled_seq_ = sw_seq_;
   if (before == State::OperationEnabled && goal_ == Goal::Enabled &&
+      other_cw_after_ <= last_enabled_seq_ &&
       (state_ == State::SwitchOnDisabled || state_ == State::ReadyToSwitchOn ||
        state_ == State::SwitchedOn || state_ == State::NotReadyToSwitchOn ||
        state_ == State::QuickStopActive))
@@ -853,7 +886,7 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
   const double prev_angle = angle_;
   have_pos_ = true;
   last_raw_ = raw;
-  angle_ = static_cast<double>(pos_counts_) / cpr_;
+  angle_ = sense() * static_cast<double>(pos_counts_) / cpr_;
   EncoderSample smp;
   smp.t_s = s_.sync_period_s > 0 && !std::isnan(last_sync_) ? last_sync_ : t_s;
   smp.angle_rad = angle_;
@@ -882,6 +915,7 @@ void Master::send_rpdo(std::uint16_t controlword, std::vector<can::Frame>& out) 
   out.push_back(f);
   cw_ = controlword;
   cw_sent_ = true;
+  if ((controlword & cw::kCommandMask) != cw::kCmdEnableOperation) other_cw_after_ = sw_seq_ + 1;
 }
 
 std::uint16_t Master::motion_bits() const {
@@ -919,6 +953,8 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
       const std::uint64_t gen = ++status_read_gen_;
       status_read_.reset();
       recovery_ = Recovery::ReadStatus;
+      read_sw_seq_ = sw_seq_;
+      read_emcy_ = counts_.emcy;
       sdo_.upload(obj::kStatusword, 0, [this, gen](const canopen::SdoResult& r) {
         if (gen == status_read_gen_ && recovery_ == Recovery::ReadStatus) status_read_ = r;
       });
@@ -928,33 +964,61 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
       if (!status_read_) return;
       const canopen::SdoResult r = std::move(*status_read_);
       status_read_.reset();
-      if (!r.ok() || r.data.size() != 2) {
+      // A boot-up or a lost heartbeat since: the drive's objects may be
+      // its defaults, only a reconfiguration clears that
+      if (needs_comm_reset_) {
+        recovery_ = Recovery::AfterComm;
+        reset_comm(now_s, out);
+        return;
+      }
+      // An EMCY since the read went out may be a new fault its answer
+      // does not show (an EMCY outranks the SDO answer on the bus)
+      if (counts_.emcy != read_emcy_) {
+        recovery_ = Recovery::SendReset;
+        return;
+      }
+      // expedited, with or without the size indicated (CiA 301): 2 to 4 bytes
+      if (!r.ok() || r.data.size() < 2 || r.data.size() > 4) {
         // nothing known, nothing sent: the latch stays, the next Enable
         // tries again (a silent drive latches its heartbeat loss)
         recovery_ = Recovery::None;
+        fault_name_ = base_fault_name() + "; the statusword could not be read for its reset: " +
+                      (r.ok() ? std::to_string(r.data.size()) + " bytes" : r.describe());
         return;
       }
       const auto read = static_cast<std::uint16_t>(get_le(r.data, 0, 2));
       const State drive = decode_state(read);
       if (drive == State::FaultReactionActive) {
         // the drive still reacts to its fault (it may be braking): ask again
+        if (++fault_reaction_reads_ > kFaultReactionReads) {
+          recovery_ = Recovery::None;
+          fault_name_ = base_fault_name() + "; the drive stayed in fault reaction active";
+          return;
+        }
         recovery_ = Recovery::SendReset;
         status_read_at_ = now_s + s_.fault_reset_low_s;
         return;
       }
-      if (drive != State::Fault && drive != State::Unknown) {
-        if ((read & sw::kFollowingError) != 0) {
+      if (drive == State::Unknown) {
+        // no state CiA 402 codes: neither a reset nor an enable
+        recovery_ = Recovery::None;
+        fault_name_ = base_fault_name() + "; the drive's statusword " + hex(read, 4) +
+                      " codes no CiA 402 state";
+        return;
+      }
+      if (drive != State::Fault) {
+        if (drive == State::OperationEnabled && (read & sw::kFollowingError) != 0) {
           recovery_ = Recovery::None;  // a following error that lasts: the latch stays
+          fault_name_ =
+              base_fault_name() + "; the following error lasts (statusword " + hex(read, 4) + ")";
           return;
         }
         // Not in fault, by the drive's own word (a lost heartbeat, an EMCY
-        // that only warned, a set-point timeout): nothing to reset. A cause
-        // that lasts latches again.
-        fault_ = FaultCode::None;
-        fault_name_.clear();
-        needs_comm_reset_ = false;
-        recovery_ = Recovery::None;
-        break;
+        // that only warned, a set-point timeout): nothing to reset. The
+        // TPDO state the controlword is chosen from must agree first.
+        read_state_ = drive;
+        recovery_ = Recovery::Confirm;
+        return;
       }
       // In fault, its power stage off: the reset is a rising edge of bit 7,
       // and RPDO1 an overwrite buffer the drive samples once a cycle: a
@@ -973,6 +1037,17 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
       recovery_ = Recovery::WaitFresh;
       return;
     }
+    case Recovery::Confirm:
+      if (sw_seq_ <= read_sw_seq_) return;  // no TPDO since the read
+      if (needs_comm_reset_ || counts_.emcy != read_emcy_ || state_ != read_state_ ||
+          (word & (sw::kFault | sw::kFollowingError)) != 0) {
+        recovery_ = Recovery::SendReset;  // it changed since: read again
+        return;
+      }
+      fault_ = FaultCode::None;
+      fault_name_.clear();
+      recovery_ = Recovery::None;
+      break;
     case Recovery::ResetLow:
       // a statusword since 0x0000 went out: the drive has sampled it
       if (sw_seq_ > low_seq_ || now_s - low_t_ >= s_.fault_reset_low_s) {
@@ -988,9 +1063,13 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
       // Operation enabled, or any other state, proves nothing.
       if (sw_ && sw_seq_ > reset_seq_ && (word & (sw::kFault | sw::kFollowingError)) == 0 &&
           state_ == State::SwitchOnDisabled) {
+        if (needs_comm_reset_) {  // only a reconfiguration clears that
+          recovery_ = Recovery::AfterComm;
+          reset_comm(now_s, out);
+          return;
+        }
         fault_ = FaultCode::None;
         fault_name_.clear();
-        needs_comm_reset_ = false;
         recovery_ = Recovery::None;
       } else {
         return;
@@ -1002,7 +1081,10 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
   if (fault_ != FaultCode::None || !sw_) {
     // a latched fault does not stop the drive (many EMCYs are warnings):
     // the quick stop goes on being commanded until the drive shows it
-    if (fault_ != FaultCode::None && goal_ == Goal::QuickStop &&
+    // after the drive left operation enabled by itself, our enable
+    // operation may not stay in its RPDO1 (a drive may take it again)
+    if (fault_ != FaultCode::None &&
+        (goal_ == Goal::QuickStop || fault_ == FaultCode::LeftEnabled) &&
         (!cw_sent_ || (cw_ & cw::kCommandMask) != cw::kCmdQuickStop))
       send_rpdo(cw::kCmdQuickStop, out);
     return;
@@ -1114,6 +1196,12 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
   const bool running = phase_ == CommPhase::Running;
   switch (code) {
     case TableCommandCode::Enable:
+      // Onto a turning table (a warning latched mid-move, a drive that let
+      // go and coasts) an enable would set a new demand at speed
+      if (const double rate = status().rate_rps;
+          running && std::isfinite(rate) && std::abs(rate) > kTableAtRestRps)
+        return make_error("enable refused while the table turns (" + num(rate * kRadToDeg) +
+                          " deg/s): stop it first (quick stop), or wait for it to stop");
       goal_ = Goal::Enabled;
       quick_stopped_ = false;
       halted_ = false;
@@ -1123,7 +1211,9 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
       // a fault reset already tried and still no statusword without fault:
       // this Enable tries again
       if (fault_ != FaultCode::None &&
-          (recovery_ == Recovery::None || recovery_ == Recovery::WaitFresh)) {
+          (recovery_ == Recovery::None || recovery_ == Recovery::WaitFresh ||
+           recovery_ == Recovery::Confirm)) {
+        fault_reaction_reads_ = 0;
         if (needs_comm_reset_ || phase_ == CommPhase::Failed) {
           recovery_ = Recovery::AfterComm;
           reset_comm(now_s, out);
@@ -1143,6 +1233,7 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
         return make_error(
             "disable refused while the table moves: stop it first (controlled or quick stop)");
       goal_ = Goal::Disabled;
+      abandon_recovery();
       quick_stopped_ = false;
       move_ = MoveStep::None;
       ack_seq_ = seq;
@@ -1156,12 +1247,7 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
       ack_seq_ = seq;
       ack_on_ = AckOn::Stopped;
       ack_after_ = sw_seq_;
-      // a fault reset under way gives way; the next Enable tries again
-      if (recovery_ == Recovery::SendReset || recovery_ == Recovery::ReadStatus ||
-          recovery_ == Recovery::ResetLow || recovery_ == Recovery::WaitFresh) {
-        recovery_ = Recovery::None;
-        ++status_read_gen_;  // its statusword read counts no more
-      }
+      abandon_recovery();  // the next Enable tries again
       if (running) {
         // at once, whatever the fault latch: the drive is told to stop, and
         // the ack waits for a statusword that shows it (quick stop active,
@@ -1179,11 +1265,9 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
       // enabled. The answer to the write is the ack.
       {
         const std::uint8_t qs_seq = seq;
-        sdo_quick_stop_ = true;
         // before the configuration's queued writes, and kept when it fails
         sdo_.download_urgent(obj::kControlword, 0, le_bytes(cw::kCmdQuickStop, 2),
                              [this, qs_seq](const canopen::SdoResult& r) {
-                               sdo_quick_stop_ = false;
                                if (ack_on_ != AckOn::Stopped || ack_seq_ != qs_seq) return;
                                if (r.ok()) {
                                  ack_ = qs_seq;
@@ -1218,7 +1302,7 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
         return make_error("move rate " + num(rate_rps) + " rad/s must be positive");
       TURNCAL_ASSIGN(vel, to_u32_counts(rate_rps * kRadToDeg, cpr_ / kRadToDeg, "move rate",
                                         obj::kProfileVelocity, "deg/s"));
-      const double c = std::round(target_rad * cpr_);
+      const double c = std::round(sense() * target_rad * cpr_);
       const double lo = std::numeric_limits<std::int32_t>::min();
       const double hi = std::numeric_limits<std::int32_t>::max();
       const char* what = relative ? "move by" : "move to";

@@ -15,6 +15,7 @@
 #include <cmath>
 #include <cstdio>
 #include <deque>
+#include <limits>
 #include <numbers>
 #include <optional>
 #include <string>
@@ -50,6 +51,7 @@ Result<cia402::MasterSettings> master_settings(const Cia402Settings& c, const Ro
   s.boot_timeout_s = c.boot_timeout_s;
   s.counts_per_rev = c.counts_per_revolution;
   s.gear_ratio = c.gear_ratio;
+  s.counts_clockwise = c.counts_clockwise;
   s.profile_acceleration_rps2 = c.profile_acceleration_rps2;
   s.profile_deceleration_rps2 = c.profile_deceleration_rps2;
   s.quick_stop_deceleration_rps2 = c.quick_stop_deceleration_rps2;
@@ -98,6 +100,12 @@ class Cia402Table final : public TableDriver {
     const can::Frame& f = v.frame.frame;
     now_ = std::max(now_, v.host_s);
     if (f.extended || f.error || f.remote || f.fd) return Decoded{};
+    if (f.id == 0 && f.len == 2 && (f.data[1] == s_.node_id || f.data[1] == 0)) {
+      // NMT, ours or another master's: the drive's PDOs run from a start
+      // until a reset, a stop or pre-operational (an observer, a replay)
+      const auto cmd = static_cast<canopen::NmtCommand>(f.data[0]);
+      seen_running_since_ = cmd == canopen::NmtCommand::Start ? v.host_s : std::nan("");
+    }
     if (ours(f.id)) return Decoded::taken(kStreams, NAN, std::monostate{});
     if (!drives(f.id)) return Decoded{};
     const cia402::MasterCounts before = master_.counts();
@@ -168,6 +176,11 @@ class Cia402Table final : public TableDriver {
                                                     {canopen::kEmcyBase + n, false}};
     if (s_.velocity_pdo) ids.emplace_back(s_.velocity_layout().cob_id, false);
     return ids;
+  }
+
+  [[nodiscard]] double streams_due_s() const override {
+    if (started_ && invalid_.empty()) return master_.running_since_s();
+    return seen_running_since_;
   }
 
   void start(double now_s, std::vector<can::Frame>& out) override {
@@ -262,6 +275,9 @@ class Cia402Table final : public TableDriver {
   cia402::Master master_;
   const cia402::MasterSettings& s_;
   bool started_ = false;
+  // NMT seen on the bus: when the drive was last started, NaN after a
+  // reset; before any NMT, always (a drive someone else runs)
+  double seen_running_since_ = -std::numeric_limits<double>::infinity();
   double now_ = 0;
   std::vector<can::Frame> tx_;
   std::vector<cia402::EncoderSample> samples_;
@@ -282,6 +298,7 @@ std::unique_ptr<TableDriver> make_cia402_table(const Cia402Settings& settings,
   inert.host_node_id = settings.host_node_id;
   inert.counts_per_rev = settings.counts_per_revolution;
   inert.gear_ratio = settings.gear_ratio;
+  inert.counts_clockwise = settings.counts_clockwise;
   return std::make_unique<Cia402Table>(inert, "[table.cia402]: " + s.error().message);
 }
 

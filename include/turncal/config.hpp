@@ -95,6 +95,10 @@ struct Cia402Settings {
   std::uint8_t host_node_id = 127;        ///< ours, for our heartbeat (0x700 + host)
   double counts_per_revolution = 131072;  ///< encoder counts per motor turn
   double gear_ratio = 1;                  ///< motor turns per table turn
+  /// The drive's position counts rise as the table turns clockwise seen
+  /// from above (counts_increase = "clockwise"): the table angle is
+  /// counter-clockwise (can-icd.md, model.md), so every count is negated.
+  bool counts_clockwise = false;
   double profile_acceleration_rps2 = 0.17453292519943295;    ///< 0x6083, 10 deg/s^2
   double profile_deceleration_rps2 = 0.17453292519943295;    ///< 0x6084, 10 deg/s^2
   double quick_stop_deceleration_rps2 = 1.5707963267948966;  ///< 0x6085, 90 deg/s^2

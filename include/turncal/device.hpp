@@ -207,6 +207,13 @@ class TableDriver {
   // send go to `out`, and go out as command frames do.
   /// The run starts (not in observe mode: an observer sends nothing).
   virtual void start(double /*now_s*/, std::vector<can::Frame>& /*out*/) {}
+  /// From when the table's streams (encoder, status) are due, stand s. A
+  /// protocol that starts up first (CANopen: boot-up, configuration by
+  /// SDO) sends none before it runs, and bounds its start-up by its own
+  /// timeouts: NaN while it starts. Default: always due.
+  [[nodiscard]] virtual double streams_due_s() const {
+    return -std::numeric_limits<double>::infinity();
+  }
   /// Timeouts and periodic frames; called from the main loop's tick.
   virtual void tick(double /*now_s*/, std::vector<can::Frame>& /*out*/) {}
   /// Whether a heartbeat the protocol's own machinery sends from tick()

@@ -16,6 +16,9 @@ enum class TableState : std::uint8_t {
   QuickStopped = 5,
 };
 
+/// A table rate below this, rad/s (0.057 deg/s), is a table at rest.
+inline constexpr double kTableAtRestRps = 1e-3;
+
 /// TBL_Command.Command
 enum class TableCommandCode : std::uint8_t {
   ControlledStop = 0,

@@ -7,6 +7,7 @@
 #include <cctype>
 #include <fstream>
 #include <sstream>
+#include <tuple>
 
 namespace turncal {
 namespace {
@@ -257,6 +258,7 @@ Status read_cia402(const toml::table& t, const std::string& file, Cia402Settings
                                  "host_node_id",
                                  "counts_per_revolution",
                                  "gear_ratio",
+                                 "counts_increase",
                                  "profile_acceleration_dps2",
                                  "profile_deceleration_dps2",
                                  "quick_stop_deceleration_dps2",
@@ -286,6 +288,9 @@ Status read_cia402(const toml::table& t, const std::string& file, Cia402Settings
   // counts per table turn must fit the drive's s32 position several turns over
   TURNCAL_TRY(r.number("counts_per_revolution", c.counts_per_revolution, 1, 1u << 30));
   TURNCAL_TRY(r.number("gear_ratio", c.gear_ratio, 1e-3, 1e5));
+  std::string sense = c.counts_clockwise ? "clockwise" : "counter-clockwise";
+  TURNCAL_TRY(choice(r, "counts_increase", {"counter-clockwise", "clockwise"}, sense));
+  c.counts_clockwise = sense == "clockwise";
   for (auto [key, out] : {std::pair{"profile_acceleration_dps2", &c.profile_acceleration_rps2},
                           {"profile_deceleration_dps2", &c.profile_deceleration_rps2},
                           {"quick_stop_deceleration_dps2", &c.quick_stop_deceleration_rps2}}) {
@@ -508,29 +513,35 @@ Result<Config> parse_config(std::string_view text, const std::string& file) {
   // A drive's own ramps move the table, whatever a plan asks: they may not
   // exceed what the stand allows.
   if (cfg.can.table.is_cia402()) {
+    // where the first key of `paths` given stands; the file alone if none
+    const auto where = [&](std::initializer_list<const char*> paths) {
+      for (const char* path : paths)
+        if (const toml::node* n = root.at_path(path).node()) return pos_of(n->source(), file);
+      return SourcePos{file, 0, 0};
+    };
     const Cia402Settings& d = cfg.can.table.cia402;
-    for (auto [key, v] : {std::pair{"profile_acceleration_dps2", d.profile_acceleration_rps2},
-                          {"profile_deceleration_dps2", d.profile_deceleration_rps2}}) {
+    for (auto [key, path, v] :
+         {std::tuple{"profile_acceleration_dps2", "table.cia402.profile_acceleration_dps2",
+                     d.profile_acceleration_rps2},
+          {"profile_deceleration_dps2", "table.cia402.profile_deceleration_dps2",
+           d.profile_deceleration_rps2}}) {
       if (v <= cfg.stand.limits.max_accel_rps2 * (1 + 1e-9)) continue;
-      const toml::node* n = root.at_path(std::string("table.cia402.") + key).node();
-      if (n == nullptr) n = root.at_path("stand.max_accel_dps2").node();
       char msg[200];
       std::snprintf(msg, sizeof msg,
                     "key 'table.cia402.%s': the drive's %g deg/s^2 exceed the stand's "
                     "max_accel_dps2 of %g deg/s^2",
                     key, v / kDegRad, cfg.stand.limits.max_accel_rps2 / kDegRad);
-      return make_error(msg, n != nullptr ? pos_of(n->source(), file) : SourcePos{file, 0, 0});
+      return make_error(msg, where({path, "stand.max_accel_dps2"}));
     }
     // SYNC goes out from the daemon's timer: a shorter period would be
     // the timer's without a word
     if (d.sync_period_s > 0 && d.sync_period_s < 1 / cfg.daemon.heartbeat_hz - 1e-9) {
-      const toml::node* n = root.at_path("table.cia402.sync_period_ms").node();
       char msg[200];
       std::snprintf(msg, sizeof msg,
                     "key 'table.cia402.sync_period_ms': %g ms is shorter than the daemon's "
                     "timer period (daemon.heartbeat_hz = %g: %g ms), from which SYNC goes out",
                     d.sync_period_s * 1e3, cfg.daemon.heartbeat_hz, 1e3 / cfg.daemon.heartbeat_hz);
-      return make_error(msg, n != nullptr ? pos_of(n->source(), file) : SourcePos{file, 0, 0});
+      return make_error(msg, where({"table.cia402.sync_period_ms"}));
     }
   }
   return cfg;
@@ -741,9 +752,9 @@ Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
     }
     const can::Message* m = db.find(ref.message);
     if (m == nullptr) {
-      for (const can::Diagnostic& d : db.left_out)
-        if (d.text.starts_with("message '" + ref.message + "' "))
-          return make_error("key '" + key + "'" + at(ref.where) + ": " + d.text, d.where);
+      for (const can::Database::LeftOut& l : db.left_out)
+        if (l.message == ref.message)
+          return make_error("key '" + key + "'" + at(ref.where) + ": " + l.why.text, l.why.where);
       return make_error("key '" + key + "': no message '" + ref.message + "' in the DBC",
                         ref.where);
     }

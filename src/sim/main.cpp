@@ -83,7 +83,9 @@ constexpr const char* kFaultHelp =
     "  drive-following-error=AT   statusword bit 13, EMCY 0x8611, Fault\n"
     "  drive-silent=AT:SECONDS    the drive neither sends nor hears: it loses the host\n"
     "                             heartbeat (EMCY 0x8130, 0x6007), the host loses its\n"
-    "  drive-refuse-moves=1       set-points are never acknowledged\n";
+    "  drive-refuse-moves=1       set-points are never acknowledged\n"
+    "  drive-warning-in-move=S    S seconds into the first move, an EMCY that only\n"
+    "                             warns (0x4210): the drive would go on turning\n";
 
 /// Numbers separated by ':'.
 bool numbers(const std::string& text, std::vector<double>& out) {
@@ -112,6 +114,8 @@ bool apply_drive_fault(const std::string& name, const std::vector<double>& v,
   } else if (name == "drive-silent" && v.size() == 2 && v[1] > 0) {
     d.silent_at_s = v[0];
     d.silent_until_s = v[0] + v[1];
+  } else if (name == "drive-warning-in-move" && v.size() == 1 && v[0] >= 0) {
+    d.warning_after_move_s = v[0];
   } else if (name == "drive-refuse-moves" && v.size() == 1) {
     d.refuse_moves = v[0] != 0;
   } else {
@@ -430,6 +434,7 @@ Result<World> load_world(const Options& o) {
     setup.drive.node_id = c.node_id;
     setup.drive.counts_per_rev = c.counts_per_revolution;
     setup.drive.gear_ratio = c.gear_ratio;
+    setup.drive.counts_clockwise = c.counts_clockwise;
   }
   if (!o.truth_in.empty()) TURNCAL_TRY(read_truth(o.truth_in, setup.ins.sim));
   for (const std::string& f : o.faults) TURNCAL_TRY(apply_fault(f, setup));
@@ -616,6 +621,7 @@ int live(const Options& o) {
                {"moving", d->moving(now)},
                {"emcy", d->emcy_sent()},
                {"quick_stops", d->counts().quick_stops},
+               {"coasts", d->counts().coasts},
                {"host_heartbeat_lost", d->counts().host_heartbeat_lost},
                {"set_points", d->counts().set_points}};
     }

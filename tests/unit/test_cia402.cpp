@@ -281,6 +281,71 @@ TEST_SUITE("cia402") {
     CHECK(c.idle());
   }
 
+  TEST_CASE("SDO client: urgent downloads go first, in order, and fail_queued keeps them") {
+    canopen::SdoClient c(5, 0.5);
+    std::vector<can::Frame> out;
+    std::vector<std::string> order;  // the transfers' outcomes, in the order they came
+    auto note = [&](const char* name) {
+      return [&order, name](const canopen::SdoResult& r) {
+        order.push_back(std::string(name) + (r.ok() ? " done" : " failed"));
+      };
+    };
+    c.download(0x2000, 0, {1}, note("active"));
+    c.tick(0, out);  // under way
+    c.download(0x2001, 0, {1}, note("queued 1"));
+    c.download_urgent(0x6040, 0, {2, 0}, note("urgent 1"));
+    c.download(0x2002, 0, {1}, note("queued 2"));
+    c.download_urgent(0x6040, 0, {2, 0}, note("urgent 2"));
+    // a callback that queues anew while the queue fails
+    c.download(0x2003, 0, {1}, [&](const canopen::SdoResult&) {
+      order.push_back("queued 3 failed");
+      c.download(0x2004, 0, {1}, note("requeued"));
+    });
+    c.fail_queued();
+    CHECK(order ==
+          std::vector<std::string>{"queued 1 failed", "queued 2 failed", "queued 3 failed"});
+    // the drive answers each download in turn: urgent 1, urgent 2, then the requeued one
+    std::vector<std::uint16_t> written;
+    for (int k = 0; k < 4; ++k) {
+      can::Frame ack;
+      ack.id = 0x585;
+      ack.len = 8;
+      REQUIRE_FALSE(out.empty());
+      const can::Frame req = out.back();
+      written.push_back(static_cast<std::uint16_t>(req.data[1] | req.data[2] << 8));
+      ack.data = {0x60, req.data[1], req.data[2], req.data[3], 0, 0, 0, 0};
+      out.clear();
+      REQUIRE(c.on_frame(ack, 0.01 * (k + 1), out));
+      c.tick(0.01 * (k + 1), out);
+    }
+    CHECK(written == std::vector<std::uint16_t>{0x2000, 0x6040, 0x6040, 0x2004});
+    CHECK(order.back() == "requeued done");
+    CHECK(c.idle());
+  }
+
+  TEST_CASE("the drive reboots while being configured: configured again, from the start") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.mode_switch_s = 0.05;  // the configuration waits for 0x6061
+    Loop l(master_settings(), ds);
+    l.start();
+    REQUIRE(l.run_until([&] { return l.master.phase() == cia402::CommPhase::Configuring; }, 0.5));
+    REQUIRE(l.drive.sdo_writes().size() > 3);
+    // another node resets it: its objects are their defaults again
+    can::Frame nmt = canopen::nmt_frame(canopen::NmtCommand::ResetNode, 5);
+    l.drive.receive(l.t, nmt, l.from_drive);
+    REQUIRE(*l.drive.value(0x605B, 0) == 0);
+    const auto before = l.drive.sdo_writes().size();
+    REQUIRE(l.running());
+    CHECK(l.master.counts().configurations == 1);
+    CHECK(l.drive.sdo_writes().size() >= before + 12);  // the whole configuration again
+    CHECK(*l.drive.value(0x605B, 0) == 1);
+    CHECK(*l.drive.value(0x1016, 1) == (127 << 16 | 500));
+    CHECK(l.master.status().fault == FaultCode::DriveNmtState);  // said, then cleared by Enable
+    REQUIRE(l.enabled(1));
+    CHECK(l.master.status().fault == FaultCode::None);
+    CHECK(l.master.counts().nmt_resets == 1);  // no communication reset needed
+  }
+
   TEST_CASE("a failed configuration ends a caller's queued transfer through its callback") {
     stand::Drive402Faults df;
     df.refuse_objects[0x608300] = canopen::abort_code::kValueHigh;
@@ -1378,7 +1443,7 @@ TEST_SUITE("cia402") {
     CHECK((l.drive.controlword() & 0x8F) == 0x02);
   }
 
-  TEST_CASE("a latched warning, then Enable while the table turns: no fault reset, no coasting") {
+  TEST_CASE("a latched warning while the table turns: Enable refused, then recovered at rest") {
     stand::Drive402Faults df;
     df.warning_at_s = 1.0;
     Loop l(master_settings(), drive_setup(), df);
@@ -1390,25 +1455,51 @@ TEST_SUITE("cia402") {
     REQUIRE(l.master.status().fault == FaultCode::Emcy);
     REQUIRE(l.drive.state() == State::OperationEnabled);
     REQUIRE(l.drive.moving(l.t));
+    // an enable would set a new demand at speed; a fault reset's 0x0000 or
+    // 0x0080 would be Disable voltage to this drive, not in fault
     const auto from = l.sent.size();
-    // the fault reset's 0x0000 or 0x0080 would be Disable voltage to this
-    // drive: only its own statusword, read by SDO, may decide
-    REQUIRE(l.command(TableCommandCode::Enable, 3));
-    REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.5));
+    const Status refused = l.command(TableCommandCode::Enable, 3);
+    REQUIRE_FALSE(refused.ok());
+    CHECK(refused.error().message.find("enable refused while the table turns") == 0);
+    CHECK(l.sent.size() == from);
+    REQUIRE(l.command(TableCommandCode::QuickStop, 4));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 4 && !l.drive.moving(l.t); }, 1));
+    l.run_for(0.05);
+    REQUIRE(l.enabled(5));
     CHECK(l.master.status().fault == FaultCode::None);
     CHECK(l.drive.state() == State::OperationEnabled);
-    CHECK(l.drive.moving(l.t));
     CHECK(l.drive.counts().coasts == 0);
     CHECK(l.drive.counts().fault_resets == 0);
+    // the drive's own statusword was read before anything was decided
     bool read_statusword = false;
     for (std::size_t i = from; i < l.sent.size(); ++i) {
       const can::Frame& f = l.sent[i];
       if (f.id == canopen::kSdoRxBase + 5 && f.data[0] == 0x40 && f.data[1] == 0x41 &&
           f.data[2] == 0x60)
         read_statusword = true;
-      if (f.id == canopen::kRpdo1Base + 5) CHECK((f.data[0] & 0x8F) == 0x0F);
+      if (f.id == canopen::kRpdo1Base + 5) CHECK((f.data[0] & 0x80) == 0);  // no fault reset
     }
     CHECK(read_statusword);
+  }
+
+  TEST_CASE("disable, then enable before the drive's statusword says so: not a drive of its own") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.cycle_s = 0.004;  // the statusword answering goes with the next cycle
+    Loop l(master_settings(), ds);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::Disable, 2));
+    // the drive has sampled it; the master has not yet heard so
+    REQUIRE(l.run_until([&] { return l.drive.state() != State::OperationEnabled; }, 0.01));
+    REQUIRE(l.master.drive_state() == State::OperationEnabled);
+    REQUIRE(l.command(TableCommandCode::Enable, 3));
+    REQUIRE(l.run_until(
+        [&] {
+          return l.master.status().ack == 3 && l.master.status().state == TableState::Holding;
+        },
+        0.5));
+    CHECK(l.master.status().fault == FaultCode::None);
   }
 
   TEST_CASE("the virtual drive's power stage let go while turning: the table coasts") {
@@ -1529,6 +1620,34 @@ TEST_SUITE("cia402") {
       CHECK(l.master.status().fault_name.find("0x6061") != std::string::npos);
       CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
     }
+  }
+
+  TEST_CASE("a drive that counts clockwise: the table angle, targets and rates negated") {
+    cia402::MasterSettings ms = master_settings();
+    ms.counts_clockwise = true;
+    ms.velocity_pdo = true;
+    ms.configure_mapping = true;
+    stand::Drive402Setup ds = drive_setup();
+    ds.counts_clockwise = true;
+    Loop l(ms, ds);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveAbsolute, 2, 90 * kDeg, 30 * kDeg));
+    l.run_for(1.5);  // at speed, counter-clockwise
+    CHECK(l.drive.rate(l.t) == doctest::Approx(30 * kDeg).epsilon(1e-4));
+    CHECK(l.master.status().rate_rps == doctest::Approx(30 * kDeg).epsilon(1e-3));
+    CHECK(*l.drive.value(0x606C, 0) < 0);  // the drive's own velocity: clockwise negative
+    REQUIRE(l.in_position(2, 10));
+    CHECK(l.drive.angle(l.t) == doctest::Approx(90 * kDeg).epsilon(1e-6));  // counter-clockwise
+    CHECK(*l.drive.value(0x6064, 0) == -250000);  // a quarter turn, counted the other way
+    REQUIRE_FALSE(l.samples.empty());
+    CHECK(l.samples.back().angle_rad == doctest::Approx(90 * kDeg).epsilon(1e-6));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 3, -30 * kDeg, 30 * kDeg));
+    REQUIRE(l.in_position(3, 10));
+    // within a count (6.3e-6 rad): -30 deg is not a whole number of counts
+    CHECK(l.drive.angle(l.t) == doctest::Approx(60 * kDeg).epsilon(1e-5));
+    CHECK(l.samples.back().angle_rad == doctest::Approx(60 * kDeg).epsilon(1e-5));
   }
 
   TEST_CASE("relative moves count from the actual position (0x60F2), not the last target") {

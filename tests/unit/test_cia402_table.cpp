@@ -246,6 +246,28 @@ TEST_SUITE("cia402 table driver") {
     CHECK(b.driver->decode(view).verdict == Decoded::Verdict::NotMine);
   }
 
+  TEST_CASE("the table's streams are due from the drive's NMT start, not during its start-up") {
+    Bus live;
+    CHECK(std::isinf(live.driver->streams_due_s()));  // nothing started: as they come
+    live.start();
+    CHECK(std::isnan(live.driver->streams_due_s()));  // reset, boot-up, configuration
+    // the NMT start, seen on the bus by an observer too (a replay of the log)
+    Bus watcher({}, true);
+    REQUIRE(live.run_until([&] { return !std::isnan(live.driver->streams_due_s()); }, 2.0));
+    const double due = live.driver->streams_due_s();
+    CHECK(due > 0.005);  // not before the drive's boot-up
+    CHECK(due <= live.t);
+    can::Frame nmt = canopen::nmt_frame(canopen::NmtCommand::ResetCommunication, 1);
+    watcher.see(nmt, 1.0);
+    CHECK(std::isnan(watcher.driver->streams_due_s()));
+    nmt = canopen::nmt_frame(canopen::NmtCommand::Start, 1);
+    watcher.see(nmt, 1.25);
+    CHECK(watcher.driver->streams_due_s() == 1.25);
+    nmt = canopen::nmt_frame(canopen::NmtCommand::Start, 2);  // another node's
+    watcher.see(nmt, 1.5);
+    CHECK(watcher.driver->streams_due_s() == 1.25);
+  }
+
   TEST_CASE("observe mode: nothing sent, the status read from the statuswords") {
     // a relative move on a live pair, and an observer of the drive's frames
     Bus live;

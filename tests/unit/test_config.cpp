@@ -369,7 +369,8 @@ TEST_CASE("config: [table] protocol = \"cia402\" and [table.cia402]") {
   SUBCASE("defaults, and values in the file's units") {
     auto cfg = parse_config(
         "[table]\nprotocol = \"cia402\"\n[table.cia402]\nnode_id = 5\nsync_period_ms = 200\n"
-        "profile_acceleration_dps2 = 20\nconfigure_mapping = true\n",
+        "profile_acceleration_dps2 = 20\nconfigure_mapping = true\ncounts_increase = "
+        "\"clockwise\"\n",
         "/x/turncal.toml");
     REQUIRE_MESSAGE(cfg.ok(), (cfg.ok() ? "" : cfg.error().describe()));
     const Cia402Settings& c = cfg->can.table.cia402;
@@ -380,6 +381,7 @@ TEST_CASE("config: [table] protocol = \"cia402\" and [table.cia402]") {
     CHECK(c.configure_mapping);
     CHECK_FALSE(c.velocity_pdo);
     CHECK(c.counts_per_revolution == 131072);
+    CHECK(c.counts_clockwise);
     CHECK(c.drive_heartbeat_timeout_s == doctest::Approx(0.3).epsilon(1e-12));
   }
   SUBCASE("a drive role not given is named by its key") {
@@ -406,6 +408,7 @@ TEST_CASE("config: [table] protocol = \"cia402\" and [table.cia402]") {
            Bad{"host_node_id = 1\n", "table.cia402.host_node_id", 4},
            Bad{"counts_per_revolution = 0\n", "table.cia402.counts_per_revolution", 4},
            Bad{"gear_ratio = -2\n", "table.cia402.gear_ratio", 4},
+           Bad{"counts_increase = \"cw\"\n", "table.cia402.counts_increase", 4},
            Bad{"quick_stop_deceleration_dps2 = 0\n", "table.cia402.quick_stop_deceleration_dps2",
                4},
            Bad{"quick_stop_option_code = 9\n", "table.cia402.quick_stop_option_code", 4},

@@ -630,7 +630,8 @@ TEST_SUITE("dbc") {
     CHECK(db.find("M") == nullptr);
     CHECK(db.find("O") == nullptr);
     REQUIRE(db.left_out.size() == 2);
-    CHECK(db.left_out[1].text.starts_with("message 'O' was left out"));
+    CHECK(db.left_out[1].message == "O");
+    CHECK(db.left_out[1].why.text.starts_with("message 'O' was left out"));
     // N stays, and decodes, but which of N and O the frames are is not
     // known: it is marked so that no role may be in it
     REQUIRE(db.find("N") != nullptr);

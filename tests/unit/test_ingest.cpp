@@ -361,6 +361,34 @@ TEST_SUITE("sequencer") {
     }
   }
 
+  TEST_CASE("a table protocol still starting up: the enable's ack is due from when it is up") {
+    SequencerSettings s;
+    s.profile = classic_profile(600, 300, std::numbers::pi, 0.5, 0.5);
+    s.table_seq_base = 41;
+    Sequencer q(s);
+    std::vector<Command> out;
+    q.step(StartRequest{1}, out);
+    q.step(TableStatusEvent{1.05, 0, 41, 0, "", 0.0}, out);
+    REQUIRE(out.size() == 1);
+    CHECK(std::get<TableCommand>(out[0]).code == TableCode::Enable);
+    // starting (a CANopen configuration) for 3 s, far past the 1 s ack timeout
+    Tick starting{0};
+    starting.table_starting = true;
+    for (double at = 1.1; at < 4.05; at += 0.1) {
+      starting.t_s = at;
+      q.step(starting, out);
+    }
+    CHECK(q.phase() != Phase::Failed);
+    CHECK(out.size() == 1);  // nothing since the enable
+    // up: the 1 s runs from its last tick of starting up, 4.0
+    q.step(Tick{4.9}, out);
+    CHECK(out.size() == 1);
+    q.step(Tick{5.1}, out);
+    REQUIRE(out.size() == 2);  // the fault's quick stop
+    CHECK(std::get<TableCommand>(out[1]).code == TableCode::QuickStop);
+    CHECK(q.course().reason.find("the table did not acknowledge enable within 1000 ms") == 0);
+  }
+
   TEST_CASE("idle: a signal or an abort changes nothing; a start enables the table") {
     SequencerSettings s;
     s.profile = classic_profile(600, 300, std::numbers::pi, 0.5, 0.5);

@@ -144,10 +144,12 @@ struct Database {
   std::vector<Message> messages;
   /// What was read with a warning or skipped with a note, in file order.
   std::vector<Diagnostic> warnings;
-  /// The messages left out (a size no CAN frame has, an ID defined twice),
-  /// each naming the message and why: a role that names one is refused
-  /// with this.
-  std::vector<Diagnostic> left_out;
+  /// A message left out (a size no CAN frame has, an ID defined twice).
+  struct LeftOut {
+    std::string message;  ///< its name as written
+    Diagnostic why;       ///< where, and why: a role that names it is refused with this
+  };
+  std::vector<LeftOut> left_out;
 
   [[nodiscard]] const Message* find(std::uint32_t id, bool extended) const;
   /// By the name as written or the long name.

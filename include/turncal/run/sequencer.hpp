@@ -106,6 +106,9 @@ struct Tick {
   bool ins_status_stale = false;
   bool encoder_stale = false;
   bool table_status_stale = false;
+  /// The table's protocol still starts up (CANopen: boot-up, configuration
+  /// by SDO, bounded by its own timeouts): a command's ack is not yet due.
+  bool table_starting = false;
 };
 struct InsModeEvent {
   double t_s;
@@ -120,8 +123,6 @@ struct TableStatusEvent {
   double rate_rps = NAN;  ///< the table's own rate; NaN: not known
 };
 
-/// A table rate below this, rad/s (0.057 deg/s), is a table at rest.
-inline constexpr double kTableAtRestRps = 1e-3;
 struct EncoderEvent {
   double t_s;
   double angle_rad;  ///< multi-turn

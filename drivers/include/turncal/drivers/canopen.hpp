@@ -160,8 +160,6 @@ class SdoClient {
   /// Ends every queued transfer and the one under way (aborted on the bus
   /// with `code`); each callback gets `code`, none is lost.
   void cancel_all(std::vector<can::Frame>& out, std::uint32_t code = abort_code::kGeneral);
-  /// Drops the queued transfers, not the one under way (safe in a callback).
-  void drop_queued() { queue_.clear(); }
   /// Ends the queued transfers but urgent ones, not the one under way (safe
   /// in a callback): each callback gets `code`, none is lost; a callback may
   /// queue anew.

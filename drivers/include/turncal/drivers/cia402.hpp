@@ -279,6 +279,10 @@ struct MasterSettings {
   /// Scale: encoder counts per motor revolution, motor turns per table turn.
   double counts_per_rev = 131072;
   double gear_ratio = 1;
+  /// The drive's counts rise clockwise seen from above: positions, targets
+  /// and velocities are negated between the drive and the table angle
+  /// (counter-clockwise).
+  bool counts_clockwise = false;
   /// The profile written at configuration, table rad/s and rad/s^2.
   double profile_velocity_rps = 10 * 0.017453292519943295;
   double profile_acceleration_rps2 = 10 * 0.017453292519943295;
@@ -380,6 +384,9 @@ struct MasterCounts {
   std::uint64_t configurations = 0;      ///< configurations completed
   std::uint64_t unknown_nmt_states = 0;  ///< drive heartbeats with a state byte CiA 301 lacks
   std::uint64_t position_resets = 0;     ///< the position unwrap restarted (the drive rebooted)
+  /// 0x605B/0x605C the drive does not have or refused the value 1: its
+  /// shutdown may let go at once (turncal sends none while the table turns)
+  std::uint64_t ramp_options_refused = 0;
 };
 
 /// The master's own progress through NMT and configuration.
@@ -425,6 +432,10 @@ class Master {
   [[nodiscard]] State drive_state() const { return state_; }
   [[nodiscard]] std::optional<std::uint16_t> statusword() const { return sw_; }
   [[nodiscard]] CommPhase phase() const { return phase_; }
+  /// When NMT start went out, while running; NaN otherwise.
+  [[nodiscard]] double running_since_s() const {
+    return phase_ == CommPhase::Running ? started_at_ : std::nan("");
+  }
   /// True when the configuration wrote the PDO mappings.
   [[nodiscard]] bool configured_mapping() const { return configured_mapping_; }
   /// The EMCYs received, with their time and text: the first kEmcyKept,
@@ -468,13 +479,16 @@ class Master {
   /// The way out of a latched fault, started by Enable: AfterComm (a
   /// communication reset and reconfiguration first), SendReset (the
   /// statusword to be read), ReadStatus (0x6041 read by SDO, its answer
-  /// awaited), ResetLow (controlword 0x0000 sent, bit 7 low), WaitFresh
-  /// (0x0080 sent, a statusword after it awaited).
+  /// awaited), Confirm (not in fault by that answer: a TPDO after it must
+  /// show the same state before anything is sent), ResetLow (controlword
+  /// 0x0000 sent, bit 7 low), WaitFresh (0x0080 sent, a statusword after it
+  /// awaited).
   enum class Recovery : std::uint8_t {
     None,
     AfterComm,
     SendReset,
     ReadStatus,
+    Confirm,
     ResetLow,
     WaitFresh
   };
@@ -495,6 +509,8 @@ class Master {
   /// Reads 0x6061 until it shows profile position (1), then completes.
   void check_mode(std::uint64_t gen);
   void latch(FaultCode code, std::string name, bool needs_comm_reset = false);
+  /// A fault reset under way ends, nothing more sent for it.
+  void abandon_recovery();
   void on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
   void on_heartbeat(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
   void on_emcy(const can::Frame& f, double t_s);
@@ -502,6 +518,8 @@ class Master {
   /// towards the goal, from what is known now.
   void evaluate(double now_s, std::vector<can::Frame>& out);
   void send_rpdo(std::uint16_t controlword, std::vector<can::Frame>& out);
+  /// +1, or -1 when the drive counts clockwise: table angle = sense * counts / cpr.
+  [[nodiscard]] double sense() const { return s_.counts_clockwise ? -1.0 : 1.0; }
   [[nodiscard]] std::uint16_t motion_bits() const;
 
   MasterSettings s_;
@@ -535,12 +553,25 @@ class Master {
   // fault latch
   FaultCode fault_ = FaultCode::None;
   std::string fault_name_;
+  std::string fault_base_;  // fault_name_ as latched, before what recovery added
+  [[nodiscard]] const std::string& base_fault_name() const { return fault_base_; }
+  /// Reads of a drive in fault reaction active before recovery gives up.
+  static constexpr int kFaultReactionReads = 100;
   bool needs_comm_reset_ = false;
   Recovery recovery_ = Recovery::None;
   std::uint64_t reset_seq_ = 0;                    // sw_seq_ when the fault reset went out
   std::uint64_t status_read_gen_ = 0;              // the statusword read that counts
   std::optional<canopen::SdoResult> status_read_;  // its answer, for evaluate()
   double status_read_at_ = 0;                      // not before: a drive still in fault reaction
+  std::uint64_t read_sw_seq_ = 0;                  // sw_seq_ when the read went out
+  std::uint64_t read_emcy_ = 0;                    // counts_.emcy then
+  State read_state_ = State::Unknown;              // what the read said
+  int fault_reaction_reads_ = 0;                   // reads that found fault reaction active
+  // sw_seq_ of the last statusword in operation enabled, and the count a
+  // controlword other than enable operation went out after (the drive's
+  // way out of operation enabled was then ours)
+  std::uint64_t last_enabled_seq_ = 0;
+  std::uint64_t other_cw_after_ = 0;
   // commands
   Goal goal_ = Goal::Disabled;
   bool quick_stopped_ = false;  // our quick stop is the last command
@@ -556,7 +587,6 @@ class Master {
   double low_t_ = 0;
   double mode_since_ = 0;  // the mode check began
   double mode_poll_at_ = INFINITY;
-  bool sdo_quick_stop_ = false;  // a quick stop written by SDO awaits its answer
   std::uint32_t velocity_written_ = 0;
   std::uint64_t move_generation_ = 0;
   std::uint16_t move_flags_ = 0;  // relative, change immediately

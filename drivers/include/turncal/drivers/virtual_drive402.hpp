@@ -49,9 +49,12 @@ struct Drive402Setup {
   std::uint8_t node_id = 1;
   double counts_per_rev = 131072;  ///< encoder counts per motor revolution
   double gear_ratio = 1;           ///< motor turns per table turn
-  double angle0_rad = 0;           ///< table angle at power-on
-  double power_on_s = 0;           ///< the boot-up message comes boot_delay_s later
-  double boot_delay_s = 0.005;     ///< from a reset to the boot-up message
+  /// Counts rise clockwise seen from above; the table angle (angle(),
+  /// motion()) is counter-clockwise whatever the counts do.
+  bool counts_clockwise = false;
+  double angle0_rad = 0;        ///< table angle at power-on
+  double power_on_s = 0;        ///< the boot-up message comes boot_delay_s later
+  double boot_delay_s = 0.005;  ///< from a reset to the boot-up message
   std::string device_name = "turncal virtual CiA 402 drive";  ///< 0x1008
   std::uint32_t max_profile_velocity = 0x7FFFFFFF;            ///< 0x607F, counts/s
   /// RPDO1 and TPDO1 mapped as CiA 402's defaults after a reset; false:
@@ -95,8 +98,11 @@ struct Drive402Faults {
   /// An EMCY that only warns (statusword bit 7): the drive keeps moving.
   double warning_at_s = NAN;
   std::uint16_t warning_code = 0x4210;  ///< excess temperature device
-  bool refuse_moves = false;            ///< new set-points are never acknowledged
-  int resets_ignored = 0;  ///< the first fault resets leave it in fault (the cause persists)
+  /// The same warning this long after the first set-point taken: inside a
+  /// move, wherever the run's schedule puts it.
+  double warning_after_move_s = NAN;
+  bool refuse_moves = false;  ///< new set-points are never acknowledged
+  int resets_ignored = 0;     ///< the first fault resets leave it in fault (the cause persists)
   /// (index << 8 | sub) -> abort code for any SDO access to that object.
   std::map<std::uint32_t, std::uint32_t> refuse_objects;
 };
@@ -196,6 +202,8 @@ class VirtualDrive402 {
   void take_set_point(double t, std::uint16_t c);
   void start_move(double t, std::int64_t target);
   void stop_motion(double t, double decel_counts, Motion why);
+  /// +1, or -1 when the counts rise clockwise: counts = sense * angle * cpr.
+  [[nodiscard]] double sense() const { return setup_.counts_clockwise ? -1.0 : 1.0; }
   /// The power stage off while turning: the table runs down on friction.
   void coast(double t);
   /// Stops on the profile deceleration when the option object holds 1,
@@ -217,6 +225,7 @@ class VirtualDrive402 {
   double cpr_;
   std::map<std::uint32_t, Entry> od_;
   std::map<std::uint32_t, Entry> comm_defaults_;  // 0x1000..0x1FFF after a reset
+  std::map<std::uint32_t, Entry> app_defaults_;   // 0x2000.. after a node reset
   double now_ = -std::numeric_limits<double>::infinity();
   // NMT
   canopen::NmtState nmt_ = canopen::NmtState::PreOperational;
