@@ -624,8 +624,12 @@ TEST_SUITE("faults") {
          {"--fault", "ins-silent=62"},
          "INS velocity lost during turn 1",
          kQuickStopped},
+        // the stand's time runs from the stand's start, about 2 s before
+        // the run's (at 4x): its turn is from about 62.5 to 69.5 s, so the
+        // silence comes 2.5 s into it, its loss seen well inside it, live
+        // and in the replay alike (at 62 it fell on the turn's edge)
         {"encoder silent in the turn",
-         {"--fault", "encoder-silent=62"},
+         {"--fault", "encoder-silent=65"},
          "table encoder lost",
          kQuickStopped},
         {"the first move stalls",
