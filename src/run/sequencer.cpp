@@ -280,9 +280,11 @@ void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
   if (finished(phase_) || phase_ == Phase::Idle || phase_ == Phase::Estimate ||
       phase_ == Phase::Report)
     return;
-  // the ack's time runs from when the table's protocol is up
+  // the ack's time, and the enable's, run from when the table's protocol is up
   if (awaiting_ack_ && e.table_starting)
     ack_deadline_ = std::max(ack_deadline_, t + s_.ack_timeout_s + s_.stale_floor_s);
+  if (phase_ == Phase::Prepare && awaiting_what_ == "enable" && e.table_starting)
+    phase_deadline_ = std::max(phase_deadline_, t + s_.enable_timeout_s);
   if (!s_.observe && awaiting_ack_ && t > ack_deadline_) {
     fail(t,
          "the table did not acknowledge " + awaiting_what_ + " within " +

@@ -389,6 +389,33 @@ TEST_SUITE("sequencer") {
     CHECK(q.course().reason.find("the table did not acknowledge enable within 1000 ms") == 0);
   }
 
+  TEST_CASE(
+      "a table protocol still starting up: the enable's 5 s to holding run from when it is up") {
+    SequencerSettings s;
+    s.profile = classic_profile(600, 300, std::numbers::pi, 0.5, 0.5);
+    s.table_seq_base = 41;
+    Sequencer q(s);
+    std::vector<Command> out;
+    q.step(StartRequest{1}, out);
+    q.step(TableStatusEvent{1.05, 0, 41, 0, "", 0.0}, out);
+    REQUIRE(out.size() == 1);
+    q.step(TableStatusEvent{1.1, 0, 42, 0, "", 0.0}, out);  // acknowledged, not yet holding
+    Tick starting{0};
+    starting.table_starting = true;
+    for (double at = 1.2; at < 8.05; at += 0.1) {
+      starting.t_s = at;
+      q.step(starting, out);
+    }
+    CHECK(out.size() == 1);  // 7 s, and no timeout
+    q.step(Tick{12.9}, out);
+    CHECK(out.size() == 1);
+    q.step(Tick{13.1}, out);  // 5 s after the last tick of starting up
+    REQUIRE(out.size() == 2);
+    CHECK(std::get<TableCommand>(out[1]).code == TableCode::QuickStop);
+    CHECK(q.course().reason.find("the table not holding within 5 s of enable") !=
+          std::string::npos);
+  }
+
   TEST_CASE("idle: a signal or an abort changes nothing; a start enables the table") {
     SequencerSettings s;
     s.profile = classic_profile(600, 300, std::numbers::pi, 0.5, 0.5);
