@@ -323,6 +323,29 @@ TEST_SUITE("cia402") {
     CHECK(c.idle());
   }
 
+  TEST_CASE("a drive without 0x605B and 0x605C is configured all the same, the refusals counted") {
+    stand::Drive402Faults df;
+    df.refuse_objects[0x605B00] = 0x06020000;  // object does not exist
+    df.refuse_objects[0x605C00] = 0x06090030;  // value range exceeded
+    SUBCASE("both refused: counted") {}
+    SUBCASE("another object refused: the configuration fails") {
+      df.refuse_objects[0x608300] = 0x06090030;
+    }
+    const bool fails = df.refuse_objects.count(0x608300) != 0;
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    if (fails) {
+      REQUIRE(l.run_until([&] { return l.master.phase() == cia402::CommPhase::Failed; }, 1.0));
+      CHECK(l.master.status().fault == FaultCode::Configuration);
+      CHECK(l.master.status().fault_name.find("0x6083") != std::string::npos);
+    } else {
+      REQUIRE(l.running());
+      CHECK(l.master.counts().ramp_options_refused == 2);
+      CHECK(l.master.status().fault == FaultCode::None);
+      REQUIRE(l.enabled(1));
+    }
+  }
+
   TEST_CASE("the drive reboots while being configured: configured again, from the start") {
     stand::Drive402Setup ds = drive_setup();
     ds.mode_switch_s = 0.05;  // the configuration waits for 0x6061
