@@ -361,23 +361,38 @@ TEST_SUITE("sequencer") {
     }
   }
 
-  TEST_CASE("a table protocol still starting up: the enable's ack is due from when it is up") {
-    SequencerSettings s;
-    s.profile = classic_profile(600, 300, std::numbers::pi, 0.5, 0.5);
-    s.table_seq_base = 41;
-    Sequencer q(s);
+  /// A run started and its enable sent (seq 42), for the tests of a table
+  /// that starts up first; ticks of it starting up, every 0.1 s from `from`.
+  struct Starting {
+    Sequencer q{[] {
+      SequencerSettings s;
+      s.profile = classic_profile(600, 300, std::numbers::pi, 0.5, 0.5);
+      s.table_seq_base = 41;
+      return s;
+    }()};
     std::vector<Command> out;
-    q.step(StartRequest{1}, out);
-    q.step(TableStatusEvent{1.05, 0, 41, 0, "", 0.0}, out);
+    Starting() {
+      q.step(StartRequest{1}, out);
+      q.step(TableStatusEvent{1.05, 0, 41, 0, "", 0.0}, out);
+    }
+    void starting_up(double from, double to) {
+      Tick k{0};
+      k.table_starting = true;
+      for (double at = from; at < to; at += 0.1) {
+        k.t_s = at;
+        q.step(k, out);
+      }
+    }
+  };
+
+  TEST_CASE("a table protocol still starting up: the enable's ack is due from when it is up") {
+    Starting st;
+    Sequencer& q = st.q;
+    std::vector<Command>& out = st.out;
     REQUIRE(out.size() == 1);
     CHECK(std::get<TableCommand>(out[0]).code == TableCode::Enable);
     // starting (a CANopen configuration) for 3 s, far past the 1 s ack timeout
-    Tick starting{0};
-    starting.table_starting = true;
-    for (double at = 1.1; at < 4.05; at += 0.1) {
-      starting.t_s = at;
-      q.step(starting, out);
-    }
+    st.starting_up(1.1, 4.05);
     CHECK(q.phase() != Phase::Failed);
     CHECK(out.size() == 1);  // nothing since the enable
     // up: the 1 s runs from its last tick of starting up, 4.0
@@ -391,21 +406,12 @@ TEST_SUITE("sequencer") {
 
   TEST_CASE(
       "a table protocol still starting up: the enable's 5 s to holding run from when it is up") {
-    SequencerSettings s;
-    s.profile = classic_profile(600, 300, std::numbers::pi, 0.5, 0.5);
-    s.table_seq_base = 41;
-    Sequencer q(s);
-    std::vector<Command> out;
-    q.step(StartRequest{1}, out);
-    q.step(TableStatusEvent{1.05, 0, 41, 0, "", 0.0}, out);
+    Starting st;
+    Sequencer& q = st.q;
+    std::vector<Command>& out = st.out;
     REQUIRE(out.size() == 1);
     q.step(TableStatusEvent{1.1, 0, 42, 0, "", 0.0}, out);  // acknowledged, not yet holding
-    Tick starting{0};
-    starting.table_starting = true;
-    for (double at = 1.2; at < 8.05; at += 0.1) {
-      starting.t_s = at;
-      q.step(starting, out);
-    }
+    st.starting_up(1.2, 8.05);
     CHECK(out.size() == 1);  // 7 s, and no timeout
     q.step(Tick{12.9}, out);
     CHECK(out.size() == 1);
