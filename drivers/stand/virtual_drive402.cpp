@@ -879,6 +879,7 @@ void VirtualDrive402::fault(double t, std::uint16_t code, std::vector<DriveFrame
 void VirtualDrive402::host_heartbeat_lost(double t, std::vector<DriveFrame>& out) {
   ++counts_.host_heartbeat_lost;
   host_last_hb_ = NAN;  // watched again from the next heartbeat
+  if (faults_.ignores_lost_host) return emcy(t, 0x8130, 0x11, out);
   const auto option = static_cast<std::int16_t>(u32(obj::kAbortConnectionOption));
   if (option == 1) return fault(t, 0x8130, out);
   emcy(t, 0x8130, 0x11, out);

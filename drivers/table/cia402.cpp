@@ -405,6 +405,18 @@ Status MasterSettings::check() const {
   if (abort_connection_option < 0 || abort_connection_option > 3)
     return make_error("abort connection option code " + std::to_string(abort_connection_option) +
                       " is not one CiA 402 defines (0 to 3, 0x6007)");
+  // and of those, none that lets the table coast or run on: a quick stop
+  // that disables the drive (0x605A = 0), a lost host that is ignored or
+  // switches the voltage off (0x6007 = 0, 2); the configuration's keys
+  // refuse them with their line, this holds for every other way in
+  if (quick_stop_option == 0)
+    return make_error(
+        "quick stop option code 0 (disable drive function, 0x605A) lets the table "
+        "coast on a quick stop");
+  if (abort_connection_option == 0 || abort_connection_option == 2)
+    return make_error("abort connection option code " + std::to_string(abort_connection_option) +
+                      (abort_connection_option == 0 ? " (no action" : " (disable voltage") +
+                      ", 0x6007) does not stop the table when the drive loses the host");
   if (!positive(set_point_timeout_s) || !positive(fault_reset_low_s) ||
       !positive(mode_switch_timeout_s))
     return make_error("set-point, fault reset and mode switch times must be positive");
@@ -510,6 +522,14 @@ void Master::start(double now_s, std::vector<can::Frame>& out) {
   tick(now_s, out);
 }
 
+double Master::start_up_budget_s() const {
+  // configure() writes 13 objects besides the PDOs, each of three PDOs at
+  // most 6 and its entries (8 of a byte or more in 8 bytes), then reads
+  // 0x60F2 and 0x6061: some 60 transfers, each bounded by the SDO timeout
+  constexpr double kTransfers = 13 + 3 * (6 + 8) + 2;
+  return s_.boot_timeout_s + kTransfers * s_.sdo_timeout_s + s_.mode_switch_timeout_s;
+}
+
 void Master::reset_comm(double now_s, std::vector<can::Frame>& out) {
   // the configuration's and a waiting move's transfers end here: their
   // callbacks see a stale generation or no move waiting, and do nothing
@@ -524,6 +544,7 @@ void Master::reset_comm(double now_s, std::vector<can::Frame>& out) {
   out.push_back(canopen::nmt_frame(canopen::NmtCommand::ResetCommunication, s_.node_id));
   ++counts_.nmt_resets;
   phase_ = CommPhase::WaitBootUp;
+  starting_since_ = now_s;
   boot_deadline_ = now_s + s_.boot_timeout_s;
   drive_seen_operational_ = false;
   drive_hb_lost_ = false;
@@ -624,6 +645,12 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
                                                 r.abort == 0x06090030u || r.abort == 0x06090031u);
                     if (!r.ok() && optional && lacks) {
                       ++counts_.ramp_options_refused;
+                      const char* name = object_name(r.index);
+                      notice(r.describe() +
+                             (name != nullptr ? std::string(" [") + name + "]" : "") +
+                             ": the drive's own default stands, which may let the table coast on a "
+                             "Shutdown or Disable operation (turncal sends neither while the "
+                             "table turns)");
                     } else if (!r.ok()) {
                       return config_failed(r, "");
                     }
@@ -634,6 +661,12 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
                   });
   }
   sdo_.tick(now_s, out);
+}
+
+void Master::notice(std::string text) {
+  // told once, however often the drive is configured again
+  if (std::find(notices_.begin(), notices_.end(), text) == notices_.end())
+    notices_.push_back(std::move(text));
 }
 
 void Master::config_failed(const canopen::SdoResult& r, const std::string& why) {
@@ -690,6 +723,7 @@ void Master::config_done(double now_s, std::vector<can::Frame>& out) {
   out.push_back(canopen::nmt_frame(canopen::NmtCommand::Start, s_.node_id));
   phase_ = CommPhase::Running;
   started_at_ = now_s;
+  tpdo_running_ = 0;
   last_drive_hb_ = now_s;
   drive_hb_lost_ = false;
   configured_mapping_ = s_.configure_mapping;
@@ -857,6 +891,7 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
     return;
   }
   ++counts_.tpdo;
+  if (phase_ == CommPhase::Running) ++tpdo_running_;
   const auto p = f.payload();
   const auto word = static_cast<std::uint16_t>(get_le(p, tpdo_.statusword.offset, 2));
   sw_ = word;
@@ -915,7 +950,9 @@ void Master::send_rpdo(std::uint16_t controlword, std::vector<can::Frame>& out) 
   out.push_back(f);
   cw_ = controlword;
   cw_sent_ = true;
-  if ((controlword & cw::kCommandMask) != cw::kCmdEnableOperation) other_cw_after_ = sw_seq_ + 1;
+  // the drive's answer to another word may come a statusword late (a TPDO
+  // sampled before it took the RPDO): only the second one after it counts
+  if ((controlword & cw::kCommandMask) != cw::kCmdEnableOperation) other_cw_after_ = sw_seq_ + 2;
 }
 
 std::uint16_t Master::motion_bits() const {
@@ -1041,7 +1078,16 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
       if (sw_seq_ <= read_sw_seq_) return;  // no TPDO since the read
       if (needs_comm_reset_ || counts_.emcy != read_emcy_ || state_ != read_state_ ||
           (word & (sw::kFault | sw::kFollowingError)) != 0) {
-        recovery_ = Recovery::SendReset;  // it changed since: read again
+        // it changed since: read again, a bounded number of times (a
+        // frozen TPDO that never agrees with the drive's own word)
+        if (++confirm_reads_ > kConfirmReads) {
+          recovery_ = Recovery::None;
+          fault_name_ = base_fault_name() + "; the drive's statusword read by SDO (" +
+                        to_string(read_state_) + ") and its TPDO (" + to_string(state_) + ", " +
+                        hex(word, 4) + ") kept disagreeing";
+          return;
+        }
+        recovery_ = Recovery::SendReset;
         return;
       }
       fault_ = FaultCode::None;
@@ -1154,9 +1200,28 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
         case State::ReadyToSwitchOn:
           want = cw::kCmdSwitchOn;  // 3
           break;
-        case State::SwitchedOn:
-          want = cw::kCmdEnableOperation;  // 4
+        case State::SwitchedOn: {
+          // 4: the drive holds its actual position from here. Onto a table
+          // that still turns (a drive that let go, a run that ended with
+          // the table coasting) it would brake the instrument at the drive's
+          // full torque: only with the rate known at rest, from two TPDOs
+          // since the drive's NMT start; until then Switched on stays.
+          // (the position's rate, which TPDO1 always gives; the velocity's
+          // too, when it is mapped and comes)
+          double rate = tpdo_running_ >= 2 ? rate_ : std::nan("");
+          if (!std::isfinite(rate)) break;
+          if (const double v = status().rate_rps; std::isfinite(v) && std::abs(v) > std::abs(rate))
+            rate = v;
+          if (std::abs(rate) > kTableAtRestRps) {
+            latch(FaultCode::TurningAtEnable,
+                  "not enabled: the table turns at " + num(rate * kRadToDeg) +
+                      " deg/s with the drive switched on but not enabled; enabling would brake "
+                      "it at the drive's full torque: let it stop, then enable");
+            return;
+          }
+          want = cw::kCmdEnableOperation;
           break;
+        }
         case State::OperationEnabled:
           want = cw::kCmdEnableOperation | motion_bits();
           if (move_ == MoveStep::Ready && (word & sw::kSetPointAcknowledge) == 0) {
@@ -1214,6 +1279,7 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
           (recovery_ == Recovery::None || recovery_ == Recovery::WaitFresh ||
            recovery_ == Recovery::Confirm)) {
         fault_reaction_reads_ = 0;
+        confirm_reads_ = 0;
         if (needs_comm_reset_ || phase_ == CommPhase::Failed) {
           recovery_ = Recovery::AfterComm;
           reset_comm(now_s, out);
@@ -1232,6 +1298,12 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
            move_ == MoveStep::Acked || move_ == MoveStep::Halting))
         return make_error(
             "disable refused while the table moves: stop it first (controlled or quick stop)");
+      // whatever the master thinks of its move: a drive without 0x605B/C
+      // lets a turning table coast on Shutdown
+      if (const double rate = status().rate_rps;
+          running && std::isfinite(rate) && std::abs(rate) > kTableAtRestRps)
+        return make_error("disable refused while the table turns (" + num(rate * kRadToDeg) +
+                          " deg/s): stop it first (quick stop), or wait for it to stop");
       goal_ = Goal::Disabled;
       abandon_recovery();
       quick_stopped_ = false;
@@ -1290,6 +1362,11 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
         ack_on_ = AckOn::Halted;
         ack_after_ = sw_seq_;
         send_rpdo(cw::kCmdEnableOperation | motion_bits(), out);
+      } else if (running && fault_ != FaultCode::None) {
+        // a latched fault (an EMCY that only warned, the drive that left
+        // operation enabled) and the table may turn: a quick stop, acked
+        // as one when the drive shows it
+        return command(TableCommandCode::QuickStop, seq, target_rad, rate_rps, now_s, out);
       } else {
         ack_ = seq;  // nothing moves
         ack_on_ = AckOn::None;

@@ -101,10 +101,31 @@ class Cia402Table final : public TableDriver {
     now_ = std::max(now_, v.host_s);
     if (f.extended || f.error || f.remote || f.fd) return Decoded{};
     if (f.id == 0 && f.len == 2 && (f.data[1] == s_.node_id || f.data[1] == 0)) {
-      // NMT, ours or another master's: the drive's PDOs run from a start
-      // until a reset, a stop or pre-operational (an observer, a replay)
-      const auto cmd = static_cast<canopen::NmtCommand>(f.data[0]);
-      seen_running_since_ = cmd == canopen::NmtCommand::Start ? v.host_s : std::nan("");
+      // NMT, ours or another master's (an observer, a replay): the drive's
+      // PDOs run from a start. A reset starts it up again, through
+      // pre-operational (its configuration), within the master's start-up
+      // budget, as the live master bounds it; a stop, or pre-operational
+      // while it ran, stops its PDOs at once: the streams are due and lost.
+      switch (static_cast<canopen::NmtCommand>(f.data[0])) {
+        case canopen::NmtCommand::Start:
+          seen_running_since_ = v.host_s;
+          seen_starting_ = false;
+          break;
+        case canopen::NmtCommand::ResetNode:
+        case canopen::NmtCommand::ResetCommunication:
+          seen_running_since_ = v.host_s + master_.start_up_budget_s();
+          seen_starting_ = true;
+          break;
+        case canopen::NmtCommand::EnterPreOperational:
+          if (!seen_starting_) seen_running_since_ = v.host_s;
+          break;
+        case canopen::NmtCommand::Stop:
+          seen_running_since_ = v.host_s;
+          seen_starting_ = false;
+          break;
+        default:
+          break;  // no command CiA 301 defines: the drive ignores it too
+      }
     }
     if (ours(f.id)) return Decoded::taken(kStreams, NAN, std::monostate{});
     if (!drives(f.id)) return Decoded{};
@@ -130,6 +151,9 @@ class Cia402Table final : public TableDriver {
   }
 
   [[nodiscard]] double angle_resolution_rad() const override { return 1 / s_.counts_per_rad(); }
+  [[nodiscard]] const std::vector<std::string>& notices() const override {
+    return master_.notices();
+  }
 
   Result<std::vector<can::Frame>> command(const TableCommand& c) override {
     std::vector<can::Frame> out;
@@ -179,7 +203,11 @@ class Cia402Table final : public TableDriver {
   }
 
   [[nodiscard]] double streams_due_s() const override {
-    if (started_ && invalid_.empty()) return master_.running_since_s();
+    if (started_ && invalid_.empty()) {
+      const double running = master_.running_since_s();
+      return std::isnan(running) ? master_.starting_since_s() + master_.start_up_budget_s()
+                                 : running;
+    }
     return seen_running_since_;
   }
 
@@ -278,6 +306,7 @@ class Cia402Table final : public TableDriver {
   // NMT seen on the bus: when the drive was last started, NaN after a
   // reset; before any NMT, always (a drive someone else runs)
   double seen_running_since_ = -std::numeric_limits<double>::infinity();
+  bool seen_starting_ = false;  ///< a reset seen, no start since
   double now_ = 0;
   std::vector<can::Frame> tx_;
   std::vector<cia402::EncoderSample> samples_;

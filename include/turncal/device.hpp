@@ -209,8 +209,10 @@ class TableDriver {
   virtual void start(double /*now_s*/, std::vector<can::Frame>& /*out*/) {}
   /// From when the table's streams (encoder, status) are due, stand s. A
   /// protocol that starts up first (CANopen: boot-up, configuration by
-  /// SDO) sends none before it runs, and bounds its start-up by its own
-  /// timeouts: NaN while it starts. Default: always due.
+  /// SDO) sends none before it runs: while it starts, a time to come, the
+  /// latest its start-up may end by its own timeouts (never NaN, never
+  /// unbounded: a start-up that never ends loses the streams). Default:
+  /// always due.
   [[nodiscard]] virtual double streams_due_s() const {
     return -std::numeric_limits<double>::infinity();
   }
@@ -224,6 +226,13 @@ class TableDriver {
   /// Frames that answer frames decode() was given (a handshake's next
   /// step), moved to `out`.
   virtual void take_frames(std::vector<can::Frame>& /*out*/) {}
+  /// What the protocol has to tell the operator that is no fault (a drive
+  /// that refused an optional object), each once, oldest first; the caller
+  /// logs those past the ones it has logged.
+  [[nodiscard]] virtual const std::vector<std::string>& notices() const {
+    static const std::vector<std::string> none;
+    return none;
+  }
   /// A sample beyond the one decode() returned (a status change that came
   /// with an encoder sample, or from a timeout in tick()); NotMine: none.
   virtual Decoded pending() { return {}; }

@@ -201,6 +201,7 @@ class Daemon {
   Syncer syncer{posix_io().fsync};
   std::int64_t run_start_ns = 0;
   run::Phase last_phase = run::Phase::Idle;
+  std::size_t table_notices_logged = 0;  ///< of the run's table driver
   bool report_done = true;
   std::thread worker;
   int done_pipe[2] = {-1, -1};
@@ -503,6 +504,9 @@ json Daemon::can_json(bool since_run_start) const {
 void Daemon::after_engine() {
   send_out();  // the heartbeat goes out between runs too
   if (!engine) return;
+  const std::vector<std::string>& notices = engine->ingest().table().notices();
+  for (; table_notices_logged < notices.size(); ++table_notices_logged)
+    warn("table: " + notices[table_notices_logged]);
   const run::Phase p = engine->sequencer().phase();
   if (p != last_phase) {
     last_phase = p;
@@ -805,6 +809,7 @@ json Daemon::start(const StartRequest& req) {
   est_error.clear();
   report_done = false;
   last_phase = run::Phase::Idle;
+  table_notices_logged = 0;
   info("run started: " + plan->name + " from " + from + (unit.empty() ? "" : ", unit " + unit));
   engine->start(now, out);
   after_engine();

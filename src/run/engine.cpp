@@ -233,10 +233,11 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out) {
   k.velocity_quiet = ingest_.health(kVelocity).stale(t);
   k.ins_status_stale = ingest_.health(kInsStatus).stale(t, floor);
   // a table protocol still starting up (CANopen's configuration) sends no
-  // stream yet; from when it runs, its streams have the floor to come
+  // stream yet; from when it runs, or when its start-up has run out of
+  // time, its streams have the floor to come
   const double due = ingest_.table().streams_due_s();
-  k.table_starting = std::isnan(due);
-  const bool table_due = t - due > floor;  // NaN: not due
+  k.table_starting = !(t >= due);
+  const bool table_due = t - due > floor;
   k.encoder_stale = table_due && ingest_.health(kEncoder).stale(t, floor);
   k.table_status_stale = table_due && ingest_.health(kTableStatus).stale(t, floor);
   feed(k, out);

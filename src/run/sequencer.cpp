@@ -283,7 +283,7 @@ void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
   // the ack's time, and the enable's, run from when the table's protocol is up
   if (awaiting_ack_ && e.table_starting)
     ack_deadline_ = std::max(ack_deadline_, t + s_.ack_timeout_s + s_.stale_floor_s);
-  if (phase_ == Phase::Prepare && awaiting_what_ == "enable" && e.table_starting)
+  if (phase_ == Phase::Prepare && deadline_is_enable_ && e.table_starting)
     phase_deadline_ = std::max(phase_deadline_, t + s_.enable_timeout_s);
   if (!s_.observe && awaiting_ack_ && t > ack_deadline_) {
     fail(t,
@@ -375,6 +375,7 @@ void Sequencer::move(double t, std::vector<Command>& out, double delta, double r
   TableMotion m;
   const double due = m.move_by(0, delta, rate, accel).t_end + s_.turn_margin_s;
   phase_deadline_ = t + due;
+  deadline_is_enable_ = false;
   waiting_for_ = late + " within " + std::to_string(static_cast<int>(std::lround(due))) + " s";
 }
 
@@ -412,6 +413,7 @@ void Sequencer::on_table(const TableStatusEvent& e, std::vector<Command>& out) {
     awaiting_what_ = "enable";
     table(TableCode::Enable, t, out);
     phase_deadline_ = t + s_.enable_timeout_s;
+    deadline_is_enable_ = true;
     waiting_for_ = "the table not holding within " +
                    std::to_string(static_cast<int>(s_.enable_timeout_s)) + " s of enable";
     return;
@@ -483,6 +485,7 @@ void Sequencer::begin_align(double t, std::vector<Command>& out) {
   course_.heading_given_rad = heading;
   seen_aligning_ = false;
   phase_deadline_ = t + s_.align_start_s;
+  deadline_is_enable_ = false;
   waiting_for_ = "the INS not aligning within " +
                  std::to_string(static_cast<int>(s_.align_start_s)) + " s of the command";
 }
@@ -508,6 +511,7 @@ void Sequencer::on_ins(const InsModeEvent& e, std::vector<Command>& out) {
         seen_aligning_ = true;
         if (!s_.observe) {
           phase_deadline_ = t + s_.profile.align_s + s_.align_margin_s;
+          deadline_is_enable_ = false;
           waiting_for_ = "the INS not navigating within " +
                          std::to_string(static_cast<int>(s_.profile.align_s + s_.align_margin_s)) +
                          " s of the alignment start";

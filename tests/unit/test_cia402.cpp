@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <random>
 #include <string>
 #include <vector>
@@ -66,6 +67,9 @@ struct Loop {
   /// From when the master configures, the drive's frames are held back
   /// (the drive still hears everything): a drive slow to answer.
   bool hold_when_configuring = false;
+  /// Changes a drive frame on its way to the master (a drive's PDO that
+  /// says something else than its objects do).
+  std::function<void(can::Frame&)> tamper;
 
   void deliver() {
     const auto held = [&] {
@@ -82,7 +86,10 @@ struct Loop {
       if (held()) continue;
       std::vector<stand::DriveFrame> d;
       d.swap(from_drive);
-      for (const stand::DriveFrame& f : d) master.on_frame(f.frame, f.t_s, from_master);
+      for (stand::DriveFrame& f : d) {
+        if (tamper) tamper(f.frame);
+        master.on_frame(f.frame, f.t_s, from_master);
+      }
     }
     if (master.status().state == TableState::Moving) saw_moving = true;
   }
@@ -341,6 +348,13 @@ TEST_SUITE("cia402") {
     } else {
       REQUIRE(l.running());
       CHECK(l.master.counts().ramp_options_refused == 2);
+      // and told, once each, for the log: the drive's own defaults stand
+      const std::vector<std::string>& told = l.master.notices();
+      REQUIRE(told.size() == 2);
+      CHECK(told[0].find("0x605B") != std::string::npos);
+      CHECK(told[0].find("object does not exist") != std::string::npos);
+      CHECK(told[1].find("0x605C") != std::string::npos);
+      CHECK(told[1].find("coast") != std::string::npos);
       CHECK(l.master.status().fault == FaultCode::None);
       REQUIRE(l.enabled(1));
     }
@@ -1104,6 +1118,19 @@ TEST_SUITE("cia402") {
       s.abort_connection_option = -2;
       refused(s, "0x6007");
     }
+    SUBCASE("option codes that let the table coast or run on without its host") {
+      s.quick_stop_option = 0;
+      refused(s, "coast on a quick stop");
+      s = master_settings();
+      s.abort_connection_option = 0;
+      refused(s, "(no action, 0x6007)");
+      s.abort_connection_option = 2;
+      refused(s, "(disable voltage, 0x6007)");
+      for (const int ok : {1, 3}) {
+        s.abort_connection_option = static_cast<std::int16_t>(ok);
+        CHECK(cia402::Master::create(s).ok());
+      }
+    }
     SUBCASE("PDO identifiers that collide") {
       s.tpdo = cia402::TpdoLayout::defaults(5);
       s.tpdo->cob_id = s.rpdo_layout().cob_id;
@@ -1505,6 +1532,116 @@ TEST_SUITE("cia402") {
     CHECK(read_statusword);
   }
 
+  TEST_CASE("a table still turning is never enabled: reset by another node mid-move, it coasts") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 720 * kDeg, 30 * kDeg));
+    l.run_for(2.0);  // at speed
+    can::Frame nmt = canopen::nmt_frame(canopen::NmtCommand::ResetNode, 5);
+    l.drive.receive(l.t, nmt, l.from_drive);
+    REQUIRE(l.drive.counts().coasts == 1);
+    REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 1.0));
+    // the drive's rate is not known here (its PDOs stopped with the reset):
+    // taken, the master configures it again, and then sees it turn
+    REQUIRE(l.command(TableCommandCode::Enable, 3));
+    REQUIRE(
+        l.run_until([&] { return l.master.status().fault == FaultCode::TurningAtEnable; }, 3.0));
+    CHECK(l.master.status().fault_name.find("the table turns at") != std::string::npos);
+    CHECK(l.drive.state() == State::SwitchedOn);  // not enabled onto it
+    CHECK(l.drive.moving(l.t));
+    l.run_for(0.5);
+    CHECK(l.drive.state() == State::SwitchedOn);
+    // once it has run down on its own (30 deg/s at 2 deg/s^2): enabled
+    REQUIRE(l.run_until([&] { return !l.drive.moving(l.t); }, 16.0));
+    l.run_for(0.1);
+    REQUIRE(l.enabled(4));
+    CHECK(l.master.status().fault == FaultCode::None);
+  }
+
+  TEST_CASE("a controlled stop with a fault latched stops the table: as a quick stop") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.cycle_s = 0.004;  // the statusword answering goes with the next cycle
+    stand::Drive402Faults df;
+    df.warning_at_s = 1.0;  // latched, the drive goes on
+    Loop l(master_settings(), ds, df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
+    l.run_for(1.5);
+    REQUIRE(l.master.status().fault == FaultCode::Emcy);
+    REQUIRE(l.drive.moving(l.t));
+    REQUIRE(l.command(TableCommandCode::ControlledStop, 3));
+    CHECK(l.master.status().ack != 3);  // not acked before the drive shows it
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.5));
+    CHECK(l.drive.state() == State::QuickStopActive);
+    REQUIRE(l.run_until([&] { return !l.drive.moving(l.t); }, 2.0));
+    CHECK(l.drive.counts().coasts == 0);
+  }
+
+  TEST_CASE("disable refused while the table turns, whatever the master thinks of its move") {
+    // a drive without 0x605B (its default 0: Shutdown lets go, the table
+    // coasts), and a warning mid-move: latched, the move no longer the
+    // master's, the drive goes on
+    stand::Drive402Faults df;
+    df.refuse_objects[0x605B00] = 0x06020000;
+    df.warning_at_s = 1.0;
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
+    l.run_for(1.5);
+    REQUIRE(l.master.status().fault == FaultCode::Emcy);
+    REQUIRE(l.drive.moving(l.t));
+    const auto from = l.sent.size();
+    const Status refused = l.command(TableCommandCode::Disable, 3);
+    REQUIRE_FALSE(refused.ok());
+    CHECK(refused.error().message.find("disable refused while the table turns") == 0);
+    CHECK(l.sent.size() == from);
+    l.run_for(0.1);
+    CHECK(l.drive.counts().coasts == 0);
+    REQUIRE(l.command(TableCommandCode::QuickStop, 4));
+    REQUIRE(l.run_until([&] { return !l.drive.moving(l.t); }, 2.0));
+    l.run_for(0.05);
+    CHECK(l.command(TableCommandCode::Disable, 5).ok());
+    CHECK(l.drive.counts().coasts == 0);
+  }
+
+  TEST_CASE(
+      "a TPDO that never agrees with the drive's own statusword: the reset gives up, says why") {
+    stand::Drive402Faults df;
+    df.warning_at_s = 0.5;  // latched at rest: the next Enable reads the statusword
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.run_until([&] { return l.master.status().fault == FaultCode::Emcy; }, 1.0));
+    l.run_for(0.05);
+    // from now on its TPDO1 says switched on, its 0x6041 operation enabled
+    l.tamper = [](can::Frame& f) {
+      if (f.id == canopen::kTpdo1Base + 5) f.data[0] = 0x33, f.data[1] = 0x02;
+    };
+    l.run_for(0.05);
+    const auto from = l.sent.size();
+    REQUIRE(l.command(TableCommandCode::Enable, 2));
+    l.run_for(3.0);
+    CHECK(l.master.status().fault == FaultCode::Emcy);  // still latched
+    CHECK(l.master.status().fault_name.find("kept disagreeing") != std::string::npos);
+    int reads = 0;
+    for (std::size_t i = from; i < l.sent.size(); ++i) {
+      const can::Frame& f = l.sent[i];
+      if (f.id == canopen::kSdoRxBase + 5 && f.data[0] == 0x40 && f.data[1] == 0x41 &&
+          f.data[2] == 0x60)
+        ++reads;
+      if (f.id == canopen::kRpdo1Base + 5) CHECK((f.data[0] & 0x80) == 0);  // no fault reset
+    }
+    CHECK(reads == cia402::Master::kConfirmReads + 1);
+    CHECK(l.drive.counts().fault_resets == 0);
+  }
+
   TEST_CASE("disable, then enable before the drive's statusword says so: not a drive of its own") {
     stand::Drive402Setup ds = drive_setup();
     ds.cycle_s = 0.004;  // the statusword answering goes with the next cycle
@@ -1694,12 +1831,11 @@ TEST_SUITE("cia402") {
   }
 
   TEST_CASE("heartbeat lost while the drive stays enabled: no reset after reconfiguration") {
-    cia402::MasterSettings ms = master_settings();
-    ms.abort_connection_option = 0;  // the drive takes no action on our lost heartbeat
     stand::Drive402Faults df;
+    df.ignores_lost_host = true;  // the drive takes no action on our lost heartbeat
     df.silent_at_s = 1.0;
     df.silent_until_s = 1.5;
-    Loop l(ms, drive_setup(), df);
+    Loop l(master_settings(), drive_setup(), df);
     l.start();
     REQUIRE(l.running());
     REQUIRE(l.enabled(1));

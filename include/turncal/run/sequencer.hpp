@@ -251,8 +251,9 @@ class Sequencer {
   double ack_deadline_ = 0;
   std::string awaiting_what_;
   double phase_deadline_ = INFINITY;
-  std::string waiting_for_;  ///< what the phase deadline is for
-  std::string last_fault_;   ///< the table's fault name, empty for none
+  std::string waiting_for_;          ///< what the phase deadline is for
+  bool deadline_is_enable_ = false;  ///< the phase deadline is the enable's
+  std::string last_fault_;           ///< the table's fault name, empty for none
   bool may_move_ = false;
   bool enabled_ = false;
   /// Command mode: the run has started but the table has not been heard

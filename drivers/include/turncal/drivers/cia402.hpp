@@ -352,6 +352,9 @@ enum class FaultCode : std::uint8_t {
   /// The drive left operation enabled, or quick-stopped, by itself while
   /// asked to stay enabled (safe torque off, another node's controlword).
   LeftEnabled = 10,
+  /// The table turned when the drive was to be enabled (transition 4 would
+  /// brake it at full torque).
+  TurningAtEnable = 11,
 };
 
 /// What the sequencer's TableStatusEvent carries (icd.hpp, can-icd.md).
@@ -436,12 +439,24 @@ class Master {
   [[nodiscard]] double running_since_s() const {
     return phase_ == CommPhase::Running ? started_at_ : std::nan("");
   }
+  /// When the last communication reset went out (the start-up began).
+  [[nodiscard]] double starting_since_s() const { return starting_since_; }
+  /// The longest a start-up can take before the master has given up on it
+  /// by its own timeouts: the boot-up, each configuration step's SDO, the
+  /// mode switch. The streams are due from then whatever it says.
+  [[nodiscard]] double start_up_budget_s() const;
   /// True when the configuration wrote the PDO mappings.
   [[nodiscard]] bool configured_mapping() const { return configured_mapping_; }
   /// The EMCYs received, with their time and text: the first kEmcyKept,
   /// the last of them always the newest (counts().emcy counts them all).
   [[nodiscard]] const std::vector<canopen::Emcy>& emergencies() const { return emcy_; }
   static constexpr std::size_t kEmcyKept = 64;
+  /// Reads whose state a later TPDO did not confirm, before a fault
+  /// reset gives up.
+  static constexpr int kConfirmReads = 20;
+  /// What the operator should hear that is no fault (an optional object
+  /// the drive refused), each once, in the order they came.
+  [[nodiscard]] const std::vector<std::string>& notices() const { return notices_; }
   /// Moves the encoder samples received since the last call to `out`.
   void take_samples(std::vector<EncoderSample>& out);
   /// The last position actual, as a table angle (NaN before any).
@@ -504,6 +519,7 @@ class Master {
   void configure(double now_s, std::vector<can::Frame>& out);
   void config_done(double now_s, std::vector<can::Frame>& out);
   void config_failed(const canopen::SdoResult& r, const std::string& why);
+  void notice(std::string text);
   /// Reads 0x60F2 back, then check_mode.
   void check_options(std::uint64_t gen);
   /// Reads 0x6061 until it shows profile position (1), then completes.
@@ -539,7 +555,9 @@ class Master {
   bool host_hb_allowed_ = true;
   double next_host_hb_ = 0;
   double last_drive_hb_ = 0;
-  double started_at_ = 0;  // NMT start sent
+  double started_at_ = 0;           // NMT start sent
+  double starting_since_ = 0;       // NMT reset communication sent
+  std::uint64_t tpdo_running_ = 0;  // TPDO1s since then
   bool drive_seen_operational_ = false;
   double next_sync_ = 0;
   double last_sync_ = NAN;
@@ -567,6 +585,7 @@ class Master {
   std::uint64_t read_emcy_ = 0;                    // counts_.emcy then
   State read_state_ = State::Unknown;              // what the read said
   int fault_reaction_reads_ = 0;                   // reads that found fault reaction active
+  int confirm_reads_ = 0;                          // reads a TPDO then disagreed with
   // sw_seq_ of the last statusword in operation enabled, and the count a
   // controlword other than enable operation went out after (the drive's
   // way out of operation enabled was then ours)
@@ -605,6 +624,7 @@ class Master {
   double rate_ = NAN;
   std::vector<EncoderSample> samples_;
   std::vector<canopen::Emcy> emcy_;
+  std::vector<std::string> notices_;
   MasterCounts counts_;
 };
 

@@ -103,6 +103,9 @@ struct Drive402Faults {
   double warning_after_move_s = NAN;
   bool refuse_moves = false;  ///< new set-points are never acknowledged
   int resets_ignored = 0;     ///< the first fault resets leave it in fault (the cause persists)
+  /// It counts a lost host but takes no action, whatever 0x6007 says (a
+  /// drive whose firmware does not act on the object).
+  bool ignores_lost_host = false;
   /// (index << 8 | sub) -> abort code for any SDO access to that object.
   std::map<std::uint32_t, std::uint32_t> refuse_objects;
 };
