@@ -23,6 +23,12 @@ struct MonteCarlo {
   /// determines of the accelerometer
   std::array<double, 2> rms_z_df_obs{};
   std::array<double, 2> mean_z_df_obs{};
+  /// the RMS of estimate - truth and the mean reported sigma, SI: what the
+  /// runs achieved beside what they said
+  std::array<double, est::sx::kParams> rms_error{};
+  std::array<double, est::sx::kParams> mean_sigma{};
+  std::array<double, 2> rms_error_df_obs{};
+  std::array<double, 2> mean_sigma_df_obs{};
   /// posterior / prior sigma of each parameter, the mean over the runs
   std::array<double, est::sx::kParams> ratio{};
   double nis_mean = 0;  ///< over every innovation of every run
@@ -40,6 +46,8 @@ struct MonteCarlo {
 
 struct RunZ {
   std::array<double, est::sx::kParams> z{};
+  std::array<double, est::sx::kParams> err{}, sig{};  ///< estimate - truth, sigma; SI
+  std::array<double, 2> err_df_obs{}, sig_df_obs{};
   std::array<double, 2> z_df_eff{};
   std::array<double, 2> z_df_obs{};
   std::array<double, est::sx::kParams> ratio{};
@@ -78,7 +86,9 @@ inline RunZ one_run(const Scenario& s, std::uint64_t seed,
   const double g = est::EarthAt::at(in.timeline.site).g;
   for (std::size_t j = 0; j < out.z.size(); ++j) {
     const double truth = xi(est::sxi::kParams + static_cast<int>(j));
-    out.z[j] = (r->parameters[j].value - truth) / r->parameters[j].sigma;
+    out.err[j] = r->parameters[j].value - truth;
+    out.sig[j] = r->parameters[j].sigma;
+    out.z[j] = out.err[j] / out.sig[j];
   }
   for (std::size_t i = 0; i < 2; ++i) {
     const int a = static_cast<int>(i);
@@ -87,7 +97,9 @@ inline RunZ one_run(const Scenario& s, std::uint64_t seed,
     out.z_df_eff[i] = (r->df_eff[i].value - truth) / r->df_eff[i].sigma;
     const double obs =
         truth - g * xi(est::sxi::kParams + (est::sx::theta(a + 1, 3) - est::sx::kNu0));
-    out.z_df_obs[i] = (r->df_obs[i].value - obs) / r->df_obs[i].sigma;
+    out.err_df_obs[i] = r->df_obs[i].value - obs;
+    out.sig_df_obs[i] = r->df_obs[i].sigma;
+    out.z_df_obs[i] = out.err_df_obs[i] / out.sig_df_obs[i];
   }
   for (std::size_t j = 0; j < out.ratio.size(); ++j)
     out.ratio[j] = r->parameters[j].sigma / r->parameters[j].prior_sigma;
@@ -135,11 +147,15 @@ inline MonteCarlo monte_carlo(
     for (std::size_t j = 0; j < r.z.size(); ++j) {
       mc.rms_z[j] += r.z[j] * r.z[j];
       mc.mean_z[j] += r.z[j];
+      mc.rms_error[j] += r.err[j] * r.err[j];
+      mc.mean_sigma[j] += r.sig[j];
     }
     for (std::size_t i = 0; i < 2; ++i) {
       mc.rms_z_df_eff[i] += r.z_df_eff[i] * r.z_df_eff[i];
       mc.rms_z_df_obs[i] += r.z_df_obs[i] * r.z_df_obs[i];
       mc.mean_z_df_obs[i] += r.z_df_obs[i];
+      mc.rms_error_df_obs[i] += r.err_df_obs[i] * r.err_df_obs[i];
+      mc.mean_sigma_df_obs[i] += r.sig_df_obs[i];
     }
     for (std::size_t j = 0; j < r.ratio.size(); ++j) mc.ratio[j] += r.ratio[j];
     nis += r.nis_sum;
@@ -156,7 +172,11 @@ inline MonteCarlo monte_carlo(
   for (std::size_t j = 0; j < mc.rms_z.size(); ++j) {
     mc.rms_z[j] = std::sqrt(mc.rms_z[j] / n);
     mc.mean_z[j] /= n;
+    mc.rms_error[j] = std::sqrt(mc.rms_error[j] / n);
+    mc.mean_sigma[j] /= n;
   }
+  for (double& v : mc.rms_error_df_obs) v = std::sqrt(v / n);
+  for (double& v : mc.mean_sigma_df_obs) v /= n;
   for (double& v : mc.rms_z_df_eff) v = std::sqrt(v / n);
   for (double& v : mc.rms_z_df_obs) v = std::sqrt(v / n);
   for (double& v : mc.mean_z_df_obs) v /= n;

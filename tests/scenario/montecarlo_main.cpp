@@ -52,16 +52,17 @@ int main(int argc, char** argv) {
     const double mean_band = 3 / std::sqrt(n), rms_band = 3 / std::sqrt(2 * n);
     std::printf("  determined (sigma/prior < 0.5): |mean z| <= %.3f, rms z in [%.3f, %.3f]\n",
                 mean_band, 1 - rms_band, 1 + rms_band);
-    std::printf("  %-9s %8s %8s\n", "parameter", "rms z", "mean z");
+    std::printf("  %-9s %8s %8s   (then: mean sigma and RMS error, SI)\n", "parameter", "rms z",
+                "mean z");
     for (std::size_t j = 0; j < mc.rms_z.size(); ++j) {
       const bool ok = mc.rms_z[j] >= 0.8 && mc.rms_z[j] <= 1.2;
       bad += ok ? 0 : 1;
       const bool determined = mc.ratio[j] < 0.5;
       const bool in_band =
           std::abs(mc.mean_z[j]) <= mean_band && std::abs(mc.rms_z[j] - 1) <= rms_band;
-      std::printf("  %-9s %8.3f %8.3f  sigma/prior %.3f%s%s\n",
-                  std::string(est::kParamNames[j]).c_str(), mc.rms_z[j], mc.mean_z[j], mc.ratio[j],
-                  ok ? "" : "  outside [0.8, 1.2]",
+      std::printf("  %-9s %8.3f %8.3f  sigma %.3e  error %.3e  sigma/prior %.3f%s%s\n",
+                  std::string(est::kParamNames[j]).c_str(), mc.rms_z[j], mc.mean_z[j],
+                  mc.mean_sigma[j], mc.rms_error[j], mc.ratio[j], ok ? "" : "  outside [0.8, 1.2]",
                   !determined ? ""
                   : in_band   ? "  determined, in band"
                               : "  determined, OUT of band");
@@ -71,8 +72,9 @@ int main(int argc, char** argv) {
     for (std::size_t i = 0; i < 2; ++i) {
       const bool in_band = std::abs(mc.mean_z_df_obs[i]) <= mean_band &&
                            std::abs(mc.rms_z_df_obs[i] - 1) <= rms_band;
-      std::printf("  df_obs_%zu  %8.3f %8.3f  %s\n", i + 1, mc.rms_z_df_obs[i], mc.mean_z_df_obs[i],
-                  in_band ? "in band" : "OUT of band");
+      std::printf("  df_obs_%zu  %8.3f %8.3f  sigma %.3e  error %.3e  %s\n", i + 1,
+                  mc.rms_z_df_obs[i], mc.mean_z_df_obs[i], mc.mean_sigma_df_obs[i],
+                  mc.rms_error_df_obs[i], in_band ? "in band" : "OUT of band");
     }
     std::printf("  second pass: ran in %d of %d runs, converged in %d, at most %d iterations\n",
                 mc.second_pass_ran, runs, mc.second_pass_converged, mc.second_pass_max_iterations);

@@ -133,6 +133,16 @@ struct Loop {
         [&] { return master.status().state == TableState::Holding && master.status().ack == seq; },
         1.0);
   }
+  /// Started, enabled (seq 1), a relative move of `deg` at `dps` (seq 2)
+  /// sent, and `seconds` run on: the table turning, for a fault in a move.
+  bool turning(double seconds, double deg = 360, double dps = 30) {
+    start();
+    if (!running() || !enabled(1) ||
+        !command(TableCommandCode::MoveRelative, 2, deg * kDeg, dps * kDeg))
+      return false;
+    run_for(seconds);
+    return true;
+  }
   bool in_position(std::uint8_t seq, double timeout) {
     return run_until(
         [&] {
@@ -512,11 +522,7 @@ TEST_SUITE("cia402") {
     cia402::MasterSettings ms = master_settings();
     ms.velocity_pdo = true;  // the drive's TPDO2 stays invalid: nobody maps it
     Loop l(ms);
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
-    l.run_for(1.0);
+    REQUIRE(l.turning(1.0, 90, 30));
     CHECK(l.master.counts().velocity_pdo == 0);
     CHECK(std::isnan(l.master.status().rate_rps));
     CHECK(l.master.status().state == TableState::Moving);
@@ -701,11 +707,7 @@ TEST_SUITE("cia402") {
 
   TEST_CASE("controlled stop by halt: decelerates at 0x6084, in position where it stopped") {
     Loop l;
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
-    l.run_for(3.0);
+    REQUIRE(l.turning(3.0));
     const double from = l.drive.angle(l.t);
     REQUIRE(l.command(TableCommandCode::ControlledStop, 3));
     REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.1));
@@ -877,11 +879,7 @@ TEST_SUITE("cia402") {
 
   TEST_CASE("the host heartbeat stops: the drive quick-stops per 0x6007, EMCY 0x8130") {
     Loop l;
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 180 * kDeg, 30 * kDeg));
-    l.run_for(1.0);
+    REQUIRE(l.turning(1.0, 180, 30));
     l.master.set_host_heartbeat(false);
     const double stopped_at = l.t;
     REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 1));
@@ -983,11 +981,7 @@ TEST_SUITE("cia402") {
     cia402::MasterSettings ms = master_settings();
     ms.quick_stop_option = 2;
     Loop l(ms);
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
-    l.run_for(1.0);
+    REQUIRE(l.turning(1.0, 90, 30));
     REQUIRE(l.command(TableCommandCode::QuickStop, 3));
     l.run_for(0.5);
     CHECK(l.drive.state() == State::SwitchOnDisabled);
@@ -1020,11 +1014,7 @@ TEST_SUITE("cia402") {
     stand::Drive402Faults df;
     df.refuse_moves = true;
     Loop l(master_settings(), drive_setup(), df);
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 10 * kDeg, 30 * kDeg));
-    l.run_for(0.45);
+    REQUIRE(l.turning(0.45, 10, 30));
     CHECK(l.master.status().ack == 1);
     CHECK(l.master.status().state == TableState::Holding);
     CHECK((l.drive.controlword() & 0x10) != 0);  // bit 4 held, waiting
@@ -1477,11 +1467,7 @@ TEST_SUITE("cia402") {
     stand::Drive402Faults df;
     df.warning_at_s = 1.0;
     Loop l(master_settings(), ds, df);
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
-    l.run_for(1.5);
+    REQUIRE(l.turning(1.5));
     REQUIRE(l.master.status().fault == FaultCode::Emcy);  // latched, to be safe
     REQUIRE(l.drive.state() == State::OperationEnabled);  // but the drive goes on
     REQUIRE(l.drive.moving(l.t));
@@ -1497,11 +1483,7 @@ TEST_SUITE("cia402") {
     stand::Drive402Faults df;
     df.warning_at_s = 1.0;
     Loop l(master_settings(), drive_setup(), df);
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
-    l.run_for(1.5);
+    REQUIRE(l.turning(1.5));
     REQUIRE(l.master.status().fault == FaultCode::Emcy);
     REQUIRE(l.drive.state() == State::OperationEnabled);
     REQUIRE(l.drive.moving(l.t));
@@ -1534,11 +1516,7 @@ TEST_SUITE("cia402") {
 
   TEST_CASE("a table still turning is never enabled: reset by another node mid-move, it coasts") {
     Loop l;
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 720 * kDeg, 30 * kDeg));
-    l.run_for(2.0);  // at speed
+    REQUIRE(l.turning(2.0, 720, 30));  // at speed
     can::Frame nmt = canopen::nmt_frame(canopen::NmtCommand::ResetNode, 5);
     l.drive.receive(l.t, nmt, l.from_drive);
     REQUIRE(l.drive.counts().coasts == 1);
@@ -1566,11 +1544,7 @@ TEST_SUITE("cia402") {
     stand::Drive402Faults df;
     df.warning_at_s = 1.0;  // latched, the drive goes on
     Loop l(master_settings(), ds, df);
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
-    l.run_for(1.5);
+    REQUIRE(l.turning(1.5));
     REQUIRE(l.master.status().fault == FaultCode::Emcy);
     REQUIRE(l.drive.moving(l.t));
     REQUIRE(l.command(TableCommandCode::ControlledStop, 3));
@@ -1589,11 +1563,7 @@ TEST_SUITE("cia402") {
     df.refuse_objects[0x605B00] = 0x06020000;
     df.warning_at_s = 1.0;
     Loop l(master_settings(), drive_setup(), df);
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
-    l.run_for(1.5);
+    REQUIRE(l.turning(1.5));
     REQUIRE(l.master.status().fault == FaultCode::Emcy);
     REQUIRE(l.drive.moving(l.t));
     const auto from = l.sent.size();
@@ -1664,11 +1634,7 @@ TEST_SUITE("cia402") {
 
   TEST_CASE("the virtual drive's power stage let go while turning: the table coasts") {
     Loop l;
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
-    l.run_for(2.0);
+    REQUIRE(l.turning(2.0));
     REQUIRE(std::fabs(l.drive.rate(l.t)) == doctest::Approx(30 * kDeg).epsilon(1e-4));
     can::Frame f;  // Disable voltage, as another node might send it
     f.id = canopen::kRpdo1Base + 5;
@@ -1720,11 +1686,7 @@ TEST_SUITE("cia402") {
 
   TEST_CASE("disable: refused while moving; from quick stop active nothing before rest") {
     Loop l;
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
-    l.run_for(1.0);
+    REQUIRE(l.turning(1.0, 90, 30));
     const auto sent = l.sent.size();
     CHECK_FALSE(l.command(TableCommandCode::Disable, 3).ok());
     CHECK(l.sent.size() == sent);

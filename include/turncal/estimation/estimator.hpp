@@ -75,6 +75,11 @@ struct SecondPassSettings {
   /// sigma against 400 Hz (tests/scenario/test_second_pass.cpp) at a
   /// quarter of the cost.
   double nominal_imu_rate_hz = 100;
+  /// After the iterations, the estimates' sensitivity to how df_obs_i
+  /// splits into df_z_i and g Theta_i3 (which no vertical turn determines,
+  /// yet the nominal's azimuth error turns the two apart) is added to the
+  /// covariance (model.md, 8); off only to compare.
+  bool consider_split = true;
 };
 
 struct EstimationInput {
