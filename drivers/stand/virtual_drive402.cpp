@@ -584,7 +584,8 @@ void VirtualDrive402::on_sdo(double t, const can::Frame& f, std::vector<DriveFra
 
 void VirtualDrive402::refresh(double t) {
   set(obj::kStatusword, 0, statusword());
-  const std::int64_t pos = position_counts(t);
+  dither_high_ = !dither_high_;
+  const std::int64_t pos = position_counts(t) + (dither_high_ ? faults_.position_dither_counts : 0);
   set(obj::kPositionActual, 0, static_cast<std::int32_t>(static_cast<std::uint32_t>(pos)));
   set(obj::kVelocityActual, 0,
       static_cast<std::int32_t>(std::clamp<double>(std::round(sense() * motion_.at(t).rate * cpr_),

@@ -522,6 +522,32 @@ void Master::start(double now_s, std::vector<can::Frame>& out) {
   tick(now_s, out);
 }
 
+Master::Rest Master::rest_since_running() {
+  // over a window of TPDO1s since the NMT start, not two samples: a count
+  // of dither between two frames a millisecond apart is no turn. Turning:
+  // more than kRestDitherCounts and kTableAtRestRps over the window; the
+  // window starts again when it has grown stale (a table that has since
+  // stopped is judged by now, not by its past)
+  Rest r;
+  if (tpdo_running_ == 0 || !std::isfinite(last_sample_t_)) {
+    rest_ref_t_ = NAN;
+    return r;
+  }
+  if (!std::isfinite(rest_ref_t_) || last_sample_t_ - rest_ref_t_ > 5 * kRestWindowS) {
+    rest_ref_t_ = last_sample_t_;
+    rest_ref_counts_ = pos_counts_;
+    return r;
+  }
+  const double dt = last_sample_t_ - rest_ref_t_;
+  if (dt < kRestWindowS) return r;
+  const auto dc = static_cast<double>(pos_counts_ - rest_ref_counts_);
+  r.rate_rps = sense() * dc / cpr_ / dt;
+  r.state = std::abs(dc) > kRestDitherCounts && std::abs(r.rate_rps) > kTableAtRestRps
+                ? Rest::Turning
+                : Rest::AtRest;
+  return r;
+}
+
 double Master::start_up_budget_s() const {
   // configure() writes 13 objects besides the PDOs, each of three PDOs at
   // most 6 and its entries (8 of a byte or more in 8 bytes), then reads
@@ -543,8 +569,9 @@ void Master::reset_comm(double now_s, std::vector<can::Frame>& out) {
   sdo_.cancel_all(out);
   out.push_back(canopen::nmt_frame(canopen::NmtCommand::ResetCommunication, s_.node_id));
   ++counts_.nmt_resets;
+  // an automatic retry (no boot-up) goes on the same start-up and its bound
+  if (phase_ != CommPhase::WaitBootUp) starting_since_ = now_s;
   phase_ = CommPhase::WaitBootUp;
-  starting_since_ = now_s;
   boot_deadline_ = now_s + s_.boot_timeout_s;
   drive_seen_operational_ = false;
   drive_hb_lost_ = false;
@@ -724,6 +751,7 @@ void Master::config_done(double now_s, std::vector<can::Frame>& out) {
   phase_ = CommPhase::Running;
   started_at_ = now_s;
   tpdo_running_ = 0;
+  rest_ref_t_ = NAN;
   last_drive_hb_ = now_s;
   drive_hb_lost_ = false;
   configured_mapping_ = s_.configure_mapping;
@@ -1011,6 +1039,11 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
       // An EMCY since the read went out may be a new fault its answer
       // does not show (an EMCY outranks the SDO answer on the bus)
       if (counts_.emcy != read_emcy_) {
+        if (++confirm_reads_ > kConfirmReads) {
+          recovery_ = Recovery::None;
+          fault_name_ = base_fault_name() + "; EMCYs kept coming while its statusword was read";
+          return;
+        }
         recovery_ = Recovery::SendReset;
         return;
       }
@@ -1082,9 +1115,16 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
         // frozen TPDO that never agrees with the drive's own word)
         if (++confirm_reads_ > kConfirmReads) {
           recovery_ = Recovery::None;
-          fault_name_ = base_fault_name() + "; the drive's statusword read by SDO (" +
-                        to_string(read_state_) + ") and its TPDO (" + to_string(state_) + ", " +
-                        hex(word, 4) + ") kept disagreeing";
+          fault_name_ =
+              base_fault_name() +
+              (counts_.emcy != read_emcy_ ? std::string("; EMCYs kept coming while its "
+                                                        "statusword was read")
+               : state_ != read_state_
+                   ? std::string("; the drive's statusword read by SDO (") +
+                         to_string(read_state_) + ") and its TPDO (" + to_string(state_) + ", " +
+                         hex(word, 4) + ") kept disagreeing"
+                   : std::string("; its TPDO kept showing a fault or a following error (") +
+                         hex(word, 4) + ")");
           return;
         }
         recovery_ = Recovery::SendReset;
@@ -1185,6 +1225,10 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
         if ((word & sw::kTargetReached) != 0) want = cw::kCmdDisableVoltage;
       } else if (state_ == State::SwitchOnDisabled || state_ == State::NotReadyToSwitchOn) {
         want = cw::kCmdDisableVoltage;
+      } else if (state_ == State::OperationEnabled && rest_since_running().state != Rest::AtRest) {
+        // Shutdown lets a turning table coast on a drive without 0x605B:
+        // it waits, enabled, for the table known at rest
+        want = cw::kCmdEnableOperation;
       } else {
         want = cw::kCmdShutdown;
       }
@@ -1206,15 +1250,12 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
           // the table coasting) it would brake the instrument at the drive's
           // full torque: only with the rate known at rest, from two TPDOs
           // since the drive's NMT start; until then Switched on stays.
-          // (the position's rate, which TPDO1 always gives; the velocity's
-          // too, when it is mapped and comes)
-          double rate = tpdo_running_ >= 2 ? rate_ : std::nan("");
-          if (!std::isfinite(rate)) break;
-          if (const double v = status().rate_rps; std::isfinite(v) && std::abs(v) > std::abs(rate))
-            rate = v;
-          if (std::abs(rate) > kTableAtRestRps) {
+          want = cw::kCmdSwitchOn;  // stays, whatever went out before a reset
+          const Rest rest = rest_since_running();
+          if (rest.state == Rest::Unknown) break;
+          if (rest.state == Rest::Turning) {
             latch(FaultCode::TurningAtEnable,
-                  "not enabled: the table turns at " + num(rate * kRadToDeg) +
+                  "not enabled: the table turns at " + num(rest.rate_rps * kRadToDeg) +
                       " deg/s with the drive switched on but not enabled; enabling would brake "
                       "it at the drive's full torque: let it stop, then enable");
             return;
@@ -1270,6 +1311,8 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
       goal_ = Goal::Enabled;
       quick_stopped_ = false;
       halted_ = false;
+      fault_reaction_reads_ = 0;  // each Enable's recovery has its own bounds
+      confirm_reads_ = 0;
       move_ = MoveStep::None;
       ack_on_ = AckOn::Enabled;
       ack_seq_ = seq;
@@ -1278,8 +1321,6 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
       if (fault_ != FaultCode::None &&
           (recovery_ == Recovery::None || recovery_ == Recovery::WaitFresh ||
            recovery_ == Recovery::Confirm)) {
-        fault_reaction_reads_ = 0;
-        confirm_reads_ = 0;
         if (needs_comm_reset_ || phase_ == CommPhase::Failed) {
           recovery_ = Recovery::AfterComm;
           reset_comm(now_s, out);

@@ -151,6 +151,13 @@ class Cia402Table final : public TableDriver {
   }
 
   [[nodiscard]] double angle_resolution_rad() const override { return 1 / s_.counts_per_rad(); }
+  [[nodiscard]] std::string geometry() const override {
+    char b[160];
+    std::snprintf(b, sizeof b, "counts_per_revolution %.17g, gear_ratio %.17g, counts increase %s",
+                  s_.counts_per_rev, s_.gear_ratio,
+                  s_.counts_clockwise ? "clockwise" : "counter-clockwise");
+    return b;
+  }
   [[nodiscard]] const std::vector<std::string>& notices() const override {
     return master_.notices();
   }

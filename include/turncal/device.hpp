@@ -226,6 +226,12 @@ class TableDriver {
   /// Frames that answer frames decode() was given (a handshake's next
   /// step), moved to `out`.
   virtual void take_frames(std::vector<can::Frame>& /*out*/) {}
+  /// How the table's counts become angles where the configuration says it
+  /// (a CiA 402 drive: counts per revolution, gear ratio, the direction
+  /// counts increase), as text; empty where the protocol's own DBC scaling
+  /// says it. The report keeps it: a replay under another would scale or
+  /// mirror every angle, and is refused.
+  [[nodiscard]] virtual std::string geometry() const { return {}; }
   /// What the protocol has to tell the operator that is no fault (a drive
   /// that refused an optional object), each once, oldest first; the caller
   /// logs those past the ones it has logged.

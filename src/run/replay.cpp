@@ -144,6 +144,18 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   pl.max_fraction = live_number(live, "plausibility", "max_fraction").value_or(pl.max_fraction);
   pl.step_slack_s = live_number(live, "plausibility", "step_slack_s").value_or(pl.step_slack_s);
   drivers::Devices dev = drivers::make_devices(cfg.can, roles, pl, tb.scale);
+  // the live run's table geometry (reports carry it since it could differ)
+  if (live != nullptr && live->contains("settings") && (*live)["settings"].is_object() &&
+      (*live)["settings"].contains("table_geometry") &&
+      (*live)["settings"]["table_geometry"].is_string()) {
+    const std::string recorded = (*live)["settings"]["table_geometry"].get<std::string>();
+    const std::string here = dev.table->geometry();
+    if (recorded != here)
+      return make_error("the run's table turned counts into angles as \"" + recorded +
+                        "\", this configuration as \"" + here +
+                        "\": replayed so, every table angle would be scaled or mirrored; replay "
+                        "with the run's own configuration");
+  }
   Engine engine(db, std::move(dev.ins), std::move(dev.table), plan, q, b, tb, pl);
   std::vector<OutFrame> sent;  // observe mode sends nothing; kept for the interface
   engine.start(tb.epoch_us * 1000, sent);

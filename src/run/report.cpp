@@ -312,7 +312,8 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
   j["settings"] = {{"heading_offset_rad", seq.settings().heading_offset_rad},
                    {"observe", seq.settings().observe},
                    {"stale_floor_s", seq.settings().stale_floor_s},
-                   {"two_stage", engine.build_settings().two_stage}};
+                   {"two_stage", engine.build_settings().two_stage},
+                   {"table_geometry", engine.ingest().table().geometry()}};
   // health
   const Ingest& in = engine.ingest();
   j["health"] = {
@@ -741,6 +742,7 @@ std::string check_report(const json& r) {
     for (const char* k : {"two_stage", "observe"}) c.field(s, "settings.", k, Kind::Boolean);
     for (const char* k : {"heading_offset_rad", "stale_floor_s"})
       c.field(s, "settings.", k, Kind::Number);
+    c.field(s, "settings.", "table_geometry", Kind::String, true);  // since it was recorded
   }
   if (c.field(r, "", "replay", Kind::Object)) {
     const json& p = r["replay"];

@@ -1442,6 +1442,37 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK((*slow)[0]["text"].get<std::string>().find("without a sample") != std::string::npos);
   }
 
+  TEST_CASE("a replay under another table geometry than the run's is refused, saying why") {
+    // a CiA 402 run's report keeps how its counts became angles; replayed
+    // with a configuration whose table counts otherwise (here the
+    // reference table, whose DBC scaling says it) every angle would be
+    // scaled or mirrored
+    const std::string dir = std::string(TURNCAL_SOURCE_DIR) + "/tests/data/golden/";
+    auto cfg = load_config(dir + "turncal.toml");
+    REQUIRE(cfg.ok());
+    auto db = load_databases(cfg->can);
+    REQUIRE(db.ok());
+    auto roles = resolve_roles(cfg->can, *db);
+    REQUIRE(roles.ok());
+    run::ReplayOptions o;
+    o.profile = dir + "short.toml";
+    o.second_pass = est::SecondPassSettings::Mode::Off;
+    nlohmann::json live = {
+        {"settings",
+         {{"table_geometry",
+           "counts_per_revolution 10000, gear_ratio 100, counts increase clockwise"}}}};
+    auto r = run::replay_log(*cfg, *db, *roles, dir + "reference-short.log", &live, o);
+    REQUIRE_FALSE(r.ok());
+    CHECK(r.error().message.find("counts increase clockwise") != std::string::npos);
+    CHECK(r.error().message.find("scaled or mirrored") != std::string::npos);
+    // the same geometry as the run's (none of its own, for the reference
+    // table): replayed
+    live["settings"]["table_geometry"] = "";
+    auto same = run::replay_log(*cfg, *db, *roles, dir + "reference-short.log", &live, o);
+    REQUIRE(same.ok());
+    CHECK(same->report["settings"]["table_geometry"] == "");
+  }
+
   TEST_CASE("a reference-stand log replays to the report it gave before the drivers per device") {
     // tests/data/golden: a short reference-stand run (the virtual stand,
     // seed 5, 25 Hz, with garbage frames, velocity spikes and drops, device

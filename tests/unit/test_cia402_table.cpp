@@ -246,6 +246,18 @@ TEST_SUITE("cia402 table driver") {
     CHECK(b.driver->decode(view).verdict == Decoded::Verdict::NotMine);
   }
 
+  TEST_CASE("the table's geometry, as the report keeps it for a replay to check") {
+    Bus b;
+    const std::string ccw = b.driver->geometry();
+    CHECK(ccw.find("counts increase counter-clockwise") != std::string::npos);
+    CHECK(ccw.find("counts_per_revolution ") == 0);
+    auto c = stand402().cfg.can.table.cia402;
+    c.counts_clockwise = true;
+    const std::string cw = drivers::make_cia402_table(c, b.roles_)->geometry();
+    CHECK(cw.find("counts increase clockwise") != std::string::npos);
+    CHECK(cw.substr(0, cw.find("counts increase")) == ccw.substr(0, ccw.find("counts increase")));
+  }
+
   TEST_CASE("the table's streams are due from the drive's NMT start, not during its start-up") {
     Bus live;
     CHECK(std::isinf(live.driver->streams_due_s()));  // nothing started: as they come

@@ -555,7 +555,18 @@ class Master {
   bool host_hb_allowed_ = true;
   double next_host_hb_ = 0;
   double last_drive_hb_ = 0;
-  double started_at_ = 0;           // NMT start sent
+  double started_at_ = 0;  // NMT start sent
+  /// Whether the table is at rest, from TPDO1's positions since the NMT
+  /// start over at least kRestWindowS.
+  struct Rest {
+    enum State : std::uint8_t { Unknown, AtRest, Turning } state = Unknown;
+    double rate_rps = NAN;
+  };
+  Rest rest_since_running();
+  static constexpr double kRestWindowS = 0.1;
+  static constexpr double kRestDitherCounts = 2;
+  double rest_ref_t_ = NAN;
+  std::int64_t rest_ref_counts_ = 0;
   double starting_since_ = 0;       // NMT reset communication sent
   std::uint64_t tpdo_running_ = 0;  // TPDO1s since then
   bool drive_seen_operational_ = false;

@@ -103,6 +103,9 @@ struct Drive402Faults {
   double warning_after_move_s = NAN;
   bool refuse_moves = false;  ///< new set-points are never acknowledged
   int resets_ignored = 0;     ///< the first fault resets leave it in fault (the cause persists)
+  /// Its position actual dithers by this many counts, every other refresh
+  /// (an encoder at rest on the edge of a count).
+  int position_dither_counts = 0;
   /// It counts a lost host but takes no action, whatever 0x6007 says (a
   /// drive whose firmware does not act on the object).
   bool ignores_lost_host = false;
@@ -225,6 +228,7 @@ class VirtualDrive402 {
 
   Drive402Setup setup_;
   Drive402Faults faults_;
+  bool dither_high_ = false;
   double cpr_;
   std::map<std::uint32_t, Entry> od_;
   std::map<std::uint32_t, Entry> comm_defaults_;  // 0x1000..0x1FFF after a reset
