@@ -742,7 +742,7 @@ std::string check_report(const json& r) {
     for (const char* k : {"two_stage", "observe"}) c.field(s, "settings.", k, Kind::Boolean);
     for (const char* k : {"heading_offset_rad", "stale_floor_s"})
       c.field(s, "settings.", k, Kind::Number);
-    c.field(s, "settings.", "table_geometry", Kind::String, true);  // since it was recorded
+    c.field(s, "settings.", "table_geometry", Kind::String);  // older reports lack it
   }
   if (c.field(r, "", "replay", Kind::Object)) {
     const json& p = r["replay"];
