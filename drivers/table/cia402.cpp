@@ -690,6 +690,16 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
   sdo_.tick(now_s, out);
 }
 
+void Master::read_again(const std::string& why) {
+  // up to kConfirmReads; then the reset gives up, and the fault says why
+  if (++confirm_reads_ > kConfirmReads) {
+    recovery_ = Recovery::None;
+    fault_name_ = base_fault_name() + "; " + why;
+    return;
+  }
+  recovery_ = Recovery::SendReset;
+}
+
 void Master::notice(std::string text) {
   // told once, however often the drive is configured again
   if (std::find(notices_.begin(), notices_.end(), text) == notices_.end())
@@ -1038,15 +1048,7 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
       }
       // An EMCY since the read went out may be a new fault its answer
       // does not show (an EMCY outranks the SDO answer on the bus)
-      if (counts_.emcy != read_emcy_) {
-        if (++confirm_reads_ > kConfirmReads) {
-          recovery_ = Recovery::None;
-          fault_name_ = base_fault_name() + "; EMCYs kept coming while its statusword was read";
-          return;
-        }
-        recovery_ = Recovery::SendReset;
-        return;
-      }
+      if (counts_.emcy != read_emcy_) return read_again(kEmcysKeptComing);
       // expedited, with or without the size indicated (CiA 301): 2 to 4 bytes
       if (!r.ok() || r.data.size() < 2 || r.data.size() > 4) {
         // nothing known, nothing sent: the latch stays, the next Enable
@@ -1111,24 +1113,15 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
       if (sw_seq_ <= read_sw_seq_) return;  // no TPDO since the read
       if (needs_comm_reset_ || counts_.emcy != read_emcy_ || state_ != read_state_ ||
           (word & (sw::kFault | sw::kFollowingError)) != 0) {
-        // it changed since: read again, a bounded number of times (a
-        // frozen TPDO that never agrees with the drive's own word)
-        if (++confirm_reads_ > kConfirmReads) {
-          recovery_ = Recovery::None;
-          fault_name_ =
-              base_fault_name() +
-              (counts_.emcy != read_emcy_ ? std::string("; EMCYs kept coming while its "
-                                                        "statusword was read")
-               : state_ != read_state_
-                   ? std::string("; the drive's statusword read by SDO (") +
-                         to_string(read_state_) + ") and its TPDO (" + to_string(state_) + ", " +
-                         hex(word, 4) + ") kept disagreeing"
-                   : std::string("; its TPDO kept showing a fault or a following error (") +
-                         hex(word, 4) + ")");
-          return;
-        }
-        recovery_ = Recovery::SendReset;
-        return;
+        // it changed since: read again (a frozen TPDO that never agrees
+        // with the drive's own word ends it)
+        return read_again(counts_.emcy != read_emcy_ ? std::string(kEmcysKeptComing)
+                          : state_ != read_state_
+                              ? "the drive's statusword read by SDO (" +
+                                    std::string(to_string(read_state_)) + ") and its TPDO (" +
+                                    to_string(state_) + ", " + hex(word, 4) + ") kept disagreeing"
+                              : "its TPDO kept showing a fault or a following error (" +
+                                    hex(word, 4) + ")");
       }
       fault_ = FaultCode::None;
       fault_name_.clear();
@@ -1248,8 +1241,9 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
           // 4: the drive holds its actual position from here. Onto a table
           // that still turns (a drive that let go, a run that ended with
           // the table coasting) it would brake the instrument at the drive's
-          // full torque: only with the rate known at rest, from two TPDOs
-          // since the drive's NMT start; until then Switched on stays.
+          // full torque: only with the table known at rest (TPDO1's
+          // positions since the NMT start, rest_since_running()); until
+          // then Switched on stays.
           want = cw::kCmdSwitchOn;  // stays, whatever went out before a reset
           const Rest rest = rest_since_running();
           if (rest.state == Rest::Unknown) break;

@@ -252,6 +252,14 @@ InnovationStats innovation_stats(const std::vector<Innovation>& innov, int lags)
 }
 
 /// Parameters, effective biases, correlation and sharp combinations from x, P.
+/// df_eff_i = df0_i + g G_i3 as a linear form in the parameters.
+ParamVec df_eff_direction(int i, double g) {
+  ParamVec c = ParamVec::Zero();
+  c(sx::kDf0 - sx::kNu0 + i) = 1;
+  c(sx::kG - sx::kNu0 + i) = g;
+  return c;
+}
+
 void interpret(const EstimationInput& in, EstimationResult& r) {
   const EarthAt e = EarthAt::at(in.timeline.site);
   const ParamVec x = r.x.segment<sx::kParams>(sx::kNu0);
@@ -265,9 +273,7 @@ void interpret(const EstimationInput& in, EstimationResult& r) {
   // the model's named combinations (model.md, 8)
   std::array<ParamVec, 2> obs_dir{};
   for (int i = 0; i < 2; ++i) {
-    ParamVec c = ParamVec::Zero();
-    c(sx::kDf0 - sx::kNu0 + i) = 1;
-    c(sx::kG - sx::kNu0 + i) = e.g;
+    ParamVec c = df_eff_direction(i, e.g);
     auto named = [&](std::string_view name, const ParamVec& v) {
       return ParameterEstimate{name, "m/s^2", v.dot(x), std::sqrt(std::max(0.0, v.dot(p * v))),
                                v.cwiseProduct(prior).norm()};
@@ -462,6 +468,64 @@ std::string fixed(double v, int digits) {
   return buf;
 }
 
+/// What the data cannot fix still moves the linearisation: a turn about
+/// the vertical determines df_obs_i = df_z_i - g Theta_i3, not how it
+/// splits, yet the nominal rotates df_z_i by its azimuth error (degrees at
+/// large errors), where Theta_i3 enters otherwise. The estimates'
+/// sensitivity to that split, over its posterior sigma, is an error the
+/// linear covariance of `r` (a converged or stopped second pass) does not
+/// hold: returned as a covariance to add (a consider term), with what was
+/// done appended to `told`. At three times the tactical prior it takes the
+/// recommended plan's RMS error/sigma of df_obs from 1.31 to 1.20; the
+/// other directions the run does not determine, considered the same way,
+/// took it to 1.17 only, at seven times the cost.
+ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, std::string& told) {
+  const EarthAt e = EarthAt::at(in.timeline.site);
+  const ParamArray at = params_of(r.x);
+  const ParamMat pp = r.p.block<sx::kParams, sx::kParams>(sx::kNu0, sx::kNu0);
+  const ParamVec prior = prior_params(in.priors);
+  ParamMat consider = ParamMat::Zero();
+  int considered = 0;
+  for (int i = 0; i < 2; ++i) {
+    ParamVec dir = ParamVec::Zero();  // df_z_i and g Theta_i3 by the same: df_obs kept
+    dir(sx::kDf0 - sx::kNu0 + i) = 1;
+    dir(sx::theta(i + 1, 3) - sx::kNu0) = 1 / e.g;
+    const ParamVec dfz = df_eff_direction(i, e.g);
+    const double sigma = std::sqrt(std::max(0.0, dfz.dot(pp * dfz)));
+    // a Theta_i3 the prior fixes fixes the split too
+    if (!(sigma > 0) || !(prior(sx::theta(i + 1, 3) - sx::kNu0) > 0)) continue;
+    // central: the same one step of the iteration about either side of
+    // the estimate, so neither the iteration's last step (a pass that
+    // stopped unconverged) nor the curvature counts as sensitivity
+    std::array<ParamVec, 2> x{};
+    std::string failed;
+    for (std::size_t side = 0; side < 2; ++side) {
+      ParamArray shifted = at;
+      const double step = side == 0 ? sigma : -sigma;
+      for (int j = 0; j < sx::kParams; ++j) shifted[static_cast<std::size_t>(j)] += step * dir(j);
+      auto moved = pass_about(in, shifted);
+      if (!moved) {
+        failed = moved.error().describe();
+        break;
+      }
+      x[side] = moved->x.segment<sx::kParams>(sx::kNu0);
+    }
+    if (!failed.empty()) {
+      told += "; the split of df_obs_" + std::to_string(i + 1) + " not considered: " + failed;
+      continue;
+    }
+    ++considered;
+    // the same data and prior: a linear model would give the same
+    // estimates about either point
+    const ParamVec d = 0.5 * (x[0] - x[1]);
+    consider += d * d.transpose();
+  }
+  if (considered > 0)
+    told += "; its sensitivity to how df_obs splits (" + std::to_string(considered) +
+            " of 2 axes) added to the covariance";
+  return consider;
+}
+
 }  // namespace
 
 double linearisation_error_sigma(const EstimationInput& in, const EstimationResult& first) {
@@ -553,63 +617,9 @@ Result<EstimationResult> estimate(const EstimationInput& in) {
     }
     pass.ran = pass.iterations > 0;
     if (pass.ran) {
-      // What the data cannot fix still moves the linearisation: a turn
-      // about the vertical determines df_obs_i = df_z_i - g Theta_i3, not
-      // how it splits, yet the nominal rotates df_z_i by its azimuth error
-      // (degrees at large errors), where Theta_i3 enters otherwise. The
-      // estimates' sensitivity to that split, over its posterior sigma, is
-      // an error the linear covariance does not hold: added to it (a
-      // consider term). At three times the tactical prior it takes the
-      // recommended plan's RMS error/sigma of df_obs from 1.31 to 1.19;
-      // the other directions the run does not determine, considered the
-      // same way, take it to 1.17 only, at seven times the cost.
-      const EarthAt e = EarthAt::at(in.timeline.site);
-      const ParamArray at = params_of(r.x);
-      const ParamMat pp = r.p.block<sx::kParams, sx::kParams>(sx::kNu0, sx::kNu0);
-      const ParamVec prior = prior_params(in.priors);
-      ParamMat consider = ParamMat::Zero();
       std::string told;
-      int considered = 0;
-      for (int i = 0; i < (sp.consider_split ? 2 : 0); ++i) {
-        ParamVec dir = ParamVec::Zero();  // df_z_i and g Theta_i3 by the same: df_obs kept
-        dir(sx::kDf0 - sx::kNu0 + i) = 1;
-        dir(sx::theta(i + 1, 3) - sx::kNu0) = 1 / e.g;
-        ParamVec dfz = ParamVec::Zero();
-        dfz(sx::kDf0 - sx::kNu0 + i) = 1;
-        dfz(sx::kG - sx::kNu0 + i) = e.g;
-        const double sigma = std::sqrt(std::max(0.0, dfz.dot(pp * dfz)));
-        // a Theta_i3 the prior fixes fixes the split too
-        if (!(sigma > 0) || !(prior(sx::theta(i + 1, 3) - sx::kNu0) > 0)) continue;
-        // central: the same one step of the iteration about either side of
-        // the estimate, so neither the iteration's last step (a pass that
-        // stopped unconverged) nor the curvature counts as sensitivity
-        std::array<ParamVec, 2> x{};
-        std::string failed;
-        for (std::size_t side = 0; side < 2; ++side) {
-          ParamArray shifted = at;
-          const double step = side == 0 ? sigma : -sigma;
-          for (int j = 0; j < sx::kParams; ++j)
-            shifted[static_cast<std::size_t>(j)] += step * dir(j);
-          auto moved = pass_about(in, shifted);
-          if (!moved) {
-            failed = moved.error().describe();
-            break;
-          }
-          x[side] = moved->x.segment<sx::kParams>(sx::kNu0);
-        }
-        if (!failed.empty()) {
-          told += "; the split of df_obs_" + std::to_string(i + 1) + " not considered: " + failed;
-          continue;
-        }
-        ++considered;
-        // the same data and prior: a linear model would give the same
-        // estimates about either point
-        const ParamVec d = 0.5 * (x[0] - x[1]);
-        consider += d * d.transpose();
-      }
-      if (considered > 0)
-        told += "; its sensitivity to how df_obs splits (" + std::to_string(considered) +
-                " of 2 axes) added to the covariance";
+      ParamMat consider = ParamMat::Zero();
+      if (sp.consider_split) consider = split_consider(in, r, told);
       p_linear = r.p;
       r.p.block<sx::kParams, sx::kParams>(sx::kNu0, sx::kNu0) += consider;
       interpret(in, r);

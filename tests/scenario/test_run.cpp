@@ -54,6 +54,21 @@ const Stand& reference_stand() {
   return s;
 }
 
+/// A stand as its configuration file gives it: the config, its DBCs and
+/// the roles in them, loaded into `st` in place (the roles point into its
+/// database).
+void load_stand(const std::string& path, Stand& st) {
+  auto cfg = load_config(path);
+  REQUIRE(cfg.ok());
+  st.cfg = *cfg;
+  auto db = load_databases(st.cfg.can);
+  REQUIRE(db.ok());
+  st.db = std::move(*db);
+  auto roles = resolve_roles(st.cfg.can, st.db);
+  REQUIRE(roles.ok());
+  st.roles = *roles;
+}
+
 const RoleMap& stand_roles() {
   static const RoleMap r = [] {
     auto roles = resolve_roles(reference_stand().cfg.can, reference_stand().db);
@@ -1448,12 +1463,8 @@ TEST_SUITE("run engine on the virtual stand") {
     // reference table, whose DBC scaling says it) every angle would be
     // scaled or mirrored
     const std::string dir = std::string(TURNCAL_SOURCE_DIR) + "/tests/data/golden/";
-    auto cfg = load_config(dir + "turncal.toml");
-    REQUIRE(cfg.ok());
-    auto db = load_databases(cfg->can);
-    REQUIRE(db.ok());
-    auto roles = resolve_roles(cfg->can, *db);
-    REQUIRE(roles.ok());
+    Stand g;
+    load_stand(dir + "turncal.toml", g);
     run::ReplayOptions o;
     o.profile = dir + "short.toml";
     o.second_pass = est::SecondPassSettings::Mode::Off;
@@ -1461,14 +1472,14 @@ TEST_SUITE("run engine on the virtual stand") {
         {"settings",
          {{"table_geometry",
            "counts_per_revolution 10000, gear_ratio 100, counts increase clockwise"}}}};
-    auto r = run::replay_log(*cfg, *db, *roles, dir + "reference-short.log", &live, o);
+    auto r = run::replay_log(g.cfg, g.db, g.roles, dir + "reference-short.log", &live, o);
     REQUIRE_FALSE(r.ok());
     CHECK(r.error().message.find("counts increase clockwise") != std::string::npos);
     CHECK(r.error().message.find("scaled or mirrored") != std::string::npos);
     // the same geometry as the run's (none of its own, for the reference
     // table): replayed
     live["settings"]["table_geometry"] = "";
-    auto same = run::replay_log(*cfg, *db, *roles, dir + "reference-short.log", &live, o);
+    auto same = run::replay_log(g.cfg, g.db, g.roles, dir + "reference-short.log", &live, o);
     REQUIRE(same.ok());
     CHECK(same->report["settings"]["table_geometry"] == "");
   }
@@ -1481,18 +1492,14 @@ TEST_SUITE("run engine on the virtual stand") {
     // is the same, bit for bit (JSON's shortest round trip of each double);
     // keys added since are new. Paths are where the files are.
     const std::string dir = std::string(TURNCAL_SOURCE_DIR) + "/tests/data/golden/";
-    auto cfg = load_config(dir + "turncal.toml");
-    REQUIRE(cfg.ok());
-    auto db = load_databases(cfg->can);
-    REQUIRE(db.ok());
-    auto roles = resolve_roles(cfg->can, *db);
-    REQUIRE(roles.ok());
+    Stand g;
+    load_stand(dir + "turncal.toml", g);
     // the first pass, as before: on this log's full tactical prior the
     // nonlinear second pass runs, and moves the estimates (by design)
     run::ReplayOptions o;
     o.profile = dir + "short.toml";
     o.second_pass = est::SecondPassSettings::Mode::Off;
-    auto r = run::replay_log(*cfg, *db, *roles, dir + "reference-short.log", nullptr, o);
+    auto r = run::replay_log(g.cfg, g.db, g.roles, dir + "reference-short.log", nullptr, o);
     REQUIRE(r.ok());
     std::ifstream in(dir + "golden-report.json");
     const nlohmann::json golden = nlohmann::json::parse(in);

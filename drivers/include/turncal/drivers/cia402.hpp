@@ -520,6 +520,10 @@ class Master {
   void config_done(double now_s, std::vector<can::Frame>& out);
   void config_failed(const canopen::SdoResult& r, const std::string& why);
   void notice(std::string text);
+  /// A statusword read of a fault reset to be made again (`why`: what is
+  /// said if this is one too many).
+  void read_again(const std::string& why);
+  static constexpr const char* kEmcysKeptComing = "EMCYs kept coming while its statusword was read";
   /// Reads 0x60F2 back, then check_mode.
   void check_options(std::uint64_t gen);
   /// Reads 0x6061 until it shows profile position (1), then completes.
