@@ -166,6 +166,16 @@ void VirtualStand::emit_garbage(double t, std::vector<StandFrame>& out) {
   out.push_back({t, true, f});
 }
 
+void VirtualStand::note_turn(double t) {
+  const TableMotion& m = drive_ ? drive_->motion() : table_.motion();
+  if (turned_ || m.at(t).rate == 0) return;
+  turned_ = true;
+  StandFaults& f = setup_.faults;
+  // NaN stays NaN: std::fmin takes the number
+  f.ins_silent_at_s = std::fmin(f.ins_silent_at_s, t + f.ins_silent_after_turn_s);
+  f.encoder_silent_at_s = std::fmin(f.encoder_silent_at_s, t + f.encoder_silent_after_turn_s);
+}
+
 void VirtualStand::advance(double t, std::vector<StandFrame>& out) {
   const StandFaults& f = setup_.faults;
   const double inf = std::numeric_limits<double>::infinity();
@@ -199,6 +209,7 @@ void VirtualStand::advance(double t, std::vector<StandFrame>& out) {
     const double tn = std::min({ts, te, tt, tg, flood_on ? tf : inf});
     if (tn > t) break;
     table_.advance(tn);
+    note_turn(tn);
     flush_velocity(tn);
     if (ts == tn) {
       emit_ins_status(tn, out);

@@ -66,9 +66,10 @@ constexpr const char* kFaultHelp =
     "  ins-drop=FRACTION          INS velocity frames dropped at random\n"
     "  ins-spikes=FRACTION        INS velocity East frames sent as 2000 m/s at random\n"
     "  ins-burst=AT:SECONDS       every INS frame dropped for a while\n"
-    "  ins-silent=AT              the INS sends nothing from then on\n"
+    "  ins-silent=AT|turn+S       the INS sends nothing from then on (turn+S: S after\n"
+    "                             the table first turns)\n"
     "  ins-fault=AT               the INS goes to fault mode (3)\n"
-    "  encoder-silent=AT          no TBL_Encoder from then on\n"
+    "  encoder-silent=AT|turn+S   no TBL_Encoder from then on\n"
     "  table-stall=SECONDS        the next move stalls this long after it starts\n"
     "  table-overshoot=DEG        moves pass their target by DEG, then come back\n"
     "  table-fault=AT             a drive fault: quick stop, state 4, fault 3\n"
@@ -146,6 +147,11 @@ Status apply_fault(const std::string& spec, stand::StandSetup& s) {
       return make_error("--fault clock-jump=ins|table:AT:SECONDS, not '" + value + "'");
     value = value.substr(c + 1);
   }
+  // AT as turn+S: S stand seconds after the table first turns
+  const bool from_turn = value.starts_with("turn+");
+  if (from_turn && name != "ins-silent" && name != "encoder-silent")
+    return make_error("--fault " + spec + ": only ins-silent and encoder-silent take turn+S");
+  if (from_turn) value = value.substr(5);
   std::vector<double> v;
   if (!numbers(value, v)) return make_error("--fault " + spec + ": expected numbers after '='");
   auto want = [&](std::size_t lo, std::size_t hi) { return v.size() >= lo && v.size() <= hi; };
@@ -158,11 +164,11 @@ Status apply_fault(const std::string& spec, stand::StandSetup& s) {
     f.ins_burst_at_s = v[0];
     f.ins_burst_s = v[1];
   } else if (name == "ins-silent" && want(1, 1)) {
-    f.ins_silent_at_s = v[0];
+    (from_turn ? f.ins_silent_after_turn_s : f.ins_silent_at_s) = v[0];
   } else if (name == "ins-fault" && want(1, 1)) {
     s.ins.fault_at_s = v[0];
   } else if (name == "encoder-silent" && want(1, 1)) {
-    f.encoder_silent_at_s = v[0];
+    (from_turn ? f.encoder_silent_after_turn_s : f.encoder_silent_at_s) = v[0];
   } else if (name == "table-stall" && want(1, 1)) {
     s.table_faults.stall_after_s = v[0];
   } else if (name == "table-overshoot" && want(1, 1) && v[0] >= 0) {

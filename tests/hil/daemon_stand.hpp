@@ -70,9 +70,10 @@ inline void write_plan(const hil::fs::path& dir, const std::string& name, int tu
   std::ofstream(dir / name) << plan;
 }
 
-/// The turn rate for a test that acts during the turn: 180 deg at 10 deg/s,
-/// 18 s of stand time, 4.6 s of real time at 4x.
-constexpr int kSlowTurnDps = 10;
+/// The turn rate for a test that acts during the turn: 180 deg at 5 deg/s,
+/// 36 s of stand time, 9 s of real time at 4x (at 10 deg/s, a SIGTERM sent
+/// as the turn was seen once reached the daemon in hold 2).
+constexpr int kSlowTurnDps = 5;
 
 /// The short plan as short.toml, and a daemon configuration for it, in `dir`.
 /// `dbc` (under the source tree) and `extra` (further sections) describe
@@ -178,19 +179,16 @@ inline bool wait_bus(const std::string& iface, std::chrono::milliseconds timeout
 /// common ones (faults, --state-out).
 inline hil::Child start_sim(const hil::fs::path& dir, const std::string& seed = "3",
                             const std::vector<std::string>& extra = {}) {
-  std::vector<std::string> args = {kSim,
-                                   "--config",
-                                   (dir / "turncal.toml").string(),
-                                   "--profile",
-                                   (dir / "short.toml").string(),
-                                   "--speed",
-                                   std::to_string(kSpeed),
-                                   "--rates",
-                                   kRates,
-                                   "--seed",
-                                   seed,
-                                   "--truth",
-                                   "truth.json"};
+  std::vector<std::string> args = {kSim, "--config", (dir / "turncal.toml").string(), "--profile",
+                                   (dir / "short.toml").string(), "--speed", std::to_string(kSpeed),
+                                   "--rates", kRates, "--seed", seed, "--truth", "truth.json",
+                                   // the ICD's 500 ms of host silence before
+                                   // the table stops itself, of real time:
+                                   // at 4x, 2 s of the stand's (0.5 s of it
+                                   // would leave the daemon 125 ms, which a
+                                   // guest's stall takes); `extra` may say
+                                   // otherwise
+                                   "--table-heartbeat-timeout", std::to_string(0.5 * kSpeed)};
   args.insert(args.end(), extra.begin(), extra.end());
   hil::Child sim(args, dir);
   // the INS's interface, as write_stand wrote it

@@ -6,7 +6,10 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cerrno>
 #include <chrono>
+#include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <stdexcept>
 #include <string>
@@ -72,11 +75,17 @@ class Child {
   pid_t pid_ = -1;
 };
 
+/// A folder of its own under $TMPDIR (in the user-mode Linux guest, a
+/// tmpfs of the guest's: scripts/vcan-run says why), else /tmp.
 struct TempDir {
   fs::path path;
   TempDir() {
-    char tmpl[] = "/tmp/turncal-hil.XXXXXX";
-    path = ::mkdtemp(tmpl);
+    const char* base = std::getenv("TMPDIR");
+    std::string tmpl =
+        std::string(base != nullptr && *base != '\0' ? base : "/tmp") + "/turncal-hil.XXXXXX";
+    if (::mkdtemp(tmpl.data()) == nullptr)
+      throw std::runtime_error("mkdtemp " + tmpl + ": " + std::strerror(errno));
+    path = tmpl;
   }
   ~TempDir() { fs::remove_all(path); }
 };

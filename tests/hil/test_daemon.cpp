@@ -267,7 +267,9 @@ TEST_SUITE("daemon") {
       REQUIRE(wait_phase(dir.path, "turn", 60000ms));
       // the destructor of a running Child sends SIGKILL
     }
-    std::this_thread::sleep_for(1000ms);  // the table's heartbeat timeout: 0.5 s at 4x
+    // the table's heartbeat timeout, 0.5 s of real time (start_sim), and
+    // its stop, before a daemon sends heartbeats again
+    std::this_thread::sleep_for(2000ms);
     hil::fs::remove(dir.path / "control.sock");
     Child daemon({kDaemon, "--config", config}, dir.path);
     REQUIRE(wait_for(dir.path / "control.sock", 5000ms));

@@ -614,24 +614,32 @@ TEST_SUITE("faults") {
       /// the INS's or the encoder's frames, not one the table reports of
       /// itself (an observer does not judge the table's status)
       bool replay_names_it = true;
+      int turn_dps = 30;  ///< the turn's rate
     };
     const std::vector<Case> cases = {
         {"INS silent in hold 1",
          {"--fault", "ins-silent=30"},
          "INS velocity lost during hold 1",
          kQuickStopped},
+        // the silence 2 s into the turn, timed from the table's first
+        // motion (the stand's own clock starts before the run by as long as
+        // the guest takes to start a daemon and a run: 2 to 4 s of it), in
+        // a turn of 36 s: its loss seen well inside it, live and in the
+        // replay alike
         {"INS silent in the turn",
-         {"--fault", "ins-silent=62"},
+         {"--fault", "ins-silent=turn+2"},
          "INS velocity lost during turn 1",
-         kQuickStopped},
-        // the stand's time runs from the stand's start, about 2 s before
-        // the run's (at 4x): its turn is from about 62.5 to 69.5 s, so the
-        // silence comes 2.5 s into it, its loss seen well inside it, live
-        // and in the replay alike (at 62 it fell on the turn's edge)
+         kQuickStopped,
+         nullptr,
+         true,
+         kSlowTurnDps},
         {"encoder silent in the turn",
-         {"--fault", "encoder-silent=65"},
+         {"--fault", "encoder-silent=turn+2"},
          "table encoder lost",
-         kQuickStopped},
+         kQuickStopped,
+         nullptr,
+         true,
+         kSlowTurnDps},
         {"the first move stalls",
          {"--fault", "table-stall=1"},
          "table fault: stall",
@@ -662,7 +670,7 @@ TEST_SUITE("faults") {
     };
     for (const Case& k : cases) SUBCASE(k.name) {
         hil::TempDir dir;
-        write_stand(dir.path, hil::if0(), false, 40);
+        write_stand(dir.path, hil::if0(), false, 40, k.turn_dps);
         std::vector<std::string> args = {"--state-out", "stand.json"};
         args.insert(args.end(), k.sim.begin(), k.sim.end());
         Child sim = start_sim(dir.path, "5", args);

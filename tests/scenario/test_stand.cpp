@@ -169,6 +169,34 @@ TEST_SUITE("virtual stand") {
     CHECK(stand.table().angle(60) < 60 * kDeg + 350 * kDeg);
   }
 
+  TEST_CASE("silence timed from the table's first turn") {
+    Host host = reference_host();
+    StandSetup s = short_setup();
+    s.faults.ins_silent_after_turn_s = 2;
+    s.faults.encoder_silent_after_turn_s = 3;
+    VirtualStand stand(s, host.db, host.roles);
+    const auto out = run(stand, host, 60);
+    double first_angle = NAN, turn_at = NAN, last_ins = NAN, last_encoder = NAN;
+    for (const StandFrame& f : out) {
+      const can::Message* m = nullptr;
+      std::vector<double> v(16);
+      REQUIRE(host.codec.decode(f.frame, v, &m) == can::DecodeStatus::Ok);
+      if (f.ins_side) last_ins = f.t_s;
+      if (m->name != "TBL_Encoder") continue;
+      last_encoder = f.t_s;
+      const double a = v[host.roles[Role::EncoderAngle].signal_index];
+      if (std::isnan(first_angle)) first_angle = a;
+      if (std::isnan(turn_at) && a != first_angle) turn_at = f.t_s;
+    }
+    REQUIRE(turn_at > 50);  // the turn starts at 52 s
+    // the INS (its 100 Hz velocity and 10 Hz status) and the 200 Hz encoder
+    // stop within a period of their times after the turn's start
+    CHECK(last_ins < turn_at + 2);
+    CHECK(last_ins > turn_at + 2 - 0.02);
+    CHECK(last_encoder < turn_at + 3);
+    CHECK(last_encoder > turn_at + 3 - 0.01);
+  }
+
   TEST_CASE("stand faults: drops, silence, garbage, flood, clock jump") {
     Host host = reference_host();
     StandSetup s = short_setup();

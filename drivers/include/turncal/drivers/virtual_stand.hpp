@@ -43,6 +43,11 @@ struct StandFaults {
   double ins_burst_s = 0;
   double ins_silent_at_s = NAN;      ///< the INS sends nothing from then on
   double encoder_silent_at_s = NAN;  ///< no TBL_Encoder from then on
+  /// The same two, this long after the table first turns (a fault in a
+  /// turn whatever the host's start took); the earlier of the two times
+  /// holds.
+  double ins_silent_after_turn_s = NAN;
+  double encoder_silent_after_turn_s = NAN;
   double garbage_rate_hz = 0;  ///< frames of a known ID with a wrong length, and of unknown IDs
   double flood_at_s = NAN;     ///< a flood of frames of an unknown ID
   double flood_s = 0;
@@ -112,6 +117,8 @@ class VirtualStand {
   void emit_garbage(double t, std::vector<StandFrame>& out);
   can::Frame encode(Role any_role_of_message, std::span<const std::pair<Role, double>> values);
   [[nodiscard]] bool ins_quiet(double t) const;
+  /// Sets the faults timed from the first turn once the table turns at t.
+  void note_turn(double t);
   /// The INS clock's value at t for a time role, in its signal's unit (0: none).
   [[nodiscard]] double ins_tag(Role r, double t) const;
   [[nodiscard]] double role_value(Role r, std::span<const double> values) const;
@@ -126,6 +133,7 @@ class VirtualStand {
   VirtualIns ins_;
   std::mt19937_64 rng_;
   double now_ = 0;
+  bool turned_ = false;  // the table has turned
   long ins_status_k_ = 0, encoder_k_ = 0, table_status_k_ = 0, garbage_k_ = 0, flood_k_ = 0;
   std::uint8_t ins_counter_ = 0;
   std::vector<InsVelocity> vel_;
