@@ -422,6 +422,18 @@ Status MasterSettings::check() const {
     return make_error("set-point, fault reset and mode switch times must be positive");
   if (!(sync_period_s >= 0) || !std::isfinite(sync_period_s))
     return make_error("SYNC period must be 0 (none) or positive");
+  // TPDO1's positions are the table's rate and its rest: a period over
+  // half the drive's heartbeat timeout leaves them unknown between two
+  // (the drive's own transmission, when the mapping is not written, is
+  // its configuration's)
+  if (const double period = sync_period_s > 0 ? sync_period_s : tpdo_event_timer_s;
+      (sync_period_s > 0 || configure_mapping) &&
+      !(positive(period) && period <= drive_heartbeat_timeout_s / 2))
+    return make_error("TPDO1's period (" + num(period * 1000) + " ms, " +
+                      (sync_period_s > 0 ? "the SYNC period" : "its event timer") +
+                      ") must be positive and at most half the drive heartbeat timeout (" +
+                      num(drive_heartbeat_timeout_s * 1000) +
+                      " ms): the table's rate and rest come from its positions");
   const double cpr = counts_per_rad();
   const double per_deg = cpr / kRadToDeg;
   TURNCAL_TRY(to_u32_counts(profile_velocity_rps * kRadToDeg, per_deg, "profile velocity",
@@ -522,30 +534,42 @@ void Master::start(double now_s, std::vector<can::Frame>& out) {
   tick(now_s, out);
 }
 
-Master::Rest Master::rest_since_running() {
+Master::Rest Master::rest_since_running() const {
   // over a window of TPDO1s since the NMT start, not two samples: a count
   // of dither between two frames a millisecond apart is no turn. Turning:
-  // more than kRestDitherCounts and kTableAtRestRps over the window; the
-  // window starts again when it has grown stale (a table that has since
-  // stopped is judged by now, not by its past)
+  // more than kRestDitherCounts and kTableAtRestRps over the window, which
+  // follows the latest position (a table that has since stopped is judged
+  // by now, not by its past). Not known: no window yet, or no position
+  // for the drive's heartbeat timeout.
   Rest r;
-  if (tpdo_running_ == 0 || !std::isfinite(last_sample_t_)) {
-    rest_ref_t_ = NAN;
+  if (tpdo_running_ == 0 || std::isnan(rest_win_.base.t) ||
+      now_ - last_tpdo_t_ > s_.drive_heartbeat_timeout_s)
     return r;
-  }
-  if (!std::isfinite(rest_ref_t_) || last_sample_t_ - rest_ref_t_ > 5 * kRestWindowS) {
-    rest_ref_t_ = last_sample_t_;
-    rest_ref_counts_ = pos_counts_;
-    return r;
-  }
-  const double dt = last_sample_t_ - rest_ref_t_;
-  if (dt < kRestWindowS) return r;
-  const auto dc = static_cast<double>(pos_counts_ - rest_ref_counts_);
+  const double dt = last_sample_t_ - rest_win_.base.t;
+  if (dt < rate_window_s()) return r;
+  const auto dc = static_cast<double>(pos_counts_ - rest_win_.base.counts);
   r.rate_rps = sense() * dc / cpr_ / dt;
   r.state = std::abs(dc) > kRestDitherCounts && std::abs(r.rate_rps) > kTableAtRestRps
                 ? Rest::Turning
                 : Rest::AtRest;
   return r;
+}
+
+double Master::rate_window_s() const {
+  // kRestDitherCounts over the window read at most 80% of the rest rate
+  return std::max(kRestWindowS, 1.25 * kRestDitherCounts / cpr_ / kTableAtRestRps);
+}
+
+void Master::add_position(PosWindow& w, double t, std::int64_t counts) const {
+  // the first position, or the first after the drive's heartbeat timeout
+  // without one: the window starts here
+  if (std::isnan(w.last_t) || t - w.last_t > s_.drive_heartbeat_timeout_s) {
+    w.base = w.next = {t, counts};
+  } else if (t - w.next.t >= rate_window_s()) {
+    w.base = w.next;
+    w.next = {t, counts};
+  }
+  w.last_t = t;
 }
 
 double Master::start_up_budget_s() const {
@@ -761,7 +785,7 @@ void Master::config_done(double now_s, std::vector<can::Frame>& out) {
   phase_ = CommPhase::Running;
   started_at_ = now_s;
   tpdo_running_ = 0;
-  rest_ref_t_ = NAN;
+  rest_win_ = {};
   last_drive_hb_ = now_s;
   drive_hb_lost_ = false;
   configured_mapping_ = s_.configure_mapping;
@@ -868,6 +892,7 @@ void Master::on_heartbeat(const can::Frame& f, double t_s, std::vector<can::Fram
       have_pos_ = false;
       last_sample_t_ = NAN;
       rate_ = NAN;
+      rate_win_ = rest_win_ = {};
       ++counts_.position_resets;
     }
     if (phase_ == CommPhase::WaitBootUp) {
@@ -956,7 +981,6 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
   } else {
     pos_counts_ = raw;
   }
-  const double prev_angle = angle_;
   have_pos_ = true;
   last_raw_ = raw;
   angle_ = sense() * static_cast<double>(pos_counts_) / cpr_;
@@ -965,8 +989,16 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
   smp.angle_rad = angle_;
   smp.counts = pos_counts_;
   smp.statusword = word;
-  if (!std::isnan(last_sample_t_) && smp.t_s > last_sample_t_) {
-    rate_ = (angle_ - prev_angle) / (smp.t_s - last_sample_t_);
+  if (std::isnan(last_sample_t_) || smp.t_s > last_sample_t_) {
+    // not the step between two samples: one count of dither between two
+    // frames 10 ms apart reads 0.27 deg/s at 2^17 counts per revolution,
+    // a turning table to every rest test
+    add_position(rate_win_, smp.t_s, pos_counts_);
+    if (phase_ == CommPhase::Running) add_position(rest_win_, smp.t_s, pos_counts_);
+    const double dt = smp.t_s - rate_win_.base.t;
+    rate_ = dt >= rate_window_s()
+                ? sense() * static_cast<double>(pos_counts_ - rate_win_.base.counts) / cpr_ / dt
+                : std::nan("");
   }
   last_sample_t_ = smp.t_s;
   last_tpdo_t_ = t_s;

@@ -24,6 +24,8 @@ namespace {
 
 constexpr double kDeg = 0.017453292519943295;
 constexpr double kTwoPi = 6.283185307179586;
+// the master's rate window (0.1 to 0.2 s at this drive's counts) and a TPDO
+constexpr double kRateWindowS = 0.25;
 
 /// 10000 counts per motor turn, 100 motor turns per table turn: 1e6
 /// counts per table revolution, one count 6.3e-6 rad.
@@ -666,6 +668,8 @@ TEST_SUITE("cia402") {
     l.run_for(0.05);
     REQUIRE_FALSE(l.samples.empty());
     CHECK(l.samples.back().counts == -125000);
+    // the rate, over its window (0.1 to 0.2 s), reads the rest
+    l.run_for(0.2);
     CHECK(l.master.status().rate_rps == 0);
   }
 
@@ -1097,6 +1101,20 @@ TEST_SUITE("cia402") {
       s.host_heartbeat_timeout_s = 0.0004;
       refused(s, "1 to 65535 ms");
     }
+    SUBCASE("TPDO1 rarer than half the drive heartbeat timeout: no rate, no rest known") {
+      s.drive_heartbeat_timeout_s = 0.3;
+      s.configure_mapping = true;
+      s.tpdo_event_timer_s = 0.15;
+      CHECK(cia402::Master::create(s).ok());
+      s.tpdo_event_timer_s = 0.2;
+      refused(s, "TPDO1's period (200 ms, its event timer) must be positive and at most half");
+      s.configure_mapping = false;  // the drive's own transmission: its configuration's
+      CHECK(cia402::Master::create(s).ok());
+      s.sync_period_s = 0.2;
+      refused(s, "TPDO1's period (200 ms, the SYNC period)");
+      s.sync_period_s = 0.1;
+      CHECK(cia402::Master::create(s).ok());
+    }
     SUBCASE("option codes CiA 402 does not define") {
       s.quick_stop_option = 9;
       refused(s, "0x605A");
@@ -1496,7 +1514,7 @@ TEST_SUITE("cia402") {
     CHECK(l.sent.size() == from);
     REQUIRE(l.command(TableCommandCode::QuickStop, 4));
     REQUIRE(l.run_until([&] { return l.master.status().ack == 4 && !l.drive.moving(l.t); }, 1));
-    l.run_for(0.05);
+    l.run_for(kRateWindowS);
     REQUIRE(l.enabled(5));
     CHECK(l.master.status().fault == FaultCode::None);
     CHECK(l.drive.state() == State::OperationEnabled);
@@ -1554,6 +1572,21 @@ TEST_SUITE("cia402") {
     for (std::size_t i = 1; i < l.samples.size(); ++i)
       stepped = stepped || l.samples[i].counts != l.samples[i - 1].counts;
     CHECK(stepped);
+    // the rate the engine and the commands see reads the rest, every TPDO
+    // of half a second (over two samples it would read 0.36 deg/s)
+    int known = 0, over = 0;
+    for (double end = l.t + 0.5; l.t < end; l.step()) {
+      const double rate = l.master.status().rate_rps;
+      known += std::isfinite(rate);
+      over += std::isfinite(rate) && std::abs(rate) >= kTableAtRestRps;
+    }
+    CHECK(known > 400);
+    CHECK(over == 0);
+    // so the operator may disable it, and enable it again
+    REQUIRE(l.command(TableCommandCode::Disable, 2));
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 2; }, 0.5));
+    CHECK(l.drive.state() == State::ReadyToSwitchOn);  // Shutdown, transition 8
+    REQUIRE(l.enabled(3));
   }
 
   TEST_CASE("a controlled stop with a fault latched stops the table: as a quick stop") {
@@ -1593,7 +1626,7 @@ TEST_SUITE("cia402") {
     CHECK(l.drive.counts().coasts == 0);
     REQUIRE(l.command(TableCommandCode::QuickStop, 4));
     REQUIRE(l.run_until([&] { return !l.drive.moving(l.t); }, 2.0));
-    l.run_for(0.05);
+    l.run_for(kRateWindowS);
     CHECK(l.command(TableCommandCode::Disable, 5).ok());
     CHECK(l.drive.counts().coasts == 0);
   }
@@ -1710,29 +1743,39 @@ TEST_SUITE("cia402") {
     CHECK(l.sent.size() == sent);
     CHECK(l.drive.state() == State::OperationEnabled);
     REQUIRE(l.in_position(2, 5));
-    // a quick stop, and at once enable again: the drive leaves quick stop
-    // active (transition 12) only once at rest (bit 10)
+    // a quick stop, and at once enable again: refused while it decelerates
+    // (the drive stays quick stop active, the controlword Quick stop), then
+    // enabled at rest
     REQUIRE(l.command(TableCommandCode::MoveRelative, 4, 90 * kDeg, 30 * kDeg));
     l.run_for(1.0);
     REQUIRE(l.command(TableCommandCode::QuickStop, 5));
-    REQUIRE(l.command(TableCommandCode::Enable, 6));
+    l.step();
     REQUIRE(l.drive.moving(l.t));
+    const Status early = l.command(TableCommandCode::Enable, 6);
+    REQUIRE_FALSE(early.ok());
+    CHECK(early.error().message.find("enable refused while the table turns") == 0);
     while (l.drive.moving(l.t)) {
       CHECK(l.drive.state() == State::QuickStopActive);
       CHECK((l.drive.controlword() & 0x8F) == 0x02);
       l.step();
     }
+    l.run_for(kRateWindowS);
     REQUIRE(l.enabled(6));
     // and disable from quick stop active, also at rest only
     REQUIRE(l.command(TableCommandCode::MoveRelative, 7, 90 * kDeg, 30 * kDeg));
     l.run_for(1.0);
     REQUIRE(l.command(TableCommandCode::QuickStop, 8));
-    REQUIRE(l.command(TableCommandCode::Disable, 9));
+    l.step();
     REQUIRE(l.drive.moving(l.t));
+    const Status early_off = l.command(TableCommandCode::Disable, 9);
+    REQUIRE_FALSE(early_off.ok());
+    CHECK(early_off.error().message.find("disable refused while the table turns") == 0);
     while (l.drive.moving(l.t)) {
       CHECK(l.drive.state() == State::QuickStopActive);
       l.step();
     }
+    l.run_for(kRateWindowS);
+    REQUIRE(l.command(TableCommandCode::Disable, 9));
     REQUIRE(l.run_until([&] { return l.master.status().ack == 9; }, 0.5));
     CHECK(l.drive.state() == State::SwitchOnDisabled);  // transition 12
     CHECK(l.master.status().state == TableState::Disabled);

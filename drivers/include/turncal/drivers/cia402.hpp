@@ -566,11 +566,9 @@ class Master {
     enum State : std::uint8_t { Unknown, AtRest, Turning } state = Unknown;
     double rate_rps = NAN;
   };
-  Rest rest_since_running();
+  [[nodiscard]] Rest rest_since_running() const;
   static constexpr double kRestWindowS = 0.1;
   static constexpr double kRestDitherCounts = 2;
-  double rest_ref_t_ = NAN;
-  std::int64_t rest_ref_counts_ = 0;
   double starting_since_ = 0;       // NMT reset communication sent
   std::uint64_t tpdo_running_ = 0;  // TPDO1s since then
   bool drive_seen_operational_ = false;
@@ -636,7 +634,27 @@ class Master {
   double last_tpdo_t_ = -1e300;
   double velocity_ = NAN;
   double velocity_t_ = -1e300;
+  /// The table's rate from TPDO1's positions over a window (rate_win_),
+  /// not from two samples.
   double rate_ = NAN;
+  struct PosRef {
+    double t = NAN;
+    std::int64_t counts = 0;
+  };
+  /// TPDO1's positions over rate_window_s() to twice it, or over the
+  /// period of TPDOs sent more rarely: two reference samples, the older
+  /// one the base. It starts again after the drive's heartbeat timeout
+  /// without a position.
+  struct PosWindow {
+    PosRef base, next;
+    double last_t = NAN;
+  };
+  PosWindow rate_win_;  // since the position's count started
+  PosWindow rest_win_;  // since the NMT start
+  /// The window: kRestWindowS, or longer where kRestDitherCounts over it
+  /// would read as kTableAtRestRps (a coarse encoder).
+  [[nodiscard]] double rate_window_s() const;
+  void add_position(PosWindow& w, double t, std::int64_t counts) const;
   std::vector<EncoderSample> samples_;
   std::vector<canopen::Emcy> emcy_;
   std::vector<std::string> notices_;
