@@ -422,18 +422,6 @@ Status MasterSettings::check() const {
     return make_error("set-point, fault reset and mode switch times must be positive");
   if (!(sync_period_s >= 0) || !std::isfinite(sync_period_s))
     return make_error("SYNC period must be 0 (none) or positive");
-  // TPDO1's positions are the table's rate and its rest: a period over
-  // half the drive's heartbeat timeout leaves them unknown between two
-  // (the drive's own transmission, when the mapping is not written, is
-  // its configuration's)
-  if (const double period = sync_period_s > 0 ? sync_period_s : tpdo_event_timer_s;
-      (sync_period_s > 0 || configure_mapping) &&
-      !(positive(period) && period <= drive_heartbeat_timeout_s / 2))
-    return make_error("TPDO1's period (" + num(period * 1000) + " ms, " +
-                      (sync_period_s > 0 ? "the SYNC period" : "its event timer") +
-                      ") must be positive and at most half the drive heartbeat timeout (" +
-                      num(drive_heartbeat_timeout_s * 1000) +
-                      " ms): the table's rate and rest come from its positions");
   const double cpr = counts_per_rad();
   const double per_deg = cpr / kRadToDeg;
   TURNCAL_TRY(to_u32_counts(profile_velocity_rps * kRadToDeg, per_deg, "profile velocity",
@@ -484,6 +472,27 @@ Status MasterSettings::check() const {
     if (sync_period_s == 0 && !(ms >= 1 && ms <= 65535))
       return make_error("TPDO event timer must be 1 to 65535 ms (0x1800:05)");
   }
+  // TPDO1's positions are the table's rate and its rest: a period over
+  // half the drive's heartbeat timeout leaves them unknown between two
+  // (the drive's own transmission, when the mapping is not written, is
+  // its configuration's)
+  if (const double period = sync_period_s > 0 ? sync_period_s : tpdo_event_timer_s;
+      (sync_period_s > 0 || configure_mapping) &&
+      !(positive(period) && period <= drive_heartbeat_timeout_s / 2))
+    return make_error("TPDO1's period (" + num(period * 1000) + " ms, " +
+                      (sync_period_s > 0 ? "the SYNC period" : "its event timer") +
+                      ") must be positive and at most half the drive heartbeat timeout (" +
+                      num(drive_heartbeat_timeout_s * 1000) +
+                      " ms): the table's rate and rest come from its positions");
+  // a resolution so coarse that the dither allowance needs more than a
+  // second to read as rest: the rate and the rest would lag a stop by
+  // seconds, past the sequencer's limits
+  if (const double per_turn = counts_per_rev * gear_ratio; per_turn < kMinCountsPerTableTurn)
+    return make_error("the table's resolution, " + num(per_turn) +
+                      " counts per table turn (counts per revolution x gear ratio), is under " +
+                      num(kMinCountsPerTableTurn) + ": a rest of " +
+                      num(kTableAtRestRps * kRadToDeg) +
+                      " deg/s would take over a second to tell from a count of dither");
   return Ok{};
 }
 
@@ -995,10 +1004,12 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
     // a turning table to every rest test
     add_position(rate_win_, smp.t_s, pos_counts_);
     if (phase_ == CommPhase::Running) add_position(rest_win_, smp.t_s, pos_counts_);
+    // a count or two of dither over the window is rest, as in the rest test
     const double dt = smp.t_s - rate_win_.base.t;
-    rate_ = dt >= rate_window_s()
-                ? sense() * static_cast<double>(pos_counts_ - rate_win_.base.counts) / cpr_ / dt
-                : std::nan("");
+    const auto dc = static_cast<double>(pos_counts_ - rate_win_.base.counts);
+    rate_ = !(dt >= rate_window_s())            ? std::nan("")
+            : std::abs(dc) <= kRestDitherCounts ? 0.0
+                                                : sense() * dc / cpr_ / dt;
   }
   last_sample_t_ = smp.t_s;
   last_tpdo_t_ = t_s;
@@ -1330,9 +1341,10 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
     case TableCommandCode::Enable:
       // Onto a turning table (a warning latched mid-move, a drive that let
       // go and coasts) an enable would set a new demand at speed
-      if (const double rate = status().rate_rps;
-          running && std::isfinite(rate) && std::abs(rate) > kTableAtRestRps)
-        return make_error("enable refused while the table turns (" + num(rate * kRadToDeg) +
+      // (by the rest test the enable itself waits for: one verdict)
+      if (const Rest rest = rest_since_running(); running && rest.state == Rest::Turning)
+        return make_error("enable refused while the table turns (" +
+                          num(rest.rate_rps * kRadToDeg) +
                           " deg/s): stop it first (quick stop), or wait for it to stop");
       goal_ = Goal::Enabled;
       quick_stopped_ = false;
@@ -1367,9 +1379,9 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
             "disable refused while the table moves: stop it first (controlled or quick stop)");
       // whatever the master thinks of its move: a drive without 0x605B/C
       // lets a turning table coast on Shutdown
-      if (const double rate = status().rate_rps;
-          running && std::isfinite(rate) && std::abs(rate) > kTableAtRestRps)
-        return make_error("disable refused while the table turns (" + num(rate * kRadToDeg) +
+      if (const Rest rest = rest_since_running(); running && rest.state == Rest::Turning)
+        return make_error("disable refused while the table turns (" +
+                          num(rest.rate_rps * kRadToDeg) +
                           " deg/s): stop it first (quick stop), or wait for it to stop");
       goal_ = Goal::Disabled;
       abandon_recovery();

@@ -290,8 +290,8 @@ class Cia402Table final : public TableDriver {
       fault = static_cast<int>(cia402::FaultCode::Emcy);
       name = last_emcy_;
     }
-    const double rate =
-        s_.velocity_pdo ? master_.velocity_rps() : master_.status().rate_rps;  // steps otherwise
+    const double rate = s_.velocity_pdo ? master_.velocity_rps()
+                                        : master_.status().rate_rps;  // positions' otherwise
     return {host_s, static_cast<int>(st), 0, fault, name, rate};
   }
 

@@ -18,6 +18,9 @@ enum class TableState : std::uint8_t {
 
 /// A table rate below this, rad/s (0.057 deg/s), is a table at rest.
 inline constexpr double kTableAtRestRps = 1e-3;
+/// The coarsest table position a rest test takes, counts per table turn:
+/// two counts of dither over a second read under kTableAtRestRps.
+inline constexpr double kMinCountsPerTableTurn = 16384;
 
 /// TBL_Command.Command
 enum class TableCommandCode : std::uint8_t {

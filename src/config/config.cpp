@@ -1,6 +1,7 @@
 #include "turncal/config.hpp"
 
 #include "toml_reader.hpp"
+#include "turncal/icd.hpp"
 
 #include <toml++/toml.h>
 #include <algorithm>
@@ -542,6 +543,33 @@ Result<Config> parse_config(std::string_view text, const std::string& file) {
                     "timer period (daemon.heartbeat_hz = %g: %g ms), from which SYNC goes out",
                     d.sync_period_s * 1e3, cfg.daemon.heartbeat_hz, 1e3 / cfg.daemon.heartbeat_hz);
       return make_error(msg, where({"table.cia402.sync_period_ms"}));
+    }
+    // TPDO1's positions are the table's rate and its rest (the master's
+    // check holds the same; here with the key's line)
+    const bool sync = d.sync_period_s > 0;
+    if (const double period = sync ? d.sync_period_s : d.tpdo_event_timer_s;
+        (sync || d.configure_mapping) && period > d.drive_heartbeat_timeout_s / 2 + 1e-12) {
+      char msg[300];
+      std::snprintf(msg, sizeof msg,
+                    "key 'table.cia402.%s': TPDO1's period of %g ms is more than half the "
+                    "drive heartbeat timeout (drive_heartbeat_timeout_ms = %g): the table's rate "
+                    "and rest, from its positions, would be unknown between two",
+                    sync ? "sync_period_ms" : "tpdo_event_timer_ms", period * 1e3,
+                    d.drive_heartbeat_timeout_s * 1e3);
+      return make_error(
+          msg, where({sync ? "table.cia402.sync_period_ms" : "table.cia402.tpdo_event_timer_ms",
+                      "table.cia402.drive_heartbeat_timeout_ms"}));
+    }
+    if (const double per_turn = d.counts_per_revolution * d.gear_ratio;
+        per_turn < kMinCountsPerTableTurn) {
+      char msg[300];
+      std::snprintf(msg, sizeof msg,
+                    "key 'table.cia402.counts_per_revolution': %g counts per table turn "
+                    "(counts_per_revolution x gear_ratio) is under %g: a table at rest would "
+                    "take over a second to tell from a count of dither",
+                    per_turn, kMinCountsPerTableTurn);
+      return make_error(msg,
+                        where({"table.cia402.counts_per_revolution", "table.cia402.gear_ratio"}));
     }
   }
   return cfg;

@@ -69,7 +69,7 @@ constexpr const char* kFaultHelp =
     "  ins-silent=AT|turn+S       the INS sends nothing from then on (turn+S: S after\n"
     "                             the table first turns)\n"
     "  ins-fault=AT               the INS goes to fault mode (3)\n"
-    "  encoder-silent=AT|turn+S   no TBL_Encoder from then on\n"
+    "  encoder-silent=AT|turn+S   no TBL_Encoder from then on (a CiA 402 drive: AT only)\n"
     "  table-stall=SECONDS        the next move stalls this long after it starts\n"
     "  table-overshoot=DEG        moves pass their target by DEG, then come back\n"
     "  table-fault=AT             a drive fault: quick stop, state 4, fault 3\n"
@@ -154,6 +154,8 @@ Status apply_fault(const std::string& spec, stand::StandSetup& s) {
   if (from_turn) value = value.substr(5);
   std::vector<double> v;
   if (!numbers(value, v)) return make_error("--fault " + spec + ": expected numbers after '='");
+  if (from_turn && v[0] < 0)
+    return make_error("--fault " + spec + ": turn+S takes S of 0 or more seconds");
   auto want = [&](std::size_t lo, std::size_t hi) { return v.size() >= lo && v.size() <= hi; };
   auto& f = s.faults;
   if (name == "ins-drop" && want(1, 1) && v[0] >= 0 && v[0] <= 1) {

@@ -238,6 +238,17 @@ TEST_SUITE("virtual stand") {
     CHECK(sim.wait(5000ms) == 0);
   }
 
+  TEST_CASE("faults timed from the turn: what does not take turn+S is refused, said why") {
+    const std::string sim = kSim + " --config " + kSrc + "/config/turncal.toml --fault ";
+    CHECK(hil::sh(sim + "ins-silent=turn+-1 2>&1 | grep -q 'turn+S takes S of 0 or more'") == 0);
+    CHECK(hil::sh(sim + "ins-fault=turn+2 2>&1 | grep -q 'only ins-silent and encoder-silent'") ==
+          0);
+    CHECK(hil::sh(sim + "ins-silent=turn+x 2>&1 | grep -q 'expected numbers'") == 0);
+    Child bad({kSim, "--config", kSrc + "/config/turncal.toml", "--fault", "ins-silent=turn+-1"},
+              "/tmp");
+    CHECK(bad.wait(5000ms) == 1);
+  }
+
   TEST_CASE("--rates lowers the stand's frame rates; rates it cannot send are refused") {
     {
       // 30 Hz does not divide the 400 Hz IMU rate

@@ -1589,6 +1589,47 @@ TEST_SUITE("cia402") {
     REQUIRE(l.enabled(3));
   }
 
+  TEST_CASE("a coarse encoder that dithers: the rate's window is longer, rest and turn both read") {
+    // 16384 counts per table turn, the coarsest taken: one count 3.8e-4 rad,
+    // two over the 0.1 s of a fine encoder 7.7e-3 rad/s, eight times the
+    // rest rate; the window is 0.96 s
+    cia402::MasterSettings ms = master_settings();
+    ms.counts_per_rev = 16384;
+    ms.gear_ratio = 1;
+    stand::Drive402Setup ds = drive_setup();
+    ds.counts_per_rev = 16384;
+    ds.gear_ratio = 1;
+    stand::Drive402Faults df;
+    df.position_dither_counts = 1;
+    Loop l(ms, ds, df);
+    l.start();
+    REQUIRE(l.running());
+    l.run_for(1.0);  // the rest test's window
+    REQUIRE(l.enabled(1));
+    int known = 0, over = 0;
+    for (double end = l.t + 3.0; l.t < end; l.step()) {
+      const double rate = l.master.status().rate_rps;
+      known += std::isfinite(rate);
+      over += std::isfinite(rate) && std::abs(rate) >= kTableAtRestRps;
+    }
+    CHECK(known > 2500);
+    CHECK(over == 0);
+    // a slow move reads as one: 0.2 deg/s, 3.5 times the rest rate, under
+    // a count in 0.1 s (a fine encoder's window would read it as dither,
+    // at rest); here 9 counts a second, within 2 of dither and 1 of the
+    // window's count: 30%
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 5 * kDeg, 0.2 * kDeg));
+    l.run_for(4.0);
+    REQUIRE(l.drive.moving(l.t));
+    CHECK(l.master.status().rate_rps == doctest::Approx(0.2 * kDeg).epsilon(0.3));
+    CHECK_FALSE(l.command(TableCommandCode::Enable, 3).ok());
+    // and the end of a stop within two windows
+    REQUIRE(l.command(TableCommandCode::QuickStop, 4));
+    REQUIRE(l.run_until([&] { return !l.drive.moving(l.t); }, 1.0));
+    REQUIRE(l.run_until([&] { return l.master.status().rate_rps == 0; }, 2.0));
+    CHECK(l.enabled(5));
+  }
+
   TEST_CASE("a controlled stop with a fault latched stops the table: as a quick stop") {
     stand::Drive402Setup ds = drive_setup();
     ds.cycle_s = 0.004;  // the statusword answering goes with the next cycle

@@ -368,14 +368,14 @@ TEST_CASE("config: [table] protocol = \"cia402\" and [table.cia402]") {
   }
   SUBCASE("defaults, and values in the file's units") {
     auto cfg = parse_config(
-        "[table]\nprotocol = \"cia402\"\n[table.cia402]\nnode_id = 5\nsync_period_ms = 200\n"
+        "[table]\nprotocol = \"cia402\"\n[table.cia402]\nnode_id = 5\nsync_period_ms = 150\n"
         "profile_acceleration_dps2 = 20\nconfigure_mapping = true\ncounts_increase = "
         "\"clockwise\"\n",
         "/x/turncal.toml");
     REQUIRE_MESSAGE(cfg.ok(), (cfg.ok() ? "" : cfg.error().describe()));
     const Cia402Settings& c = cfg->can.table.cia402;
     CHECK(c.node_id == 5);
-    CHECK(c.sync_period_s == doctest::Approx(0.2).epsilon(1e-12));
+    CHECK(c.sync_period_s == doctest::Approx(0.15).epsilon(1e-12));
     CHECK(c.profile_acceleration_rps2 ==
           doctest::Approx(20 * std::numbers::pi / 180).epsilon(1e-12));
     CHECK(c.configure_mapping);
@@ -449,6 +449,26 @@ TEST_CASE("config: [table] protocol = \"cia402\" and [table.cia402]") {
     CHECK(e.message.find("100 ms") != std::string::npos);
     // at the timer's period it is accepted
     CHECK(parse_config("[daemon]\nheartbeat_hz = 50\n" + head + "sync_period_ms = 20\n",
+                       "/etc/turncal/turncal.toml")
+              .ok());
+  }
+  SUBCASE("TPDO1 rarer than half the drive heartbeat timeout, a resolution too coarse") {
+    // drive_heartbeat_timeout_ms 300 by default: 150 ms at the most
+    Error e = parse_error(head + "sync_period_ms = 200\n");
+    CHECK(e.where.line == 4);
+    CHECK(e.message.find("key 'table.cia402.sync_period_ms': TPDO1's period of 200 ms") == 0);
+    CHECK(parse_config(head + "sync_period_ms = 200\ndrive_heartbeat_timeout_ms = 400\n",
+                       "/etc/turncal/turncal.toml")
+              .ok());
+    Error f = parse_error(head + "configure_mapping = true\ntpdo_event_timer_ms = 160\n");
+    CHECK(f.where.line == 5);
+    CHECK(f.message.find("table.cia402.tpdo_event_timer_ms") != std::string::npos);
+    // the drive's own event timer is its configuration's, not ours
+    CHECK(parse_config(head + "tpdo_event_timer_ms = 160\n", "/etc/turncal/turncal.toml").ok());
+    Error g = parse_error(head + "counts_per_revolution = 4096\ngear_ratio = 2\n");
+    CHECK(g.where.line == 4);
+    CHECK(g.message.find("8192 counts per table turn") != std::string::npos);
+    CHECK(parse_config(head + "counts_per_revolution = 4096\ngear_ratio = 4\n",
                        "/etc/turncal/turncal.toml")
               .ok());
   }
