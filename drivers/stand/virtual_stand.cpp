@@ -167,10 +167,14 @@ void VirtualStand::emit_garbage(double t, std::vector<StandFrame>& out) {
 }
 
 void VirtualStand::note_turn(double t) {
-  const TableMotion& m = drive_ ? drive_->motion() : table_.motion();
-  if (turned_ || m.at(t).rate == 0) return;
-  turned_ = true;
   StandFaults& f = setup_.faults;
+  // nothing timed from the turn (most runs): no motion looked up each step
+  if (turned_ ||
+      (std::isnan(f.ins_silent_after_turn_s) && std::isnan(f.encoder_silent_after_turn_s)))
+    return;
+  const TableMotion& m = drive_ ? drive_->motion() : table_.motion();
+  if (m.at(t).rate == 0) return;
+  turned_ = true;
   // NaN stays NaN: std::fmin takes the number
   f.ins_silent_at_s = std::fmin(f.ins_silent_at_s, t + f.ins_silent_after_turn_s);
   f.encoder_silent_at_s = std::fmin(f.encoder_silent_at_s, t + f.encoder_silent_after_turn_s);

@@ -544,23 +544,24 @@ void Master::start(double now_s, std::vector<can::Frame>& out) {
 }
 
 Master::Rest Master::rest_since_running() const {
-  // over a window of TPDO1s since the NMT start, not two samples: a count
-  // of dither between two frames a millisecond apart is no turn. Turning:
-  // more than kRestDitherCounts and kTableAtRestRps over the window, which
-  // follows the latest position (a table that has since stopped is judged
-  // by now, not by its past). Not known: no window yet, or no position
-  // for the drive's heartbeat timeout.
+  // over a window of TPDO1s since the NMT start, not two samples (over()).
+  // Not known: no window yet, or no position for the drive's heartbeat
+  // timeout.
+  if (tpdo_running_ == 0 || now_ - last_tpdo_t_ > s_.drive_heartbeat_timeout_s) return {};
+  return over(rest_win_);
+}
+
+Master::Rest Master::over(const PosWindow& w) const {
+  // the latest position against the window's base: a table that has since
+  // stopped is judged by now, not by its past. A count or two of dither
+  // over it is rest (rate 0); turning: more than that, and over
+  // kTableAtRestRps.
   Rest r;
-  if (tpdo_running_ == 0 || std::isnan(rest_win_.base.t) ||
-      now_ - last_tpdo_t_ > s_.drive_heartbeat_timeout_s)
-    return r;
-  const double dt = last_sample_t_ - rest_win_.base.t;
-  if (dt < rate_window_s()) return r;
-  const auto dc = static_cast<double>(pos_counts_ - rest_win_.base.counts);
-  r.rate_rps = sense() * dc / cpr_ / dt;
-  r.state = std::abs(dc) > kRestDitherCounts && std::abs(r.rate_rps) > kTableAtRestRps
-                ? Rest::Turning
-                : Rest::AtRest;
+  const double dt = last_sample_t_ - w.base.t;
+  if (!(dt >= rate_window_s())) return r;  // NaN: no window yet
+  const auto dc = static_cast<double>(pos_counts_ - w.base.counts);
+  r.rate_rps = std::abs(dc) <= kRestDitherCounts ? 0.0 : sense() * dc / cpr_ / dt;
+  r.state = std::abs(r.rate_rps) > kTableAtRestRps ? Rest::Turning : Rest::AtRest;
   return r;
 }
 
@@ -998,20 +999,16 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
   smp.angle_rad = angle_;
   smp.counts = pos_counts_;
   smp.statusword = word;
-  if (std::isnan(last_sample_t_) || smp.t_s > last_sample_t_) {
-    // not the step between two samples: one count of dither between two
-    // frames 10 ms apart reads 0.27 deg/s at 2^17 counts per revolution,
-    // a turning table to every rest test
+  const bool later = std::isnan(last_sample_t_) || smp.t_s > last_sample_t_;
+  if (later) {
     add_position(rate_win_, smp.t_s, pos_counts_);
     if (phase_ == CommPhase::Running) add_position(rest_win_, smp.t_s, pos_counts_);
-    // a count or two of dither over the window is rest, as in the rest test
-    const double dt = smp.t_s - rate_win_.base.t;
-    const auto dc = static_cast<double>(pos_counts_ - rate_win_.base.counts);
-    rate_ = !(dt >= rate_window_s())            ? std::nan("")
-            : std::abs(dc) <= kRestDitherCounts ? 0.0
-                                                : sense() * dc / cpr_ / dt;
   }
   last_sample_t_ = smp.t_s;
+  // not the step between two samples: one count of dither between two
+  // frames 10 ms apart reads 0.27 deg/s at 2^17 counts per revolution, a
+  // turning table to every rest test
+  if (later) rate_ = over(rate_win_).rate_rps;
   last_tpdo_t_ = t_s;
   samples_.push_back(smp);
   if ((word & sw::kFollowingError) != 0 &&

@@ -145,6 +145,20 @@ struct Loop {
     run_for(seconds);
     return true;
   }
+  /// Steps for `seconds`: how many steps the master's rate was known, and
+  /// how many of those it read kTableAtRestRps or more.
+  struct RateTally {
+    int known = 0, over = 0;
+  };
+  RateTally rates_for(double seconds) {
+    RateTally n;
+    for (const double end = t + seconds; t < end; step()) {
+      const double rate = master.status().rate_rps;
+      n.known += std::isfinite(rate);
+      n.over += std::isfinite(rate) && std::abs(rate) >= kTableAtRestRps;
+    }
+    return n;
+  }
   bool in_position(std::uint8_t seq, double timeout) {
     return run_until(
         [&] {
@@ -1574,12 +1588,7 @@ TEST_SUITE("cia402") {
     CHECK(stepped);
     // the rate the engine and the commands see reads the rest, every TPDO
     // of half a second (over two samples it would read 0.36 deg/s)
-    int known = 0, over = 0;
-    for (double end = l.t + 0.5; l.t < end; l.step()) {
-      const double rate = l.master.status().rate_rps;
-      known += std::isfinite(rate);
-      over += std::isfinite(rate) && std::abs(rate) >= kTableAtRestRps;
-    }
+    const auto [known, over] = l.rates_for(0.5);
     CHECK(known > 400);
     CHECK(over == 0);
     // so the operator may disable it, and enable it again
@@ -1606,12 +1615,7 @@ TEST_SUITE("cia402") {
     REQUIRE(l.running());
     l.run_for(1.0);  // the rest test's window
     REQUIRE(l.enabled(1));
-    int known = 0, over = 0;
-    for (double end = l.t + 3.0; l.t < end; l.step()) {
-      const double rate = l.master.status().rate_rps;
-      known += std::isfinite(rate);
-      over += std::isfinite(rate) && std::abs(rate) >= kTableAtRestRps;
-    }
+    const auto [known, over] = l.rates_for(3.0);
     CHECK(known > 2500);
     CHECK(over == 0);
     // a slow move reads as one: 0.2 deg/s, 3.5 times the rest rate, under

@@ -655,6 +655,9 @@ class Master {
   /// would read as kTableAtRestRps (a coarse encoder).
   [[nodiscard]] double rate_window_s() const;
   void add_position(PosWindow& w, double t, std::int64_t counts) const;
+  /// The latest position against `w`: the rate (NaN before a window, 0
+  /// within the dither) and whether that is rest.
+  [[nodiscard]] Rest over(const PosWindow& w) const;
   std::vector<EncoderSample> samples_;
   std::vector<canopen::Emcy> emcy_;
   std::vector<std::string> notices_;
