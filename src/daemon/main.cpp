@@ -732,6 +732,8 @@ json Daemon::start(const StartRequest& req) {
   q.limits = cfg.stand.limits;
   q.observe = cfg.daemon.observe || req.observe;
   q.stale_floor_s = cfg.daemon.stale_floor_ms * 1e-3 * cfg.stand.time_scale;
+  // held: two ticks of the loop missed, and half the floor (stand seconds)
+  q.hold_s = std::max(2 / cfg.daemon.heartbeat_hz, q.stale_floor_s / 2);
   if (req.heading_offset_deg)
     q.heading_offset_rad = *req.heading_offset_deg * std::numbers::pi / 180;
   {
@@ -1078,7 +1080,15 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
       // what has arrived counts before anything is judged lost (one budget's worth)
       for (Port& p : d->ports)
         if (p.sock && p.sock->fd() >= 0) d->on_can(p);
+      const std::uint64_t holds = d->engine->hold_count();
       d->engine->tick(d->clock.now_ns(), d->out);
+      if (d->engine->hold_count() != holds && !d->engine->holds().empty() &&
+          d->engine->hold_count() <= run::Engine::kMaxHolds) {
+        const run::Engine::Hold& h = d->engine->holds().back();
+        d->warn("the loop was held for " +
+                std::to_string(std::lround((h.to_s - h.from_s) / d->cfg.stand.time_scale * 1000)) +
+                " ms (the host did not run it): lost streams are judged from now");
+      }
     }
     // the heartbeat goes out from this loop, between runs too: a table will not
     // start a move for a host it has not heard from

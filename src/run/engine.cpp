@@ -1,5 +1,6 @@
 #include "turncal/run/engine.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -227,19 +228,40 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out) {
   const double t = stand_s(now_ns);
   // the stand has gone quiet past the end: nothing more will come
   if (t > record_end_s() + 1.0 && !(last_frame_s_ > t - 1.0)) record_complete_ = true;
+  if (t - prev_tick_s_ > seq_.settings().hold_s) {
+    ++hold_count_;
+    longest_hold_s_ = std::max(longest_hold_s_, t - prev_tick_s_);
+    if (holds_.size() < kMaxHolds) holds_.push_back({prev_tick_s_, t});
+    seq_.held(t - prev_tick_s_);
+    watch_from_s_ = t;
+  }
+  if (!(t < prev_tick_s_)) prev_tick_s_ = t;
+  // a replay: from the start of a live hold, as the live loop did on its
+  // end (the frames the log holds inside it were read after it)
+  for (; next_replayed_hold_ < replayed_holds_.size() &&
+         replayed_holds_[next_replayed_hold_].from_s <= t;
+       ++next_replayed_hold_) {
+    const Hold& h = replayed_holds_[next_replayed_hold_];
+    ++hold_count_;
+    longest_hold_s_ = std::max(longest_hold_s_, h.to_s - h.from_s);
+    if (holds_.size() < kMaxHolds) holds_.push_back(h);
+    seq_.held(h.to_s - h.from_s);
+    watch_from_s_ = std::max(watch_from_s_, h.to_s);
+  }
   Tick k{t};
   const double floor = seq_.settings().stale_floor_s;
-  k.velocity_stale = ingest_.health(kVelocity).stale(t, floor);
-  k.velocity_quiet = ingest_.health(kVelocity).stale(t);
-  k.ins_status_stale = ingest_.health(kInsStatus).stale(t, floor);
+  const double from = watch_from_s_;
+  k.velocity_stale = ingest_.health(kVelocity).stale(t, floor, from);
+  k.velocity_quiet = ingest_.health(kVelocity).stale(t, 0, from);
+  k.ins_status_stale = ingest_.health(kInsStatus).stale(t, floor, from);
   // a table protocol still starting up (CANopen's configuration) sends no
   // stream yet; from when it runs, or when its start-up has run out of
   // time, its streams have the floor to come
   const double due = ingest_.table().streams_due_s();
   k.table_starting = !(t >= due);
   const bool table_due = t - due > floor;
-  k.encoder_stale = table_due && ingest_.health(kEncoder).stale(t, floor);
-  k.table_status_stale = table_due && ingest_.health(kTableStatus).stale(t, floor);
+  k.encoder_stale = table_due && ingest_.health(kEncoder).stale(t, floor, from);
+  k.table_status_stale = table_due && ingest_.health(kTableStatus).stale(t, floor, from);
   feed(k, out);
   // a protocol's timeouts and periodic frames (CANopen heartbeat, SYNC);
   // no heartbeat once the stop could not be confirmed: the table stops
@@ -249,6 +271,12 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out) {
   ingest_.table().tick(t, driver_frames_);
   for (const can::Frame& f : driver_frames_) out.push_back({false, f});
   driver_output(t, out);
+}
+
+void Engine::replay_holds(std::vector<Hold> holds) {
+  std::ranges::sort(holds, {}, &Hold::from_s);
+  replayed_holds_ = std::move(holds);
+  next_replayed_hold_ = 0;
 }
 
 std::vector<OutFrame> Engine::heartbeat() {

@@ -159,6 +159,15 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   Engine engine(db, std::move(dev.ins), std::move(dev.table), plan, q, b, tb, pl);
   std::vector<OutFrame> sent;  // observe mode sends nothing; kept for the interface
   engine.start(tb.epoch_us * 1000, sent);
+  // where the live loop was held, it judged no stream lost; nor does the replay
+  if (live != nullptr && live->contains("loop_holds") && (*live)["loop_holds"].is_object() &&
+      (*live)["loop_holds"].contains("at_s") && (*live)["loop_holds"]["at_s"].is_array()) {
+    std::vector<Engine::Hold> holds;
+    for (const json& h : (*live)["loop_holds"]["at_s"])
+      if (h.is_array() && h.size() == 2 && h[0].is_number() && h[1].is_number())
+        holds.push_back({h[0].get<double>(), h[1].get<double>()});
+    engine.replay_holds(std::move(holds));
+  }
   std::int64_t first_ns = have ? rec.time_ns : 0, last_ns = first_ns;
   std::int64_t next_tick_ns = first_ns;
   std::int64_t last_t = first_ns, burst_start = first_ns;

@@ -314,6 +314,11 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
                    {"stale_floor_s", seq.settings().stale_floor_s},
                    {"two_stage", engine.build_settings().two_stage},
                    {"table_geometry", engine.ingest().table().geometry()}};
+  // the host's loop held (overloaded): no stream was judged lost over it
+  json holds = json::array();
+  for (const Engine::Hold& h : engine.holds()) holds.push_back({h.from_s, h.to_s});
+  j["loop_holds"] = {
+      {"count", engine.hold_count()}, {"longest_s", engine.longest_hold_s()}, {"at_s", holds}};
   // health
   const Ingest& in = engine.ingest();
   j["health"] = {

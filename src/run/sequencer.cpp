@@ -256,6 +256,13 @@ bool Sequencer::outcome(Phase in, double t, bool ok, const std::string& why) {
   return true;
 }
 
+void Sequencer::held(double length_s) {
+  if (!(length_s > 0)) return;
+  ack_deadline_ += length_s;
+  phase_deadline_ += length_s;  // infinity stays
+  stop_deadline_ += length_s;
+}
+
 void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
   const double t = e.t_s;
   if (stopping_) {

@@ -22,6 +22,8 @@ namespace {
 /// turncald with its stderr (the log outside systemd) in dir/daemon.err.
 Child start_daemon(const hil::fs::path& dir) {
   hil::fs::remove(dir / "control.sock");
+  if (std::ranges::find(hil::explain_files(), dir / "daemon.err") == hil::explain_files().end())
+    hil::explain_files().push_back(dir / "daemon.err");
   return Child({"sh", "-c", "exec \"$0\" --config \"$1\" 2>>daemon.err", kDaemon,
                 (dir / "turncal.toml").string()},
                dir);

@@ -140,6 +140,8 @@ struct ClosedLoop {
   std::vector<can::Frame> to_stand;
   std::vector<Logged> log;  ///< both directions, as the recorder keeps them
   bool heartbeat = true;
+  /// The host's loop held (no tick, no heartbeat) at these times.
+  std::function<bool(double)> held;
   /// Frames the host does not hear (a stand late or lossy on the bus).
   std::function<bool(const stand::StandFrame&)> lose;
   double start_at = 0.1;  ///< stand time the operator starts the run
@@ -229,8 +231,9 @@ struct ClosedLoop {
         if (started) log.push_back({tf, false});  // the recorder runs from the start
         engine->on_frame(tf, out);
       }
-      if (k % 10 == 0) engine->tick(ns(t), out);
-      if (k % 100 == 0 && heartbeat)
+      const bool holding = held && held(t);
+      if (k % 10 == 0 && !holding) engine->tick(ns(t), out);
+      if (k % 100 == 0 && heartbeat && !holding)
         for (const run::OutFrame& h : engine->heartbeat()) out.push_back(h);
       if (engine->estimation_due()) {
         if (before_estimate) before_estimate(t, out);
@@ -713,6 +716,62 @@ TEST_SUITE("run engine on the virtual stand") {
       } else {
         CHECK(c.phase() == run::Phase::Turn);
         CHECK(c.sent(run::TableCode::QuickStop) == 0);
+      }
+    }
+  }
+
+  TEST_CASE("a host whose loop was held is not deaf: streams are judged from when it runs again") {
+    // The whole machine held for 300 ms mid-turn (an overloaded host, a
+    // virtual stand on it): no tick, and no frame from 82 s until 20 ms
+    // after the loop runs again (the stand had not run either). Silence
+    // counts from the tick that ends the hold, so nothing is lost; the
+    // report lists the hold, and the replay, which sees only the gap in
+    // the log, excuses it from there. The same gap while the loop runs
+    // is a lost stream (the INS velocity's 10 periods are the shortest).
+    const Plan plan = short_plan();
+    for (const bool hold : {true, false}) {
+      CAPTURE(hold);
+      const stand::StandSetup s = setup_of(plan, 3);
+      run::SequencerSettings q = ClosedLoop::settings_of(plan, s);
+      q.stale_floor_s = 0.1;
+      q.hold_s = 0.05;
+      ClosedLoop c(plan, s, q);
+      if (hold) c.held = [](double t) { return t > 82 && t < 82.3; };
+      c.lose = [](const stand::StandFrame& f) { return f.t_s > 82 && f.t_s < 82.32; };
+      if (!hold) {
+        c.run_until(83);
+        CHECK(c.phase() == run::Phase::Failed);
+        CHECK_MESSAGE(c.course().reason.find("INS velocity lost during turn 1") == 0,
+                      c.course().reason);
+        CHECK(c.engine->hold_count() == 0);
+        continue;
+      }
+      c.run_until(300);
+      REQUIRE_MESSAGE(c.phase() == run::Phase::Done, c.course().reason);
+      const nlohmann::json& holds = c.written.at("loop_holds");
+      REQUIRE(holds.at("count") == 1);
+      const double from = holds.at("at_s").at(0).at(0).get<double>();
+      const double to = holds.at("at_s").at(0).at(1).get<double>();
+      // stand time is the Unix time of the log; the last tick before, the first after
+      const double t0 = static_cast<double>(kEpochNs) * 1e-9;
+      CHECK(std::abs(from - (t0 + 82.0)) < 1e-5);
+      CHECK(std::abs(to - (t0 + 82.3)) < 1e-5);
+      CHECK(holds.at("longest_s").get<double>() == doctest::Approx(0.3).epsilon(1e-6));
+      TempDir dir;
+      write_log(c.log, dir.path / "run.log");
+      for (const bool with_report : {true, false}) {
+        CAPTURE(with_report);
+        auto r = replay_file(dir.path / "run.log", with_report ? &c.written : nullptr);
+        REQUIRE(r.ok());
+        const nlohmann::json& j = r->report;
+        const std::string reason = j.contains("reason") ? j["reason"].get<std::string>() : "";
+        if (with_report) {
+          CHECK_MESSAGE(j["status"] == "done", reason);
+          CHECK(j.at("loop_holds").at("count") == 1);
+        } else {  // an observer of the log alone: a lost stream
+          CHECK(j["status"] == "failed");
+          CHECK_MESSAGE(reason.find("INS velocity lost during turn 1") == 0, reason);
+        }
       }
     }
   }

@@ -14,6 +14,7 @@
 #pragma once
 
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <string>
@@ -114,6 +115,18 @@ class Engine {
   [[nodiscard]] const TimeBase& time_base() const { return time_; }
   [[nodiscard]] const BuildSettings& build_settings() const { return build_; }
   [[nodiscard]] double stand_s(std::int64_t ns) const { return time_.stand_s(ns); }
+  /// Stretches (stand seconds, from and to) the loop was held between two
+  /// ticks (SequencerSettings::hold_s): the first kMaxHolds of them.
+  struct Hold {
+    double from_s, to_s;
+  };
+  static constexpr std::size_t kMaxHolds = 100;
+  [[nodiscard]] const std::vector<Hold>& holds() const { return holds_; }
+  [[nodiscard]] std::uint64_t hold_count() const { return hold_count_; }
+  [[nodiscard]] double longest_hold_s() const { return longest_hold_s_; }
+  /// A replay: the live run's holds, each excusing the silence before its
+  /// end and running the deadlines on as it did live.
+  void replay_holds(std::vector<Hold> holds);
   /// Tables of the commands we sent, counted.
   [[nodiscard]] std::uint64_t commands_sent() const { return commands_sent_; }
 
@@ -139,6 +152,14 @@ class Engine {
   bool implausible_fed_ = false;  ///< a stream of implausible frames has failed the run
   Plausibility plausible_;
   double last_frame_s_ = NAN;
+  double prev_tick_s_ = NAN;
+  /// Streams' silence counts from here: the end of the last hold.
+  double watch_from_s_ = -std::numeric_limits<double>::infinity();
+  std::vector<Hold> holds_;
+  std::uint64_t hold_count_ = 0;
+  double longest_hold_s_ = 0;
+  std::vector<Hold> replayed_holds_;
+  std::size_t next_replayed_hold_ = 0;
   [[nodiscard]] double record_end_s() const;
   void check_plausible(double t, std::vector<OutFrame>& out);
   bool report_due_ = false;

@@ -171,8 +171,10 @@ struct StreamHealth {
   double first_host_s = NAN;
   double last_host_s = NAN;
   /// Not seen for 10 nominal periods, and for at least `floor_s` (or never
-  /// seen).
-  [[nodiscard]] bool stale(double now_s, double floor_s = 0) const;
+  /// seen), counting its silence from `since_s` at the earliest (the host
+  /// watched the bus from then).
+  [[nodiscard]] bool stale(double now_s, double floor_s = 0,
+                           double since_s = -std::numeric_limits<double>::infinity()) const;
   [[nodiscard]] double age_s(double now_s) const { return now_s - last_host_s; }
   /// Mean rate since the first frame, Hz.
   [[nodiscard]] double rate_hz() const;

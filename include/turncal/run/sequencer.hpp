@@ -14,6 +14,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <optional>
 #include <string>
 #include <variant>
@@ -81,6 +82,14 @@ struct SequencerSettings {
   /// running N times faster stretches N times in stand time. The table's
   /// acknowledgement timeout has it added for the same reason.
   double stale_floor_s = 0;
+  /// The host's loop was held (the host did not run it: an overloaded or
+  /// suspended machine) when two of its ticks are further apart than this
+  /// (stand seconds); a stream's silence is then judged from the tick that
+  /// ends the hold, since the host was deaf, not the bus silent. The frames
+  /// sent meanwhile may not be in yet: a device sharing the held machine
+  /// (a virtual stand) had not run either. Infinity: never (a replay, which
+  /// takes the live run's holds from its report).
+  double hold_s = std::numeric_limits<double>::infinity();
   /// Observe mode: the table has left its hold when it is this far from
   /// it (0.05 deg), and is at rest again after still_time_s within a tenth.
   double motion_threshold_rad = 8.7e-4;
@@ -211,6 +220,10 @@ class Sequencer {
   [[nodiscard]] int host_state() const;
   /// True while a table motion this sequencer asked for may be under way.
   [[nodiscard]] bool table_may_move() const { return may_move_; }
+  /// The host's loop was held for `length_s` (SequencerSettings::hold_s):
+  /// the deadlines pending run on by as long, since neither the host nor a
+  /// device sharing its machine was running to answer.
+  void held(double length_s);
   /// The last table angle seen (multi-turn), NaN before any.
   [[nodiscard]] double table_angle() const { return angle_; }
 
