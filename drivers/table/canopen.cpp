@@ -496,6 +496,12 @@ void SdoClient::fail_queued(std::uint32_t code) {
   }
 }
 
+void SdoClient::held(double from_s, double to_s) {
+  if (!active_) return;
+  const double since = active_->deadline - timeout_s_;  // when it went out
+  active_->deadline += std::max(0.0, to_s - std::max(from_s, since));
+}
+
 void SdoClient::tick(double now_s, std::vector<can::Frame>& out) {
   if (active_ && now_s >= active_->deadline) {
     ++counts_.timeouts;

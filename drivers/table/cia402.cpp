@@ -855,6 +855,18 @@ void Master::tick(double now_s, std::vector<can::Frame>& out) {
   evaluate(now_s, out);
 }
 
+void Master::held(double from_s, double to_s) {
+  const double length = to_s - from_s;
+  if (!(length > 0)) return;
+  // what was awaited from `since` on waits as long again as it overlapped
+  auto excused = [&](double since) { return std::max(0.0, to_s - std::max(from_s, since)); };
+  last_drive_hb_ += excused(last_drive_hb_);
+  if (phase_ == CommPhase::WaitBootUp) boot_deadline_ += length;
+  if (move_ == MoveStep::Sent) move_sent_t_ += excused(move_sent_t_);
+  if (phase_ == CommPhase::Configuring) mode_since_ += excused(mode_since_);
+  sdo_.held(from_s, to_s);
+}
+
 void Master::on_frame(const can::Frame& f, double t_s, std::vector<can::Frame>& out) {
   now_ = std::max(now_, t_s);
   if (f.extended || f.error || f.remote || f.fd) return;

@@ -230,6 +230,9 @@ class Cia402Table final : public TableDriver {
     master_.tick(now_, out);
     queue_status(now_, false);
   }
+  void held(double from_s, double to_s) override {
+    if (started_ && invalid_.empty()) master_.held(from_s, to_s);
+  }
   void take_frames(std::vector<can::Frame>& out) override {
     out.insert(out.end(), tx_.begin(), tx_.end());
     tx_.clear();

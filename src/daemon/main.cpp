@@ -178,7 +178,9 @@ class Daemon {
   int listen_fd = -1;
   std::vector<std::unique_ptr<Client>> clients;
   bool stopping = false;
-  std::uint64_t timer_ticks = 0;  ///< watchers get the status every 5th
+  std::uint64_t holds_untold = 0;   ///< loop holds not yet in the journal
+  std::uint64_t holds_told_us = 0;  ///< when the last line about them went out
+  std::uint64_t timer_ticks = 0;    ///< watchers get the status every 5th
   std::uint8_t heartbeat_counter = 0;
   std::optional<StateDir> state;
   /// Frames the bus has lately carried (what a run's log grows at).
@@ -225,6 +227,7 @@ class Daemon {
   Port& port(bool ins_side) { return (ins_side || !ports[1].sock) ? ports[0] : ports[1]; }
   Status setup();
   void tell_clock_steps();
+  void tell_holds(std::uint64_t before);
   void send_out();
   void flush_port(Port& p);
   void link_back(Port& p);
@@ -312,6 +315,28 @@ void Daemon::tell_clock_steps() {
                 "goes on with the monotonic clock (anchored again when a run starts)",
                 static_cast<double>(clock.realtime_offset_ns()) * 1e-9);
   warn(b);
+}
+
+/// The holds of the loop since `before` (the engine's count), in the
+/// journal: one line every 10 s at most, saying how many it stands for (a
+/// machine held often would flood it); the report lists them all.
+void Daemon::tell_holds(std::uint64_t before) {
+  const std::uint64_t n = engine->hold_count();
+  if (n == before) return;
+  holds_untold += n - before;
+  const std::uint64_t now = monotonic_us();
+  if (holds_told_us != 0 && now - holds_told_us < 10'000'000) return;
+  const run::Engine::Hold h = engine->last_hold();
+  const std::string also =
+      holds_untold > 1 ? ", the last of " + std::to_string(holds_untold) + " holds in 10 s" : "";
+  char b[240];
+  std::snprintf(b, sizeof b,
+                "the loop was held for %.0f ms (the host did not run it)%s: no stream's silence "
+                "counts that time",
+                (h.to_s - h.from_s) / cfg.stand.time_scale * 1000, also.c_str());
+  warn(b);
+  holds_untold = 0;
+  holds_told_us = now;
 }
 
 // ---- the log ----
@@ -677,9 +702,10 @@ json Daemon::status() const {
   json h = json::object();
   for (int k = 0; k < run::kStreams; ++k) {
     const auto& sh = engine->ingest().health(static_cast<run::Stream>(k));
-    h[sh.name] = {{"rate_hz", sh.rate_hz()},
-                  {"dropped", sh.dropped},
-                  {"stale", sh.stale(now, s.settings().stale_floor_s)}};
+    h[sh.name] = {
+        {"rate_hz", sh.rate_hz()},
+        {"dropped", sh.dropped},
+        {"stale", engine->stale(static_cast<run::Stream>(k), now, s.settings().stale_floor_s)}};
   }
   j["health"] = h;
   return j;
@@ -732,7 +758,8 @@ json Daemon::start(const StartRequest& req) {
   q.limits = cfg.stand.limits;
   q.observe = cfg.daemon.observe || req.observe;
   q.stale_floor_s = cfg.daemon.stale_floor_ms * 1e-3 * cfg.stand.time_scale;
-  // held: two ticks of the loop missed, and half the floor (stand seconds)
+  // held: a tick of the loop missed, and more than half the floor (stand
+  // seconds); the journal hears of holds once every 10 s at most
   q.hold_s = std::max(2 / cfg.daemon.heartbeat_hz, q.stale_floor_s / 2);
   if (req.heading_offset_deg)
     q.heading_offset_rad = *req.heading_offset_deg * std::numbers::pi / 180;
@@ -1082,13 +1109,7 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
         if (p.sock && p.sock->fd() >= 0) d->on_can(p);
       const std::uint64_t holds = d->engine->hold_count();
       d->engine->tick(d->clock.now_ns(), d->out);
-      if (d->engine->hold_count() != holds && !d->engine->holds().empty() &&
-          d->engine->hold_count() <= run::Engine::kMaxHolds) {
-        const run::Engine::Hold& h = d->engine->holds().back();
-        d->warn("the loop was held for " +
-                std::to_string(std::lround((h.to_s - h.from_s) / d->cfg.stand.time_scale * 1000)) +
-                " ms (the host did not run it): lost streams are judged from now");
-      }
+      d->tell_holds(holds);
     }
     // the heartbeat goes out from this loop, between runs too: a table will not
     // start a move for a host it has not heard from

@@ -228,40 +228,28 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out) {
   const double t = stand_s(now_ns);
   // the stand has gone quiet past the end: nothing more will come
   if (t > record_end_s() + 1.0 && !(last_frame_s_ > t - 1.0)) record_complete_ = true;
-  if (t - prev_tick_s_ > seq_.settings().hold_s) {
-    ++hold_count_;
-    longest_hold_s_ = std::max(longest_hold_s_, t - prev_tick_s_);
-    if (holds_.size() < kMaxHolds) holds_.push_back({prev_tick_s_, t});
-    seq_.held(t - prev_tick_s_);
-    watch_from_s_ = t;
-  }
+  if (t - prev_tick_s_ > seq_.settings().hold_s) note_hold({prev_tick_s_, t}, t, out);
   if (!(t < prev_tick_s_)) prev_tick_s_ = t;
-  // a replay: from the start of a live hold, as the live loop did on its
-  // end (the frames the log holds inside it were read after it)
+  // a replay: from the first tick past a live hold's start, as the live
+  // loop took it on its end (the frames the log holds inside it were read
+  // after it)
   for (; next_replayed_hold_ < replayed_holds_.size() &&
-         replayed_holds_[next_replayed_hold_].from_s <= t;
-       ++next_replayed_hold_) {
-    const Hold& h = replayed_holds_[next_replayed_hold_];
-    ++hold_count_;
-    longest_hold_s_ = std::max(longest_hold_s_, h.to_s - h.from_s);
-    if (holds_.size() < kMaxHolds) holds_.push_back(h);
-    seq_.held(h.to_s - h.from_s);
-    watch_from_s_ = std::max(watch_from_s_, h.to_s);
-  }
+         replayed_holds_[next_replayed_hold_].from_s < t;
+       ++next_replayed_hold_)
+    note_hold(replayed_holds_[next_replayed_hold_], t, out);
   Tick k{t};
   const double floor = seq_.settings().stale_floor_s;
-  const double from = watch_from_s_;
-  k.velocity_stale = ingest_.health(kVelocity).stale(t, floor, from);
-  k.velocity_quiet = ingest_.health(kVelocity).stale(t, 0, from);
-  k.ins_status_stale = ingest_.health(kInsStatus).stale(t, floor, from);
+  k.velocity_stale = stale(kVelocity, t, floor);
+  k.velocity_quiet = stale(kVelocity, t, 0);
+  k.ins_status_stale = stale(kInsStatus, t, floor);
   // a table protocol still starting up (CANopen's configuration) sends no
   // stream yet; from when it runs, or when its start-up has run out of
   // time, its streams have the floor to come
   const double due = ingest_.table().streams_due_s();
   k.table_starting = !(t >= due);
   const bool table_due = t - due > floor;
-  k.encoder_stale = table_due && ingest_.health(kEncoder).stale(t, floor, from);
-  k.table_status_stale = table_due && ingest_.health(kTableStatus).stale(t, floor, from);
+  k.encoder_stale = table_due && stale(kEncoder, t, floor);
+  k.table_status_stale = table_due && stale(kTableStatus, t, floor);
   feed(k, out);
   // a protocol's timeouts and periodic frames (CANopen heartbeat, SYNC);
   // no heartbeat once the stop could not be confirmed: the table stops
@@ -274,9 +262,44 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out) {
 }
 
 void Engine::replay_holds(std::vector<Hold> holds) {
-  std::ranges::sort(holds, {}, &Hold::from_s);
   replayed_holds_ = std::move(holds);
   next_replayed_hold_ = 0;
+}
+
+void Engine::note_hold(const Hold& h, double t, std::vector<OutFrame>& out) {
+  const double length = h.to_s - h.from_s;
+  ++hold_count_;
+  longest_hold_s_ = std::max(longest_hold_s_, length);
+  last_hold_ = h;
+  if (holds_.size() < kMaxHolds) holds_.push_back(h);
+  recent_holds_.push_back(h);
+  while (recent_holds_.front().to_s < h.to_s - kHoldKeptS) recent_holds_.pop_front();
+  seq_.held(length);
+  ingest_.table().held(h.from_s, h.to_s);
+  // a host that runs its loop less than half the time watches nothing: a
+  // lost stream's silence would take twice as long, or longer, to count
+  const double held = held_between(h.to_s - kHoldWindowS, h.to_s);
+  if (held > kHoldWindowS / 2 && !hold_fault_fed_) {
+    hold_fault_fed_ = true;
+    char b[240];
+    std::snprintf(b, sizeof b,
+                  "the host cannot keep up: its loop was held %.1f s of the last %g s (the "
+                  "longest %.0f ms); lost streams would go unnoticed",
+                  held, kHoldWindowS, longest_hold_s_ * 1000);
+    feed(HostFault{t, b}, out);
+  }
+}
+
+double Engine::held_between(double from_s, double to_s) const {
+  double held = 0;
+  for (const Hold& h : recent_holds_)
+    held += std::max(0.0, std::min(h.to_s, to_s) - std::max(h.from_s, from_s));
+  return held;
+}
+
+bool Engine::stale(Stream s, double t, double floor_s) const {
+  const StreamHealth& h = ingest_.health(s);
+  return h.stale(t, floor_s, std::isnan(h.last_host_s) ? 0.0 : held_between(h.last_host_s, t));
 }
 
 std::vector<OutFrame> Engine::heartbeat() {

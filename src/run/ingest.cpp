@@ -210,10 +210,10 @@ double ClockFit::rms_s() const {
   return std::sqrt(std::max(0.0, spread) / static_cast<double>(n_) + mean * mean);
 }
 
-bool StreamHealth::stale(double now_s, double floor_s, double since_s) const {
+bool StreamHealth::stale(double now_s, double floor_s, double excused_s) const {
   if (std::isnan(last_host_s)) return true;
   const double period = nominal_hz > 0 ? 1 / nominal_hz : 1.0;
-  return now_s - std::max(last_host_s, since_s) > std::max(10 * period, floor_s);
+  return now_s - last_host_s - std::max(0.0, excused_s) > std::max(10 * period, floor_s);
 }
 
 double StreamHealth::rate_hz() const {

@@ -3,6 +3,7 @@
 #include <cmath>
 #include <filesystem>
 #include <future>
+#include <limits>
 #include <memory>
 
 #include "turncal/can/candump.hpp"
@@ -52,6 +53,46 @@ std::optional<double> live_number(const json* live, const char* section, const c
   const json& s = (*live)[section];
   if (!s.is_object() || !s.contains(key) || !s[key].is_number()) return std::nullopt;
   return s[key].get<double>();
+}
+
+/// The live run's loop holds (Engine::Hold): those its report lists, and
+/// how many there were.
+struct LiveHolds {
+  std::vector<Engine::Hold> at;
+  std::uint64_t count = 0;
+};
+
+/// A report from before holds were kept has none; one that lists them
+/// wrongly (not [from, to] with from before to, out of order, overlapping)
+/// is refused: they decide which silences the replay excuses.
+Result<LiveHolds> live_holds(const json* live) {
+  LiveHolds h;
+  if (live == nullptr || !live->contains("loop_holds")) return h;
+  const json& j = (*live)["loop_holds"];
+  auto bad = [](const std::string& what) {
+    return make_error("the live report's loop_holds: " + what +
+                      "; it decides which silences the replay excuses: replay without the report");
+  };
+  if (!j.is_object() || !j.contains("at_s") || !j.at("at_s").is_array() || !j.contains("count") ||
+      !j.at("count").is_number_integer() || j.at("count").get<std::int64_t>() < 0)
+    return bad("not a count and a list at_s");
+  h.count = static_cast<std::uint64_t>(j.at("count").get<std::int64_t>());
+  const json& at = j.at("at_s");
+  double end = -std::numeric_limits<double>::infinity();
+  for (std::size_t i = 0; i < at.size(); ++i) {
+    const json& e = at.at(i);
+    const std::string which = "at_s[" + std::to_string(i) + "]";
+    if (!e.is_array() || e.size() != 2 || !e.at(0).is_number() || !e.at(1).is_number())
+      return bad(which + " is not [from, to]");
+    const Engine::Hold hold{e.at(0).get<double>(), e.at(1).get<double>()};
+    if (!std::isfinite(hold.from_s) || !std::isfinite(hold.to_s) || !(hold.from_s < hold.to_s))
+      return bad(which + " does not end after it starts");
+    if (!(hold.from_s >= end)) return bad(which + " starts before the one before it ends");
+    end = hold.to_s;
+    h.at.push_back(hold);
+  }
+  if (h.count < h.at.size()) return bad("count is less than the holds listed");
+  return h;
 }
 
 /// Roles of each stream, and the message that carries them, for a log that
@@ -160,14 +201,9 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   std::vector<OutFrame> sent;  // observe mode sends nothing; kept for the interface
   engine.start(tb.epoch_us * 1000, sent);
   // where the live loop was held, it judged no stream lost; nor does the replay
-  if (live != nullptr && live->contains("loop_holds") && (*live)["loop_holds"].is_object() &&
-      (*live)["loop_holds"].contains("at_s") && (*live)["loop_holds"]["at_s"].is_array()) {
-    std::vector<Engine::Hold> holds;
-    for (const json& h : (*live)["loop_holds"]["at_s"])
-      if (h.is_array() && h.size() == 2 && h[0].is_number() && h[1].is_number())
-        holds.push_back({h[0].get<double>(), h[1].get<double>()});
-    engine.replay_holds(std::move(holds));
-  }
+  TURNCAL_ASSIGN(holds, live_holds(live));
+  const std::uint64_t holds_unlisted = holds.count - holds.at.size();
+  engine.replay_holds(std::move(holds.at));
   std::int64_t first_ns = have ? rec.time_ns : 0, last_ns = first_ns;
   std::int64_t next_tick_ns = first_ns;
   std::int64_t last_t = first_ns, burst_start = first_ns;
@@ -234,7 +270,9 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   json r = {{"log_lines", out.lines},
             {"of_live_report", live != nullptr},
             {"overrides", options.overrides},
-            {"missing_roles", out.missing}};
+            {"missing_roles", out.missing},
+            // past the report's list: those silences are judged as the log shows them
+            {"loop_holds_unlisted", holds_unlisted}};
   r["damage"] = damage ? json{{"line", damage->line}, {"what", damage->what}} : json(nullptr);
   out.report["replay"] = r;
   if (damage && !out.report.contains("reason"))

@@ -260,7 +260,8 @@ void Sequencer::held(double length_s) {
   if (!(length_s > 0)) return;
   ack_deadline_ += length_s;
   phase_deadline_ += length_s;  // infinity stays
-  stop_deadline_ += length_s;
+  // not the quick stop's give-up: what it does on running out (our
+  // heartbeat withheld, so the table stops itself) is safe whenever
 }
 
 void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {

@@ -161,6 +161,15 @@ struct ClosedLoop {
     return q;
   }
 
+  /// settings_of, with a latency floor of 100 ms and the loop held when
+  /// two ticks are 50 ms apart (the daemon's at 40 Hz).
+  static run::SequencerSettings held_settings_of(const Plan& p, const stand::StandSetup& s) {
+    run::SequencerSettings q = settings_of(p, s);
+    q.stale_floor_s = 0.1;
+    q.hold_s = 0.05;
+    return q;
+  }
+
   ClosedLoop(Plan p, const stand::StandSetup& s,
              std::optional<run::SequencerSettings> q = std::nullopt)
       : plan(std::move(p)),
@@ -271,8 +280,9 @@ struct ClosedLoop {
   [[nodiscard]] run::Phase phase() const { return engine->sequencer().phase(); }
   [[nodiscard]] const run::Course& course() const { return engine->sequencer().course(); }
   /// Commands of a code we sent.
-  [[nodiscard]] int sent(run::TableCode code) const {
-    int n = 0;
+  /// When table commands of `code` went out, loop seconds.
+  [[nodiscard]] std::vector<double> sent_at(run::TableCode code) const {
+    std::vector<double> at;
     can::FrameCodec codec(reference_stand().db);
     std::vector<double> v(16);
     const auto& r = stand_roles();
@@ -281,9 +291,12 @@ struct ClosedLoop {
       if (!l.sent || codec.decode(l.f.frame, v, &m) != can::DecodeStatus::Ok) continue;
       if (m == r[Role::TableCommand].message &&
           static_cast<int>(v[r[Role::TableCommand].signal_index]) == static_cast<int>(code))
-        ++n;
+        at.push_back(static_cast<double>(l.f.time_ns - kEpochNs) * 1e-9);
     }
-    return n;
+    return at;
+  }
+  [[nodiscard]] int sent(run::TableCode code) const {
+    return static_cast<int>(sent_at(code).size());
   }
 };
 
@@ -732,9 +745,7 @@ TEST_SUITE("run engine on the virtual stand") {
     for (const bool hold : {true, false}) {
       CAPTURE(hold);
       const stand::StandSetup s = setup_of(plan, 3);
-      run::SequencerSettings q = ClosedLoop::settings_of(plan, s);
-      q.stale_floor_s = 0.1;
-      q.hold_s = 0.05;
+      run::SequencerSettings q = ClosedLoop::held_settings_of(plan, s);
       ClosedLoop c(plan, s, q);
       if (hold) c.held = [](double t) { return t > 82 && t < 82.3; };
       c.lose = [](const stand::StandFrame& f) { return f.t_s > 82 && f.t_s < 82.32; };
@@ -773,6 +784,122 @@ TEST_SUITE("run engine on the virtual stand") {
           CHECK_MESSAGE(reason.find("INS velocity lost during turn 1") == 0, reason);
         }
       }
+      // a report whose holds cannot be what a loop saw is refused, naming them
+      nlohmann::json bad = c.written;
+      bad["loop_holds"]["at_s"][0] = {to, from};
+      auto r = replay_file(dir.path / "run.log", &bad);
+      REQUIRE_FALSE(r.ok());
+      CHECK_MESSAGE(r.error().message.find("loop_holds: at_s[0] does not end after it starts") !=
+                        std::string::npos,
+                    r.error().message);
+      bad["loop_holds"]["at_s"] = {{from, to}, {to - 0.1, to + 1}};
+      bad["loop_holds"]["count"] = 2;
+      r = replay_file(dir.path / "run.log", &bad);
+      REQUIRE_FALSE(r.ok());
+      CHECK_MESSAGE(r.error().message.find("at_s[1] starts before the one before it ends") !=
+                        std::string::npos,
+                    r.error().message);
+      bad["loop_holds"]["count"] = 1;
+      bad["loop_holds"]["at_s"] = {{from, to}, {to + 1, to + 2}};
+      r = replay_file(dir.path / "run.log", &bad);
+      REQUIRE_FALSE(r.ok());
+      CHECK_MESSAGE(
+          r.error().message.find("count is less than the holds listed") != std::string::npos,
+          r.error().message);
+    }
+  }
+
+  TEST_CASE("a stream lost before a hold is judged on the time the loop ran, not from its end") {
+    // The INS velocity stops at 81.95 s; the loop is held from 82 s to
+    // 82.3 s. Its 10 periods (100 ms, the floor too) are counted in the time
+    // the loop ran: lost at 82.35 s, one tick later. Counting from the
+    // hold's end instead would say so at 82.41 s; counting the hold would
+    // say so at 82.06 s, inside it.
+    const Plan plan = short_plan();
+    const stand::StandSetup s = setup_of(plan, 3);
+    run::SequencerSettings q = ClosedLoop::held_settings_of(plan, s);
+    ClosedLoop c(plan, s, q);
+    const std::uint32_t ve = reference_stand().db.find("INS_VelE")->id;
+    const std::uint32_t vn = reference_stand().db.find("INS_VelN")->id;
+    c.held = [](double t) { return t > 82 && t < 82.3; };
+    c.lose = [&](const stand::StandFrame& f) {
+      return (f.frame.id == ve || f.frame.id == vn) && f.t_s > 81.95;
+    };
+    c.run_until(300);
+    REQUIRE(c.phase() == run::Phase::Failed);
+    CHECK_MESSAGE(c.course().reason.find("INS velocity lost during turn 1") == 0,
+                  c.course().reason);
+    // the quick stop goes out on the tick that judges it
+    REQUIRE(c.sent(run::TableCode::QuickStop) >= 1);
+    const double failed = c.sent_at(run::TableCode::QuickStop).front();
+    CHECK(failed > 82.34);
+    CHECK(failed < 82.37);
+    CHECK(c.engine->hold_count() == 1);
+  }
+
+  TEST_CASE("a hold over a command's acknowledgement moves its deadline on by its length") {
+    // The loop is held 350 ms from the tick that sends the turn's move, and
+    // the stand's frames are lost until 20 ms after: the acknowledgement
+    // (its timeout 200 ms, and the floor of 100 ms) comes after the
+    // deadline it had, and before the one the hold moved it to.
+    const Plan plan = short_plan();
+    const stand::StandSetup s = setup_of(plan, 3);
+    run::SequencerSettings q = ClosedLoop::held_settings_of(plan, s);
+    q.ack_timeout_s = 0.2;
+    ClosedLoop c(plan, s, q);
+    const double epoch = static_cast<double>(kEpochNs) * 1e-9;
+    double turn_at = NAN;  // loop time the move went out
+    c.held = [&](double t) {
+      if (std::isnan(turn_at) && c.phase() == run::Phase::Turn)
+        turn_at = c.course().marks.back().t_s - epoch;
+      return t > turn_at + 1e-6 && t < turn_at + 0.35;
+    };
+    c.lose = [&](const stand::StandFrame& f) {
+      return f.t_s > turn_at + 1e-6 && f.t_s < turn_at + 0.37;
+    };
+    c.run_until(300);
+    REQUIRE(!std::isnan(turn_at));
+    CHECK_MESSAGE(c.phase() == run::Phase::Done, c.course().reason);
+    CHECK(c.engine->hold_count() == 1);
+    CHECK(c.engine->longest_hold_s() == doctest::Approx(0.35).epsilon(0.05));
+  }
+
+  TEST_CASE("a host held more than half the time cannot keep up: the run fails, and says so") {
+    // From 81 s the loop is held 250 ms of every 400 ms (62%; the table's
+    // heartbeat, every 100 ms when the loop runs, is never 500 ms late):
+    // past half of 10 s of it (the 20th or 21st hold, by where the ticks
+    // fall) the run fails, and a replay with the live report fails the same
+    // way. Held 170 ms of every 400 ms (42%), it goes on.
+    const Plan plan = short_plan();
+    for (const double held_s : {0.25, 0.17}) {
+      CAPTURE(held_s);
+      const stand::StandSetup s = setup_of(plan, 3);
+      run::SequencerSettings q = ClosedLoop::held_settings_of(plan, s);
+      ClosedLoop c(plan, s, q);
+      c.held = [&](double t) { return t > 81 && std::fmod(t - 81, 0.4) < held_s; };
+      if (held_s < 0.2) {
+        c.run_until(100);
+        CHECK_MESSAGE(c.phase() != run::Phase::Failed, c.course().reason);
+        CHECK(c.engine->hold_count() >= 47);
+        continue;
+      }
+      c.run_until(300);
+      REQUIRE(c.phase() == run::Phase::Failed);
+      CHECK_MESSAGE(c.course().reason.find("the host cannot keep up: its loop was held 5.") == 0,
+                    c.course().reason);
+      const double failed = c.course().marks.back().t_s - static_cast<double>(kEpochNs) * 1e-9;
+      CHECK(failed > 88.5);
+      CHECK(failed < 89.6);
+      const nlohmann::json live = run::report_json({}, *c.engine, nullptr, nullptr);
+      TempDir dir;
+      write_log(c.log, dir.path / "run.log");
+      auto r = replay_file(dir.path / "run.log", &live);
+      REQUIRE(r.ok());
+      const nlohmann::json& j = r->report;
+      CHECK(j.at("status") == "failed");
+      CHECK_MESSAGE(j.at("reason").get<std::string>().find("the host cannot keep up") == 0,
+                    j.at("reason"));
+      CHECK(j.at("loop_holds").at("count") == live.at("loop_holds").at("count"));
     }
   }
 

@@ -284,6 +284,35 @@ TEST_SUITE("cia402") {
     CHECK(c.idle());
   }
 
+  TEST_CASE("SDO client: the time its caller's loop was held is not counted against a transfer") {
+    canopen::SdoClient c(5, 0.5);
+    std::vector<can::Frame> out;
+    std::vector<canopen::SdoResult> done;
+    c.upload(0x6064, 0, [&](const canopen::SdoResult& res) { done.push_back(res); });
+    c.tick(1.0, out);
+    REQUIRE(out.size() == 1);  // out at 1.0 s: due by 1.5 s
+    out.clear();
+    c.held(1.2, 1.5);  // 0.3 s of it held: due by 1.8 s
+    c.tick(1.5, out);
+    c.tick(1.79, out);
+    CHECK(out.empty());
+    CHECK(done.empty());
+    c.tick(1.8, out);
+    REQUIRE(done.size() == 1);
+    CHECK(done[0].abort == 0x05040000);
+    // a hold before the transfer went out excuses only what overlaps it
+    c.upload(0x6064, 0, [&](const canopen::SdoResult& res) { done.push_back(res); });
+    out.clear();
+    c.tick(2.0, out);
+    REQUIRE(out.size() == 1);  // due by 2.5 s
+    c.held(1.9, 2.1);          // 0.1 s after it went out
+    c.tick(2.59, out);
+    CHECK(done.size() == 1);
+    c.tick(2.6, out);
+    CHECK(done.size() == 2);
+    CHECK(c.counts().timeouts == 2);
+  }
+
   TEST_CASE("SDO client: an abort for another object is not ours; a 0-byte download is refused") {
     canopen::SdoClient c(5, 0.5);
     std::vector<can::Frame> out;
@@ -893,6 +922,41 @@ TEST_SUITE("cia402") {
     // and it moves again
     REQUIRE(l.command(TableCommandCode::MoveRelative, 4, 10 * kDeg, 30 * kDeg));
     REQUIRE(l.in_position(4, 3));
+  }
+
+  TEST_CASE("the master's loop held: the drive's heartbeat is judged in the time it ran") {
+    // The whole machine stops 0.4 s (the drive's heartbeat timeout is 0.3 s,
+    // its own watch of ours 0.5 s): the master's first tick after it comes
+    // before the drive has sent anything. The hold does not count; a drive
+    // silent from just before it is lost 0.3 s of running time after its
+    // last heartbeat.
+    for (const bool silent : {false, true}) {
+      CAPTURE(silent);
+      stand::Drive402Faults df;
+      if (silent) df.silent_at_s = 1.95;
+      Loop l(master_settings(), drive_setup(), df);
+      l.start();
+      REQUIRE(l.running());
+      REQUIRE(l.enabled(1));
+      l.run_until([&] { return l.t >= 2.0 - 1e-9; }, 3);
+      const double from = l.t;
+      l.t += 0.4;
+      l.master.held(from, l.t);
+      l.master.tick(l.t, l.from_master);
+      l.deliver();
+      if (!silent) {
+        l.run_for(1.0);
+        CHECK(l.master.status().state == TableState::Holding);
+        CHECK(l.master.status().fault == FaultCode::None);
+        continue;
+      }
+      CHECK(l.master.status().fault == FaultCode::None);
+      REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 1));
+      CHECK(l.master.status().fault == FaultCode::DriveHeartbeatLost);
+      // the last heartbeat at most 0.1 s before 1.95 s; 0.3 s and the hold on
+      CHECK(l.t > 1.85 + 0.3 + 0.4);
+      CHECK(l.t < 1.95 + 0.3 + 0.4 + 0.002);
+    }
   }
 
   TEST_CASE("the host heartbeat stops: the drive quick-stops per 0x6007, EMCY 0x8130") {

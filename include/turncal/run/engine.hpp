@@ -14,6 +14,7 @@
 #pragma once
 
 #include <cstdint>
+#include <deque>
 #include <limits>
 #include <memory>
 #include <optional>
@@ -115,17 +116,32 @@ class Engine {
   [[nodiscard]] const TimeBase& time_base() const { return time_; }
   [[nodiscard]] const BuildSettings& build_settings() const { return build_; }
   [[nodiscard]] double stand_s(std::int64_t ns) const { return time_.stand_s(ns); }
-  /// Stretches (stand seconds, from and to) the loop was held between two
-  /// ticks (SequencerSettings::hold_s): the first kMaxHolds of them.
+  /// A stretch (stand seconds, from and to) the loop was held: two ticks
+  /// further apart than SequencerSettings::hold_s. No stream's silence
+  /// counts the time in one (the host was not listening), and the
+  /// sequencer's pending deadlines run on by its length; a host held for
+  /// more than half of kHoldWindowS fails the run (it cannot keep up, and
+  /// lost streams would go unnoticed for as long).
   struct Hold {
     double from_s, to_s;
   };
-  static constexpr std::size_t kMaxHolds = 100;
+  static constexpr std::size_t kMaxHolds = 10000;  ///< listed in the report
+  static constexpr double kHoldWindowS = 10;
+  /// The first kMaxHolds holds (hold_count() counts them all).
   [[nodiscard]] const std::vector<Hold>& holds() const { return holds_; }
   [[nodiscard]] std::uint64_t hold_count() const { return hold_count_; }
   [[nodiscard]] double longest_hold_s() const { return longest_hold_s_; }
-  /// A replay: the live run's holds, each excusing the silence before its
-  /// end and running the deadlines on as it did live.
+  /// The last hold (from and to NaN before any).
+  [[nodiscard]] Hold last_hold() const { return last_hold_; }
+  /// The time between from_s and to_s the loop was held (of the holds of
+  /// the last kHoldKeptS: older ones are not excused).
+  [[nodiscard]] double held_between(double from_s, double to_s) const;
+  /// Stream `s` lost at t: silent for 10 of its periods and `floor_s`, in
+  /// the time the loop ran (never heard: lost).
+  [[nodiscard]] bool stale(Stream s, double t, double floor_s) const;
+  /// A replay: the live run's holds (sorted, apart, each from before to),
+  /// each taken from the first tick past its start, as the live loop took
+  /// it on its end.
   void replay_holds(std::vector<Hold> holds);
   /// Tables of the commands we sent, counted.
   [[nodiscard]] std::uint64_t commands_sent() const { return commands_sent_; }
@@ -153,13 +169,16 @@ class Engine {
   Plausibility plausible_;
   double last_frame_s_ = NAN;
   double prev_tick_s_ = NAN;
-  /// Streams' silence counts from here: the end of the last hold.
-  double watch_from_s_ = -std::numeric_limits<double>::infinity();
   std::vector<Hold> holds_;
   std::uint64_t hold_count_ = 0;
   double longest_hold_s_ = 0;
+  Hold last_hold_{NAN, NAN};
+  static constexpr double kHoldKeptS = 60;
+  std::deque<Hold> recent_holds_;  ///< those ending in the last kHoldKeptS
+  bool hold_fault_fed_ = false;
   std::vector<Hold> replayed_holds_;
   std::size_t next_replayed_hold_ = 0;
+  void note_hold(const Hold& h, double t, std::vector<OutFrame>& out);
   [[nodiscard]] double record_end_s() const;
   void check_plausible(double t, std::vector<OutFrame>& out);
   bool report_due_ = false;

@@ -171,10 +171,9 @@ struct StreamHealth {
   double first_host_s = NAN;
   double last_host_s = NAN;
   /// Not seen for 10 nominal periods, and for at least `floor_s` (or never
-  /// seen), counting its silence from `since_s` at the earliest (the host
-  /// watched the bus from then).
-  [[nodiscard]] bool stale(double now_s, double floor_s = 0,
-                           double since_s = -std::numeric_limits<double>::infinity()) const;
+  /// seen), its silence less `excused_s` (of it, the time the host was not
+  /// running its loop, so not listening).
+  [[nodiscard]] bool stale(double now_s, double floor_s = 0, double excused_s = 0) const;
   [[nodiscard]] double age_s(double now_s) const { return now_s - last_host_s; }
   /// Mean rate since the first frame, Hz.
   [[nodiscard]] double rate_hz() const;

@@ -83,12 +83,12 @@ struct SequencerSettings {
   /// acknowledgement timeout has it added for the same reason.
   double stale_floor_s = 0;
   /// The host's loop was held (the host did not run it: an overloaded or
-  /// suspended machine) when two of its ticks are further apart than this
-  /// (stand seconds); a stream's silence is then judged from the tick that
-  /// ends the hold, since the host was deaf, not the bus silent. The frames
-  /// sent meanwhile may not be in yet: a device sharing the held machine
-  /// (a virtual stand) had not run either. Infinity: never (a replay, which
-  /// takes the live run's holds from its report).
+  /// stopped machine, a virtual stand's whole machine paused) when two of
+  /// its ticks are further apart than this (stand seconds): the time in
+  /// between does not count in a stream's silence, since the host was
+  /// deaf, not the bus silent. The frames sent meanwhile may not be in yet:
+  /// a device sharing the held machine had not run either. Infinity: never
+  /// (a replay, which takes the live run's holds from its report).
   double hold_s = std::numeric_limits<double>::infinity();
   /// Observe mode: the table has left its hold when it is this far from
   /// it (0.05 deg), and is at rest again after still_time_s within a tenth.
@@ -221,8 +221,9 @@ class Sequencer {
   /// True while a table motion this sequencer asked for may be under way.
   [[nodiscard]] bool table_may_move() const { return may_move_; }
   /// The host's loop was held for `length_s` (SequencerSettings::hold_s):
-  /// the deadlines pending run on by as long, since neither the host nor a
-  /// device sharing its machine was running to answer.
+  /// the acknowledgement and phase deadlines pending run on by as long,
+  /// since neither the host nor a device sharing its machine was running
+  /// to answer. The quick stop's give-up does not.
   void held(double length_s);
   /// The last table angle seen (multi-turn), NaN before any.
   [[nodiscard]] double table_angle() const { return angle_; }

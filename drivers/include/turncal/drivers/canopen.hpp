@@ -155,6 +155,9 @@ class SdoClient {
   /// Starts the next queued transfer if none is under way and times out the
   /// one under way; frames to send go to `out`.
   void tick(double now_s, std::vector<can::Frame>& out);
+  /// The caller's loop was held from from_s to to_s: the transfer under way
+  /// does not count that time against its timeout.
+  void held(double from_s, double to_s);
   /// A frame from the bus; false when it is not this server's SDO response.
   bool on_frame(const can::Frame& f, double now_s, std::vector<can::Frame>& out);
   /// Ends every queued transfer and the one under way (aborted on the bus

@@ -418,6 +418,10 @@ class Master {
   /// Timeouts, our heartbeat and SYNC. Call often (at least every
   /// heartbeat period), with non-decreasing time.
   void tick(double now_s, std::vector<can::Frame>& out);
+  /// The caller's loop was held from from_s to to_s (it did not run): the
+  /// timeouts that wait on the drive (its heartbeat, boot-up, an SDO, the
+  /// set-point's acknowledgement, the mode switch) do not count that time.
+  void held(double from_s, double to_s);
   /// A frame from the bus at t_s. Frames of other nodes are ignored; ours
   /// of a wrong length are counted and skipped.
   void on_frame(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
