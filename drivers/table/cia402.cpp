@@ -957,11 +957,13 @@ void Master::on_emcy(const can::Frame& f, double t_s) {
     emcy_.push_back(*e);
   else
     emcy_.back() = *e;
-  if (e->code == 0) return;  // error reset or no error
+  if (e->code == 0) return;  // error reset or no error: no news of a fault
+  ++emcy_errors_;
   if (fault_ == FaultCode::DriveFault) {
     // the statusword said fault first; the EMCY says why
     fault_ = FaultCode::Emcy;
     fault_name_ = e->text;
+    fault_base_ = fault_name_;
     return;
   }
   latch(FaultCode::Emcy, e->text);
@@ -1081,7 +1083,7 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
       status_read_.reset();
       recovery_ = Recovery::ReadStatus;
       read_sw_seq_ = sw_seq_;
-      read_emcy_ = counts_.emcy;
+      read_emcy_ = emcy_errors_;
       sdo_.upload(obj::kStatusword, 0, [this, gen](const canopen::SdoResult& r) {
         if (gen == status_read_gen_ && recovery_ == Recovery::ReadStatus) status_read_ = r;
       });
@@ -1100,7 +1102,7 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
       }
       // An EMCY since the read went out may be a new fault its answer
       // does not show (an EMCY outranks the SDO answer on the bus)
-      if (counts_.emcy != read_emcy_) return read_again(kEmcysKeptComing);
+      if (emcy_errors_ != read_emcy_) return read_again(kEmcysKeptComing);
       // expedited, with or without the size indicated (CiA 301): 2 to 4 bytes
       if (!r.ok() || r.data.size() < 2 || r.data.size() > 4) {
         // nothing known, nothing sent: the latch stays, the next Enable
@@ -1163,11 +1165,11 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
     }
     case Recovery::Confirm:
       if (sw_seq_ <= read_sw_seq_) return;  // no TPDO since the read
-      if (needs_comm_reset_ || counts_.emcy != read_emcy_ || state_ != read_state_ ||
+      if (needs_comm_reset_ || emcy_errors_ != read_emcy_ || state_ != read_state_ ||
           (word & (sw::kFault | sw::kFollowingError)) != 0) {
         // it changed since: read again (a frozen TPDO that never agrees
         // with the drive's own word ends it)
-        return read_again(counts_.emcy != read_emcy_ ? std::string(kEmcysKeptComing)
+        return read_again(emcy_errors_ != read_emcy_ ? std::string(kEmcysKeptComing)
                           : state_ != read_state_
                               ? "the drive's statusword read by SDO (" +
                                     std::string(to_string(read_state_)) + ") and its TPDO (" +
@@ -1272,8 +1274,9 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out) {
         want = cw::kCmdDisableVoltage;
       } else if (state_ == State::OperationEnabled && rest_since_running().state != Rest::AtRest) {
         // Shutdown lets a turning table coast on a drive without 0x605B:
-        // it waits, enabled, for the table known at rest
-        want = cw::kCmdEnableOperation;
+        // it waits, enabled and halted, for the table known at rest (the
+        // halt kept or set: a halted move taken up again is no way to rest)
+        want = cw::kCmdEnableOperation | motion_bits() | cw::kHalt;
       } else {
         want = cw::kCmdShutdown;
       }

@@ -803,6 +803,82 @@ TEST_SUITE("cia402") {
     CHECK(l.master.counts().nmt_resets == 1);             // no communication reset needed
   }
 
+  TEST_CASE("EMCYs saying no error (code 0) are no news of a fault while a reset reads its word") {
+    // A drive may say its error is gone (EMCY 0x0000) at any time, also
+    // while the master reads its statusword to reset it: that is no new
+    // fault to read again for, and the reset goes through. A fault's code
+    // is (one read again, then the next).
+    stand::Drive402Faults df;
+    df.fault_at_s = 2.0;
+    df.fault_code = 0x2310;
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 3));
+    l.run_for(0.5);
+    const std::uint8_t node = master_settings().node_id;
+    // the statusword reads (SDO upload requests of 0x6041) the master sent
+    const auto reads = [&] {
+      return std::ranges::count_if(l.sent, [&](const can::Frame& f) {
+        return f.id == canopen::kSdoRxBase + node && f.data[0] == 0x40 &&
+               canopen::get_le(f.payload(), 1, 2) == 0x6041;
+      });
+    };
+    // an EMCY 0x0000 ahead of every SDO answer and TPDO from the Enable on
+    const can::Frame no_error = canopen::emcy_frame(node, 0x0000, 0);
+    l.tamper = [&](can::Frame& f) {
+      if (f.id == canopen::kSdoTxBase + node || f.id == 0x180U + node)
+        l.master.on_frame(no_error, l.t, l.from_master);
+    };
+    const auto emcys = l.master.counts().emcy;
+    REQUIRE(l.command(TableCommandCode::Enable, 4));
+    const bool enabled = l.run_until(
+        [&] {
+          return l.master.status().state == TableState::Holding && l.master.status().ack == 4;
+        },
+        1.0);
+    CHECK(enabled);
+    CHECK(l.master.status().fault == FaultCode::None);
+    CHECK(l.master.counts().emcy >= emcys + 2);  // before the answer, and the TPDO after
+    CHECK(reads() == 1);
+  }
+
+  TEST_CASE("an EMCY after the statusword's fault names it, and a failed reset adds to its name") {
+    // The drive's fault EMCY reaches the master after a statusword in
+    // fault: the fault is then the EMCY's, and what a reset that cannot
+    // read the statusword says is added to the EMCY's text.
+    stand::Drive402Faults df;
+    df.fault_at_s = 2.0;
+    df.fault_code = 0x2310;
+    df.refuse_objects[0x604100] = 0x06020000;  // the statusword not readable by SDO
+    Loop l(master_settings(), drive_setup(), df);
+    const std::uint8_t node = master_settings().node_id;
+    std::optional<can::Frame> late;  // the fault's EMCY, held back
+    l.tamper = [&](can::Frame& f) {
+      if (f.id == canopen::kEmcyBase + node && (f.data[0] | f.data[1]) != 0 && !late) {
+        late = f;
+        f.id = 0x7FF;  // nobody's
+      }
+    };
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 3));
+    CHECK(l.master.status().fault == FaultCode::DriveFault);
+    REQUIRE(late);
+    l.master.on_frame(*late, l.t, l.from_master);
+    const std::string emcy = "EMCY 0x2310 continuous over-current (device output side)";
+    CHECK(l.master.status().fault == FaultCode::Emcy);
+    CHECK(l.master.status().fault_name == emcy);
+    REQUIRE(l.command(TableCommandCode::Enable, 3));
+    l.run_for(0.5);
+    CHECK(l.master.status().state == TableState::Fault);
+    CHECK_MESSAGE(l.master.status().fault_name.starts_with(
+                      emcy + "; the statusword could not be read for its reset: "),
+                  l.master.status().fault_name);
+  }
+
   TEST_CASE("a fault that outlives the first reset: the next Enable resets again") {
     stand::Drive402Faults df;
     df.fault_at_s = 0.5;
@@ -1770,6 +1846,37 @@ TEST_SUITE("cia402") {
     }
     CHECK(reads == cia402::Master::kConfirmReads + 1);
     CHECK(l.drive.counts().fault_resets == 0);
+  }
+
+  TEST_CASE(
+      "disable while the table's rest is unknown: it waits enabled and halted, never moving") {
+    // A move halted (controlled stop) at rest; then TPDO1 lost for longer
+    // than the drive's heartbeat timeout: whether the table is at rest is
+    // not known. A Disable waits enabled, as it does for a table that
+    // turns, and keeps the halt: dropping it would let the drive take up
+    // the halted move.
+    Loop l;
+    REQUIRE(l.turning(1.0, 180, 30));
+    REQUIRE(l.command(TableCommandCode::ControlledStop, 3));
+    REQUIRE(l.run_until([&] { return !l.drive.moving(l.t); }, 2.0));
+    l.run_for(kRateWindowS);
+    REQUIRE((l.drive.controlword() & cia402::cw::kHalt) != 0);
+    l.tamper = [](can::Frame& f) {
+      if (f.id == canopen::kTpdo1Base + 5) f.id = 0x7FF;  // nobody's
+    };
+    l.run_for(0.4);
+    REQUIRE(std::isnan(l.master.status().rate_rps));  // rest not known
+    REQUIRE(l.command(TableCommandCode::Disable, 4));
+    for (int i = 0; i < 500; ++i) {
+      l.step();
+      CHECK_FALSE(l.drive.moving(l.t));
+      CHECK((l.drive.controlword() & cia402::cw::kHalt) != 0);
+    }
+    CHECK(l.drive.state() == State::OperationEnabled);
+    // TPDO1 back: at rest, then shut down (transition 8)
+    l.tamper = nullptr;
+    REQUIRE(l.run_until([&] { return l.master.status().ack == 4; }, 1.0));
+    CHECK(l.drive.state() == State::ReadyToSwitchOn);
   }
 
   TEST_CASE("disable, then enable before the drive's statusword says so: not a drive of its own") {

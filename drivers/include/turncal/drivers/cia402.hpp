@@ -599,7 +599,8 @@ class Master {
   std::optional<canopen::SdoResult> status_read_;  // its answer, for evaluate()
   double status_read_at_ = 0;                      // not before: a drive still in fault reaction
   std::uint64_t read_sw_seq_ = 0;                  // sw_seq_ when the read went out
-  std::uint64_t read_emcy_ = 0;                    // counts_.emcy then
+  std::uint64_t emcy_errors_ = 0;                  // EMCYs with a code (not an error reset)
+  std::uint64_t read_emcy_ = 0;                    // emcy_errors_ then
   State read_state_ = State::Unknown;              // what the read said
   int fault_reaction_reads_ = 0;                   // reads that found fault reaction active
   int confirm_reads_ = 0;                          // reads a TPDO then disagreed with
