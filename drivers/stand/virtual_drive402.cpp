@@ -105,7 +105,7 @@ void VirtualDrive402::build_dictionary() {
   for (std::uint8_t i = 1; i <= 8; ++i) add(obj::kRpdo1Map, i, uns(4, true, 0));
   add(obj::kTpdo1Comm, 0, uns(1, false, 5));
   add(obj::kTpdo1Comm, 1, uns(4, true, canopen::kTpdo1Base + node));
-  add(obj::kTpdo1Comm, 2, uns(1, true, 0xFF));
+  add(obj::kTpdo1Comm, 2, uns(1, true, setup_.tpdo_transmission_type));
   add(obj::kTpdo1Comm, 3, uns(2, true, 0));
   add(obj::kTpdo1Comm, 5, uns(2, true, setup_.tpdo_event_timer_ms));
   add(obj::kTpdo1Map, 0, uns(1, true, map ? 2 : 0, false, 0, 8));

@@ -475,10 +475,10 @@ Status MasterSettings::check() const {
   // TPDO1's positions are the table's rate and its rest: a period over
   // half the drive's heartbeat timeout leaves them unknown between two
   // (the drive's own transmission, when the mapping is not written, is
-  // its configuration's)
+  // read back from it: check_tpdo)
   if (const double period = sync_period_s > 0 ? sync_period_s : tpdo_event_timer_s;
       (sync_period_s > 0 || configure_mapping) &&
-      !(positive(period) && period <= drive_heartbeat_timeout_s / 2))
+      !tpdo_period_fits(period, drive_heartbeat_timeout_s))
     return make_error("TPDO1's period (" + num(period * 1000) + " ms, " +
                       (sync_period_s > 0 ? "the SYNC period" : "its event timer") +
                       ") must be positive and at most half the drive heartbeat timeout (" +
@@ -717,7 +717,7 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
                     }
                     if (last) {
                       velocity_written_ = vel;
-                      check_options(gen);
+                      check_tpdo(gen);
                     }
                   });
   }
@@ -752,6 +752,41 @@ void Master::config_failed(const canopen::SdoResult& r, const std::string& why) 
            (name != nullptr ? std::string(" [") + name + "]" : "");
   }
   latch(FaultCode::Configuration, std::move(text), true);
+}
+
+void Master::check_tpdo(std::uint64_t gen) {
+  // written by the configuration, or sent on our SYNC: known
+  if (s_.configure_mapping || s_.sync_period_s > 0) return check_options(gen);
+  sdo_.upload(obj::kTpdo1Comm, 2, [this, gen](const canopen::SdoResult& r) {
+    if (gen != config_generation_) return;
+    if (!r.ok()) return config_failed(r, "");
+    const std::uint32_t type = r.data.size() == 1 ? r.data[0] : 0xFFFFFFFFu;
+    // 254 and 255: event-driven, on the drive's event timer; the others
+    // wait on a SYNC we do not send (sync_period_ms = 0) or a remote frame
+    if (type != 0xFE && type != 0xFF)
+      return config_failed(
+          r, "TPDO1's transmission type (0x1800:02) reads " +
+                 (r.data.size() == 1 ? std::to_string(type)
+                                     : std::to_string(r.data.size()) + " bytes") +
+                 ": with no SYNC from turncal (sync_period_ms = 0) the drive would not send it on "
+                 "a timer; set it to 254 or 255 with an event timer, set sync_period_ms, or let "
+                 "turncal write the mapping (configure_mapping = true)");
+    sdo_.upload(obj::kTpdo1Comm, 5, [this, gen](const canopen::SdoResult& t) {
+      if (gen != config_generation_) return;
+      if (!t.ok()) return config_failed(t, "");
+      const double ms = t.data.size() == 2 ? get_le(t.data, 0, 2) : -1.0;
+      if (!tpdo_period_fits(ms * 1e-3, s_.drive_heartbeat_timeout_s))
+        return config_failed(
+            t,
+            "TPDO1's event timer (0x1800:05) reads " +
+                (t.data.size() == 2 ? num(ms) + " ms" : std::to_string(t.data.size()) + " bytes") +
+                (ms == 0 ? " (sent on change only: a table at rest is silent)" : "") +
+                ": it must be 1 ms to half the drive heartbeat timeout (" +
+                num(s_.drive_heartbeat_timeout_s * 1000) +
+                " ms), as the table's rate and rest come from its positions");
+      check_options(gen);
+    });
+  });
 }
 
 void Master::check_options(std::uint64_t gen) {

@@ -21,6 +21,12 @@ inline constexpr double kTableAtRestRps = 1e-3;
 /// The coarsest table position a rest test takes, counts per table turn:
 /// two counts of dither over a second read under kTableAtRestRps.
 inline constexpr double kMinCountsPerTableTurn = 16384;
+/// A CiA 402 table's rate and rest come from its TPDO1 positions: their
+/// period may be at most half the drive's heartbeat timeout (which bounds
+/// how old a position may be), or both are unknown between two.
+[[nodiscard]] inline bool tpdo_period_fits(double period_s, double drive_heartbeat_timeout_s) {
+  return period_s > 0 && period_s <= drive_heartbeat_timeout_s / 2 + 1e-12;
+}
 
 /// TBL_Command.Command
 enum class TableCommandCode : std::uint8_t {

@@ -548,7 +548,7 @@ Result<Config> parse_config(std::string_view text, const std::string& file) {
     // check holds the same; here with the key's line)
     const bool sync = d.sync_period_s > 0;
     if (const double period = sync ? d.sync_period_s : d.tpdo_event_timer_s;
-        (sync || d.configure_mapping) && period > d.drive_heartbeat_timeout_s / 2 + 1e-12) {
+        (sync || d.configure_mapping) && !tpdo_period_fits(period, d.drive_heartbeat_timeout_s)) {
       char msg[300];
       std::snprintf(msg, sizeof msg,
                     "key 'table.cia402.%s': TPDO1's period of %g ms is more than half the "

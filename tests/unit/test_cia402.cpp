@@ -1242,6 +1242,44 @@ TEST_SUITE("cia402") {
     CHECK(out.empty());
   }
 
+  TEST_CASE("the drive's own TPDO1 transmission, read back: its timer must fit the heartbeat") {
+    // The mapping not written and no SYNC: how often TPDO1 comes is the
+    // drive's own configuration (0x1800:02 and :05), read back and judged
+    // by the rule the written one has (at most half the drive heartbeat
+    // timeout, 300 ms here).
+    cia402::MasterSettings ms = master_settings();
+    ms.configure_mapping = false;
+    ms.drive_heartbeat_timeout_s = 0.3;
+    struct Case {
+      std::uint16_t timer_ms;
+      std::uint8_t type;
+      const char* why;  // empty: configured
+    };
+    for (const Case c :
+         {Case{150, 0xFF, ""}, Case{10, 0xFE, ""},
+          Case{151, 0xFF, "TPDO1's event timer (0x1800:05) reads 151 ms: it must be"},
+          Case{0, 0xFF, "reads 0 ms (sent on change only"},
+          Case{10, 1, "TPDO1's transmission type (0x1800:02) reads 1: with no SYNC"}}) {
+      CAPTURE(c.timer_ms);
+      CAPTURE(static_cast<int>(c.type));
+      stand::Drive402Setup ds = drive_setup();
+      ds.tpdo_event_timer_ms = c.timer_ms;
+      ds.tpdo_transmission_type = c.type;  // as the drive's vendor tool left them
+      Loop l(ms, ds);
+      l.start();
+      const bool running = l.running();
+      if (*c.why == 0) {
+        CHECK(running);
+        continue;
+      }
+      CHECK_FALSE(running);
+      CHECK(l.master.phase() == cia402::CommPhase::Failed);
+      CHECK(l.master.status().fault == FaultCode::Configuration);
+      CHECK_MESSAGE(l.master.status().fault_name.find(c.why) != std::string::npos,
+                    l.master.status().fault_name);
+    }
+  }
+
   TEST_CASE("settings the drive would misread are refused: times, option codes, COB-IDs") {
     auto refused = [](const cia402::MasterSettings& s, const char* why) {
       const auto r = cia402::Master::create(s);

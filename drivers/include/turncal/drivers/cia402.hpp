@@ -528,6 +528,10 @@ class Master {
   /// said if this is one too many).
   void read_again(const std::string& why);
   static constexpr const char* kEmcysKeptComing = "EMCYs kept coming while its statusword was read";
+  /// Where the drive's own configuration sends TPDO1 (the mapping not
+  /// written, no SYNC): reads its transmission type and event timer back,
+  /// which must fit the drive heartbeat timeout; then check_options.
+  void check_tpdo(std::uint64_t gen);
   /// Reads 0x60F2 back, then check_mode.
   void check_options(std::uint64_t gen);
   /// Reads 0x6061 until it shows profile position (1), then completes.

@@ -60,8 +60,9 @@ struct Drive402Setup {
   /// RPDO1 and TPDO1 mapped as CiA 402's defaults after a reset; false:
   /// no objects mapped until the master writes a mapping.
   bool default_mapping = true;
-  std::uint16_t tpdo_event_timer_ms = 10;   ///< 0x1800:05 after a reset
-  std::uint16_t producer_heartbeat_ms = 0;  ///< 0x1017 after a reset
+  std::uint16_t tpdo_event_timer_ms = 10;      ///< 0x1800:05 after a reset
+  std::uint8_t tpdo_transmission_type = 0xFF;  ///< 0x1800:02 after a reset
+  std::uint16_t producer_heartbeat_ms = 0;     ///< 0x1017 after a reset
   /// > 0: the drive works in cycles of this length, as a real one does:
   /// RPDO1 is an overwrite buffer sampled once a cycle (a controlword
   /// overwritten before the cycle is never seen), and the statusword that
