@@ -218,9 +218,10 @@ class TableDriver {
   }
   /// Timeouts and periodic frames; called from the main loop's tick.
   virtual void tick(double /*now_s*/, std::vector<can::Frame>& /*out*/) {}
-  /// The main loop was held from from_s to to_s (the host did not run it):
-  /// a timeout that waits on the device does not count that time, as the
-  /// streams' silence does not. Called before the tick at to_s.
+  /// The host's machine was held from from_s to to_s (Engine::Hold): a
+  /// timeout that waits on the device does not count that time, as the
+  /// streams' silence does not. Called from the tick that finds it, before
+  /// tick(); frames read before that tick came after to_s.
   virtual void held(double /*from_s*/, double /*to_s*/) {}
   /// Whether a heartbeat the protocol's own machinery sends from tick()
   /// (CANopen's) may go out: off once the host has given up stopping the

@@ -178,9 +178,10 @@ class Daemon {
   int listen_fd = -1;
   std::vector<std::unique_ptr<Client>> clients;
   bool stopping = false;
-  std::uint64_t holds_untold = 0;   ///< loop holds not yet in the journal
-  std::uint64_t holds_told_us = 0;  ///< when the last line about them went out
-  std::uint64_t timer_ticks = 0;    ///< watchers get the status every 5th
+  std::uint64_t holds_untold = 0;     ///< holds of the machine not yet in the journal
+  double holds_untold_longest_s = 0;  ///< the longest of them
+  std::uint64_t holds_told_us = 0;    ///< when the last line about them went out
+  std::uint64_t timer_ticks = 0;      ///< watchers get the status every 5th
   std::uint8_t heartbeat_counter = 0;
   std::optional<StateDir> state;
   /// Frames the bus has lately carried (what a run's log grows at).
@@ -227,7 +228,7 @@ class Daemon {
   Port& port(bool ins_side) { return (ins_side || !ports[1].sock) ? ports[0] : ports[1]; }
   Status setup();
   void tell_clock_steps();
-  void tell_holds(std::uint64_t before);
+  void tell_holds(std::uint64_t before, bool flush = false);
   void send_out();
   void flush_port(Port& p);
   void link_back(Port& p);
@@ -317,25 +318,31 @@ void Daemon::tell_clock_steps() {
   warn(b);
 }
 
-/// The holds of the loop since `before` (the engine's count), in the
-/// journal: one line every 10 s at most, saying how many it stands for (a
-/// machine held often would flood it); the report lists them all.
-void Daemon::tell_holds(std::uint64_t before) {
+/// The holds of the host's machine since `before` (the engine's count), in
+/// the journal: one line every 10 s at most, saying how many it stands for
+/// (a machine held often would flood it); `flush`: the ones not yet said,
+/// now (the run ends). The report lists them all.
+void Daemon::tell_holds(std::uint64_t before, bool flush) {
   const std::uint64_t n = engine->hold_count();
-  if (n == before) return;
-  holds_untold += n - before;
+  if (n != before) {
+    holds_untold += n - before;
+    const run::Engine::Hold h = engine->last_hold();
+    holds_untold_longest_s = std::max(holds_untold_longest_s, h.to_s - h.from_s);
+  }
+  if (holds_untold == 0) return;
   const std::uint64_t now = monotonic_us();
-  if (holds_told_us != 0 && now - holds_told_us < 10'000'000) return;
-  const run::Engine::Hold h = engine->last_hold();
-  const std::string also =
-      holds_untold > 1 ? ", the last of " + std::to_string(holds_untold) + " holds in 10 s" : "";
-  char b[240];
+  if (!flush && holds_told_us != 0 && now - holds_told_us < 10'000'000) return;
+  const std::string what =
+      holds_untold > 1 ? std::to_string(holds_untold) + " times since the last such line, at most"
+                       : "for";
+  char b[300];
   std::snprintf(b, sizeof b,
-                "the loop was held for %.0f ms (the host did not run it)%s: no stream's silence "
-                "counts that time",
-                (h.to_s - h.from_s) / cfg.stand.time_scale * 1000, also.c_str());
+                "the machine was held %s %.0f ms (its loop not run, no frame stamped on any bus): "
+                "no stream's silence counts that time",
+                what.c_str(), holds_untold_longest_s / cfg.stand.time_scale * 1000);
   warn(b);
   holds_untold = 0;
+  holds_untold_longest_s = 0;
   holds_told_us = now;
 }
 
@@ -488,7 +495,10 @@ void Daemon::on_can(Port& p) {
       host_fault("CAN interface " + iface + " " +
                  (e.kind == can::BusEventKind::InterfaceDown ? "went down" : "disappeared"));
   }
-  for (const can::TimedFrame& f : rx.confirmed) log_record({f.time_ns, iface, f.frame});
+  for (const can::TimedFrame& f : rx.confirmed) {
+    log_record({f.time_ns, iface, f.frame});
+    if (engine) engine->stamped(f.time_ns);
+  }
   for (const can::TimedFrame& f : rx.frames) {
     log_record({f.time_ns, iface, f.frame});
     if (engine) engine->on_frame(f, out);
@@ -590,7 +600,8 @@ void Daemon::after_engine() {
 /// be written leaves log_error set, and the run ends failed with it.
 void Daemon::write_report(bool with_estimates) {
   report_done = true;
-  state->release(run_id);  // the space the report was kept
+  tell_holds(engine->hold_count(), true);  // the run's last ones, said before its end
+  state->release(run_id);                  // the space the report was kept
   // the last phase-end fsync done (and heard of) before the file closes
   syncer.wait_idle();
   take_syncer_error();
@@ -833,6 +844,8 @@ json Daemon::start(const StartRequest& req) {
   engine = std::make_unique<run::Engine>(db, std::move(dev.ins), std::move(dev.table), *plan, q, b,
                                          run::TimeBase{now / 1000, cfg.stand.time_scale},
                                          run::plausibility_of(cfg));
+  holds_untold = 0;  // the last run's, if any, were said with its report
+  holds_untold_longest_s = 0;
   input.reset();
   result.reset();
   est_error.clear();

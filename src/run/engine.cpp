@@ -134,6 +134,7 @@ void Engine::on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out) {
   scaled.time_ns = static_cast<std::int64_t>(std::llround(t * 1e6)) * 1000;
   const Sample s = ingest_.on_frame(scaled);
   last_frame_s_ = t;
+  stamped(f.time_ns);
   if (!implausible_fed_) check_plausible(t, out);
   if (t > record_end_s()) record_complete_ = true;
   use(s, t, out);
@@ -228,7 +229,23 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out) {
   const double t = stand_s(now_ns);
   // the stand has gone quiet past the end: nothing more will come
   if (t > record_end_s() + 1.0 && !(last_frame_s_ > t - 1.0)) record_complete_ = true;
-  if (t - prev_tick_s_ > seq_.settings().hold_s) note_hold({prev_tick_s_, t}, t, out);
+  // the loop not run, and no frame stamped on any bus meanwhile: the
+  // machine was held as a whole, the kernel too (a paused machine, a
+  // virtual stand's). Frames stamped while only this process was held say
+  // what the bus did: nothing to excuse then.
+  if (t - prev_tick_s_ > seq_.settings().hold_s) {
+    std::ranges::sort(stamps_);
+    Hold widest{prev_tick_s_, prev_tick_s_};
+    double from = prev_tick_s_;
+    for (const double at : stamps_) {
+      if (at > t) break;
+      if (at - from > widest.to_s - widest.from_s) widest = {from, at};
+      from = std::max(from, at);
+    }
+    if (t - from > widest.to_s - widest.from_s) widest = {from, t};
+    if (widest.to_s - widest.from_s > seq_.settings().hold_s) note_hold(widest, t, out);
+  }
+  stamps_.clear();
   if (!(t < prev_tick_s_)) prev_tick_s_ = t;
   // a replay: from the first tick past a live hold's start, as the live
   // loop took it on its end (the frames the log holds inside it were read
@@ -261,6 +278,11 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out) {
   driver_output(t, out);
 }
 
+void Engine::stamped(std::int64_t time_ns) {
+  const double t = stand_s(time_ns);
+  if (!(t <= prev_tick_s_) && stamps_.size() < kMaxStamps) stamps_.push_back(t);
+}
+
 void Engine::replay_holds(std::vector<Hold> holds) {
   replayed_holds_ = std::move(holds);
   next_replayed_hold_ = 0;
@@ -274,7 +296,7 @@ void Engine::note_hold(const Hold& h, double t, std::vector<OutFrame>& out) {
   if (holds_.size() < kMaxHolds) holds_.push_back(h);
   recent_holds_.push_back(h);
   while (recent_holds_.front().to_s < h.to_s - kHoldKeptS) recent_holds_.pop_front();
-  seq_.held(length);
+  seq_.held(h.from_s, h.to_s);
   ingest_.table().held(h.from_s, h.to_s);
   // a host that runs its loop less than half the time watches nothing: a
   // lost stream's silence would take twice as long, or longer, to count

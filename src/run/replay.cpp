@@ -203,12 +203,26 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   // where the live loop was held, it judged no stream lost; nor does the replay
   TURNCAL_ASSIGN(holds, live_holds(live));
   const std::uint64_t holds_unlisted = holds.count - holds.at.size();
-  engine.replay_holds(std::move(holds.at));
+  engine.replay_holds(holds.at);
+  std::size_t hold_seen = 0;  // the first listed hold not yet past
+  // the log's times are to the microsecond, the live loop's to the nanosecond
+  const double stamp_slack_s = 2e-6 * tb.scale;
   std::int64_t first_ns = have ? rec.time_ns : 0, last_ns = first_ns;
   std::int64_t next_tick_ns = first_ns;
   std::int64_t last_t = first_ns, burst_start = first_ns;
   const auto tick_ns = static_cast<std::int64_t>(kTickS / tb.scale * 1e9);
   while (have) {
+    // a hold is a stretch no frame was stamped in: one in it says the
+    // report is not this log's
+    const double at = engine.stand_s(rec.time_ns);
+    for (; hold_seen < holds.at.size() && holds.at[hold_seen].to_s <= at; ++hold_seen) {
+    }
+    if (hold_seen < holds.at.size() && at > holds.at[hold_seen].from_s + stamp_slack_s &&
+        at < holds.at[hold_seen].to_s - stamp_slack_s)
+      return make_error("the live report's loop_holds: at_s[" + std::to_string(hold_seen) +
+                        "] is a stretch no frame was stamped in, and line " +
+                        std::to_string(reader.line_number()) +
+                        " of the log is in it: the report is not this log's; replay without it");
     engine.on_frame({rec.time_ns, rec.frame}, sent);
     const std::int64_t t = rec.time_ns;
     last_ns = std::max(last_ns, t);

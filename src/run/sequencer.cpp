@@ -142,6 +142,7 @@ void Sequencer::table(TableCode code, double t, std::vector<Command>& out, doubl
   awaiting_ack_ = seq_;
   // the table's own time to answer, and the host's latency (in stand time)
   ack_deadline_ = t + s_.ack_timeout_s + s_.stale_floor_s;
+  ack_set_s_ = t;
   if (code == TableCode::MoveAbsolute || code == TableCode::MoveRelative) may_move_ = true;
 }
 
@@ -256,10 +257,12 @@ bool Sequencer::outcome(Phase in, double t, bool ok, const std::string& why) {
   return true;
 }
 
-void Sequencer::held(double length_s) {
-  if (!(length_s > 0)) return;
-  ack_deadline_ += length_s;
-  phase_deadline_ += length_s;  // infinity stays
+void Sequencer::held(double from_s, double to_s) {
+  // a deadline set before the hold runs on by as long; one set after it
+  // (on a frame read before the tick that ends it) by nothing
+  if (!(to_s > from_s)) return;
+  if (ack_set_s_ <= from_s) ack_deadline_ += to_s - from_s;
+  if (phase_set_s_ <= from_s) phase_deadline_ += to_s - from_s;  // infinity stays
   // not the quick stop's give-up: what it does on running out (our
   // heartbeat withheld, so the table stops itself) is safe whenever
 }
@@ -290,9 +293,10 @@ void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
     return;
   // the ack's time, and the enable's, run from when the table's protocol is up
   if (awaiting_ack_ && e.table_starting)
-    ack_deadline_ = std::max(ack_deadline_, t + s_.ack_timeout_s + s_.stale_floor_s);
+    ack_deadline_ = std::max(ack_deadline_, t + s_.ack_timeout_s + s_.stale_floor_s),
+    ack_set_s_ = t;
   if (phase_ == Phase::Prepare && deadline_is_enable_ && e.table_starting)
-    phase_deadline_ = std::max(phase_deadline_, t + s_.enable_timeout_s);
+    phase_deadline_ = std::max(phase_deadline_, t + s_.enable_timeout_s), phase_set_s_ = t;
   if (!s_.observe && awaiting_ack_ && t > ack_deadline_) {
     fail(t,
          "the table did not acknowledge " + awaiting_what_ + " within " +
@@ -383,6 +387,7 @@ void Sequencer::move(double t, std::vector<Command>& out, double delta, double r
   TableMotion m;
   const double due = m.move_by(0, delta, rate, accel).t_end + s_.turn_margin_s;
   phase_deadline_ = t + due;
+  phase_set_s_ = t;
   deadline_is_enable_ = false;
   waiting_for_ = late + " within " + std::to_string(static_cast<int>(std::lround(due))) + " s";
 }
@@ -421,6 +426,7 @@ void Sequencer::on_table(const TableStatusEvent& e, std::vector<Command>& out) {
     awaiting_what_ = "enable";
     table(TableCode::Enable, t, out);
     phase_deadline_ = t + s_.enable_timeout_s;
+    phase_set_s_ = t;
     deadline_is_enable_ = true;
     waiting_for_ = "the table not holding within " +
                    std::to_string(static_cast<int>(s_.enable_timeout_s)) + " s of enable";
@@ -493,6 +499,7 @@ void Sequencer::begin_align(double t, std::vector<Command>& out) {
   course_.heading_given_rad = heading;
   seen_aligning_ = false;
   phase_deadline_ = t + s_.align_start_s;
+  phase_set_s_ = t;
   deadline_is_enable_ = false;
   waiting_for_ = "the INS not aligning within " +
                  std::to_string(static_cast<int>(s_.align_start_s)) + " s of the command";
@@ -519,6 +526,7 @@ void Sequencer::on_ins(const InsModeEvent& e, std::vector<Command>& out) {
         seen_aligning_ = true;
         if (!s_.observe) {
           phase_deadline_ = t + s_.profile.align_s + s_.align_margin_s;
+          phase_set_s_ = t;
           deadline_is_enable_ = false;
           waiting_for_ = "the INS not navigating within " +
                          std::to_string(static_cast<int>(s_.profile.align_s + s_.align_margin_s)) +

@@ -140,8 +140,13 @@ struct ClosedLoop {
   std::vector<can::Frame> to_stand;
   std::vector<Logged> log;  ///< both directions, as the recorder keeps them
   bool heartbeat = true;
-  /// The host's loop held (no tick, no heartbeat) at these times.
+  /// The host's process held at these times: no tick, no heartbeat, the
+  /// frames stamped meanwhile read when it runs again, before its tick (as
+  /// the daemon's loop does). With `lose` for the same times, the machine
+  /// held as a whole: the stand did not run either.
   std::function<bool(double)> held;
+  std::vector<can::TimedFrame> unread;  ///< stamped while held
+  bool was_held = false;
   /// Frames the host does not hear (a stand late or lossy on the bus).
   std::function<bool(const stand::StandFrame&)> lose;
   double start_at = 0.1;  ///< stand time the operator starts the run
@@ -234,15 +239,20 @@ struct ClosedLoop {
         engine->start(ns(t), out);
         started = true;
       }
-      for (const stand::StandFrame& f : frames) {
-        if (lose && lose(f)) continue;
-        const can::TimedFrame tf{ns(f.t_s), f.frame};
+      for (const stand::StandFrame& f : frames)
+        if (!lose || !lose(f)) unread.push_back({ns(f.t_s), f.frame});
+      if (held && held(t)) {
+        was_held = true;
+        continue;
+      }
+      const bool resumed = std::exchange(was_held, false);
+      for (const can::TimedFrame& tf : unread) {
         if (started) log.push_back({tf, false});  // the recorder runs from the start
         engine->on_frame(tf, out);
       }
-      const bool holding = held && held(t);
-      if (k % 10 == 0 && !holding) engine->tick(ns(t), out);
-      if (k % 100 == 0 && heartbeat && !holding)
+      unread.clear();
+      if (k % 10 == 0 || resumed) engine->tick(ns(t), out);
+      if (k % 100 == 0 && heartbeat)
         for (const run::OutFrame& h : engine->heartbeat()) out.push_back(h);
       if (engine->estimation_due()) {
         if (before_estimate) before_estimate(t, out);
@@ -806,35 +816,47 @@ TEST_SUITE("run engine on the virtual stand") {
       CHECK_MESSAGE(
           r.error().message.find("count is less than the holds listed") != std::string::npos,
           r.error().message);
+      // a hold the log has frames in is not this log's
+      bad["loop_holds"]["count"] = 1;
+      bad["loop_holds"]["at_s"] = {{from - 1, to}};
+      r = replay_file(dir.path / "run.log", &bad);
+      REQUIRE_FALSE(r.ok());
+      CHECK_MESSAGE(r.error().message.find("the report is not this log's") != std::string::npos,
+                    r.error().message);
     }
   }
 
   TEST_CASE("a stream lost before a hold is judged on the time the loop ran, not from its end") {
-    // The INS velocity stops at 81.95 s; the loop is held from 82 s to
-    // 82.3 s. Its 10 periods (100 ms, the floor too) are counted in the time
-    // the loop ran: lost at 82.35 s, one tick later. Counting from the
-    // hold's end instead would say so at 82.41 s; counting the hold would
-    // say so at 82.06 s, inside it.
-    const Plan plan = short_plan();
-    const stand::StandSetup s = setup_of(plan, 3);
-    run::SequencerSettings q = ClosedLoop::held_settings_of(plan, s);
-    ClosedLoop c(plan, s, q);
-    const std::uint32_t ve = reference_stand().db.find("INS_VelE")->id;
-    const std::uint32_t vn = reference_stand().db.find("INS_VelN")->id;
-    c.held = [](double t) { return t > 82 && t < 82.3; };
-    c.lose = [&](const stand::StandFrame& f) {
-      return (f.frame.id == ve || f.frame.id == vn) && f.t_s > 81.95;
-    };
-    c.run_until(300);
-    REQUIRE(c.phase() == run::Phase::Failed);
-    CHECK_MESSAGE(c.course().reason.find("INS velocity lost during turn 1") == 0,
-                  c.course().reason);
-    // the quick stop goes out on the tick that judges it
-    REQUIRE(c.sent(run::TableCode::QuickStop) >= 1);
-    const double failed = c.sent_at(run::TableCode::QuickStop).front();
-    CHECK(failed > 82.34);
-    CHECK(failed < 82.37);
-    CHECK(c.engine->hold_count() == 1);
+    // The INS velocity stops at 81.95 s; the host's process is held from
+    // 82 s to 82.3 s. The machine held as a whole (no frame at all stamped
+    // meanwhile): the velocity's 10 periods (100 ms, the floor too) are
+    // counted in the time the loop ran, lost at 82.35 s. Counting from the
+    // hold's end instead would say so at 82.41 s. The process alone held
+    // (the other frames stamped meanwhile, read after): the bus was heard,
+    // its silence is real, lost on the tick that ends the hold, 82.3 s.
+    for (const bool machine : {true, false}) {
+      CAPTURE(machine);
+      const Plan plan = short_plan();
+      const stand::StandSetup s = setup_of(plan, 3);
+      ClosedLoop c(plan, s, ClosedLoop::held_settings_of(plan, s));
+      const std::uint32_t ve = reference_stand().db.find("INS_VelE")->id;
+      const std::uint32_t vn = reference_stand().db.find("INS_VelN")->id;
+      c.held = [](double t) { return t > 82 && t < 82.3; };
+      c.lose = [&](const stand::StandFrame& f) {
+        return ((f.frame.id == ve || f.frame.id == vn) && f.t_s > 81.95) ||
+               (machine && c.held(f.t_s));
+      };
+      c.run_until(300);
+      REQUIRE(c.phase() == run::Phase::Failed);
+      CHECK_MESSAGE(c.course().reason.find("INS velocity lost during turn 1") == 0,
+                    c.course().reason);
+      // the quick stop goes out on the tick that judges it
+      REQUIRE(c.sent(run::TableCode::QuickStop) >= 1);
+      const double failed = c.sent_at(run::TableCode::QuickStop).front();
+      CHECK(failed > (machine ? 82.34 : 82.29));
+      CHECK(failed < (machine ? 82.37 : 82.31));
+      CHECK(c.engine->hold_count() == (machine ? 1 : 0));
+    }
   }
 
   TEST_CASE("a hold over a command's acknowledgement moves its deadline on by its length") {
@@ -864,6 +886,36 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(c.engine->longest_hold_s() == doctest::Approx(0.35).epsilon(0.05));
   }
 
+  TEST_CASE("a hold does not move the quick stop's give-up") {
+    // The INS goes silent in the turn: the run fails and the table is told
+    // to quick-stop; its status is never heard again. The machine held
+    // 400 ms a second later: the give-up still comes 5 s after the quick
+    // stop, not 5.4 s (what it does, our heartbeat withheld so the table
+    // stops itself, is safe at any time).
+    const Plan plan = short_plan();
+    stand::StandSetup s = setup_of(plan, 3);
+    s.faults.ins_silent_at_s = 82.5;
+    ClosedLoop c(plan, s, ClosedLoop::held_settings_of(plan, s));
+    const std::uint32_t status = reference_stand().db.find("TBL_Status")->id;
+    double stop_at = NAN;  // loop time the quick stop went out
+    c.held = [&](double t) { return t > stop_at + 1 && t < stop_at + 1.4; };
+    c.lose = [&](const stand::StandFrame& f) {
+      return (!std::isnan(stop_at) && f.frame.id == status) || c.held(f.t_s);
+    };
+    c.run_until(300, [&](double t) {
+      if (c.course().quick_stops_sent == 0) return false;
+      stop_at = t;
+      return true;
+    });
+    REQUIRE(!std::isnan(stop_at));
+    c.run_until(300);
+    CHECK(c.course().quick_stop_gave_up);
+    CHECK(c.engine->hold_count() == 1);
+    const double gave_up = c.course().marks.back().t_s - static_cast<double>(kEpochNs) * 1e-9;
+    CHECK(gave_up - stop_at > 4.99);
+    CHECK(gave_up - stop_at < 5.02);
+  }
+
   TEST_CASE("a host held more than half the time cannot keep up: the run fails, and says so") {
     // From 81 s the loop is held 250 ms of every 400 ms (62%; the table's
     // heartbeat, every 100 ms when the loop runs, is never 500 ms late):
@@ -877,6 +929,7 @@ TEST_SUITE("run engine on the virtual stand") {
       run::SequencerSettings q = ClosedLoop::held_settings_of(plan, s);
       ClosedLoop c(plan, s, q);
       c.held = [&](double t) { return t > 81 && std::fmod(t - 81, 0.4) < held_s; };
+      c.lose = [&](const stand::StandFrame& f) { return c.held(f.t_s); };  // the whole machine
       if (held_s < 0.2) {
         c.run_until(100);
         CHECK_MESSAGE(c.phase() != run::Phase::Failed, c.course().reason);

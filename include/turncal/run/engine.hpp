@@ -116,12 +116,13 @@ class Engine {
   [[nodiscard]] const TimeBase& time_base() const { return time_; }
   [[nodiscard]] const BuildSettings& build_settings() const { return build_; }
   [[nodiscard]] double stand_s(std::int64_t ns) const { return time_.stand_s(ns); }
-  /// A stretch (stand seconds, from and to) the loop was held: two ticks
-  /// further apart than SequencerSettings::hold_s. No stream's silence
-  /// counts the time in one (the host was not listening), and the
-  /// sequencer's pending deadlines run on by its length; a host held for
-  /// more than half of kHoldWindowS fails the run (it cannot keep up, and
-  /// lost streams would go unnoticed for as long).
+  /// A stretch (stand seconds, from and to) the host's machine was held as
+  /// a whole: between two ticks of its loop, no frame stamped on any bus
+  /// (the widest such stretch since the last tick), for longer than
+  /// SequencerSettings::hold_s. No stream's silence counts the time in one
+  /// (the host was not listening), nor does the time waited for a table's
+  /// answer; a host held for more than half of kHoldWindowS fails the run
+  /// (it cannot keep up, and lost streams would go unnoticed for as long).
   struct Hold {
     double from_s, to_s;
   };
@@ -133,12 +134,16 @@ class Engine {
   [[nodiscard]] double longest_hold_s() const { return longest_hold_s_; }
   /// The last hold (from and to NaN before any).
   [[nodiscard]] Hold last_hold() const { return last_hold_; }
-  /// The time between from_s and to_s the loop was held (of the holds of
-  /// the last kHoldKeptS: older ones are not excused).
+  /// The time between from_s and to_s the loop was held (of the holds
+  /// ending within kHoldKeptS of the last one: older ones, forgotten, are
+  /// not excused).
   [[nodiscard]] double held_between(double from_s, double to_s) const;
   /// Stream `s` lost at t: silent for 10 of its periods and `floor_s`, in
   /// the time the loop ran (never heard: lost).
   [[nodiscard]] bool stale(Stream s, double t, double floor_s) const;
+  /// A frame stamped on a bus that on_frame() does not see (one of ours,
+  /// its transmission confirmed): the bus was not silent then.
+  void stamped(std::int64_t time_ns);
   /// A replay: the live run's holds (sorted, apart, each from before to),
   /// each taken from the first tick past its start, as the live loop took
   /// it on its end.
@@ -169,6 +174,10 @@ class Engine {
   Plausibility plausible_;
   double last_frame_s_ = NAN;
   double prev_tick_s_ = NAN;
+  /// When the frames since the last tick were stamped (the first
+  /// kMaxStamps: past them, a bus that busy was not silent).
+  std::vector<double> stamps_;
+  static constexpr std::size_t kMaxStamps = 100000;
   std::vector<Hold> holds_;
   std::uint64_t hold_count_ = 0;
   double longest_hold_s_ = 0;

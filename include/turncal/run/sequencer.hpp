@@ -82,13 +82,12 @@ struct SequencerSettings {
   /// running N times faster stretches N times in stand time. The table's
   /// acknowledgement timeout has it added for the same reason.
   double stale_floor_s = 0;
-  /// The host's loop was held (the host did not run it: an overloaded or
-  /// stopped machine, a virtual stand's whole machine paused) when two of
-  /// its ticks are further apart than this (stand seconds): the time in
+  /// The host's machine was held (a paused machine, a virtual stand's
+  /// whole machine stopped) when its loop did not run and no frame was
+  /// stamped on any bus for longer than this (stand seconds): the time in
   /// between does not count in a stream's silence, since the host was
-  /// deaf, not the bus silent. The frames sent meanwhile may not be in yet:
-  /// a device sharing the held machine had not run either. Infinity: never
-  /// (a replay, which takes the live run's holds from its report).
+  /// deaf, not the bus silent (Engine::Hold). Infinity: never (a replay,
+  /// which takes the live run's holds from its report).
   double hold_s = std::numeric_limits<double>::infinity();
   /// Observe mode: the table has left its hold when it is this far from
   /// it (0.05 deg), and is at rest again after still_time_s within a tenth.
@@ -220,11 +219,11 @@ class Sequencer {
   [[nodiscard]] int host_state() const;
   /// True while a table motion this sequencer asked for may be under way.
   [[nodiscard]] bool table_may_move() const { return may_move_; }
-  /// The host's loop was held for `length_s` (SequencerSettings::hold_s):
-  /// the acknowledgement and phase deadlines pending run on by as long,
-  /// since neither the host nor a device sharing its machine was running
-  /// to answer. The quick stop's give-up does not.
-  void held(double length_s);
+  /// The host's machine was held from from_s to to_s (Engine::Hold): the
+  /// acknowledgement and phase deadlines set before it run on by its
+  /// length, since neither the host nor a device sharing its machine was
+  /// running to answer. The quick stop's give-up does not.
+  void held(double from_s, double to_s);
   /// The last table angle seen (multi-turn), NaN before any.
   [[nodiscard]] double table_angle() const { return angle_; }
 
@@ -263,8 +262,10 @@ class Sequencer {
   std::uint8_t seq_ = 0, ins_seq_ = 0;
   std::optional<std::uint8_t> awaiting_ack_;
   double ack_deadline_ = 0;
+  double ack_set_s_ = -INFINITY;  ///< when ack_deadline_ was set
   std::string awaiting_what_;
   double phase_deadline_ = INFINITY;
+  double phase_set_s_ = -INFINITY;   ///< when phase_deadline_ was set
   std::string waiting_for_;          ///< what the phase deadline is for
   bool deadline_is_enable_ = false;  ///< the phase deadline is the enable's
   std::string last_fault_;           ///< the table's fault name, empty for none

@@ -544,7 +544,9 @@ class Master {
   void on_emcy(const can::Frame& f, double t_s);
   /// Acks, the set-point handshake, the fault latch and the controlword
   /// towards the goal, from what is known now.
-  void evaluate(double now_s, std::vector<can::Frame>& out);
+  /// `timeouts`: from tick() (the set-point's time judged only there,
+  /// after the caller has said whether its loop was held).
+  void evaluate(double now_s, std::vector<can::Frame>& out, bool timeouts = false);
   void send_rpdo(std::uint16_t controlword, std::vector<can::Frame>& out);
   /// +1, or -1 when the drive counts clockwise: table angle = sense * counts / cpr.
   [[nodiscard]] double sense() const { return s_.counts_clockwise ? -1.0 : 1.0; }
@@ -628,6 +630,7 @@ class Master {
   double low_t_ = 0;
   double mode_since_ = 0;  // the mode check began
   double mode_poll_at_ = INFINITY;
+  int mode_read_ = 0;  // 0x6061 as last read, not yet 1
   std::uint32_t velocity_written_ = 0;
   std::uint64_t move_generation_ = 0;
   std::uint16_t move_flags_ = 0;  // relative, change immediately
