@@ -153,6 +153,9 @@ struct Port {
   int registered_fd = -1;
   std::uint64_t registered_generation = 0;  ///< the socket's recoveries when registered
   socketcan::Stats at_run_start;
+  /// The last read took all the socket had (a flood may leave frames
+  /// unread past one budget's worth).
+  bool drained = true;
 };
 
 struct Client;
@@ -481,6 +484,7 @@ void Daemon::recover_ports() {
 void Daemon::on_can(Port& p) {
   rx.clear();
   auto n = p.sock->receive(rx, kRxBatches);
+  p.drained = !n || *n < kRxBatches * socketcan::Socket::kBatchFrames;
   if (!n) {
     warn(n.error().describe());
     return;
@@ -1118,10 +1122,14 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
     d->check_run_space();
     if (d->engine) {
       // what has arrived counts before anything is judged lost (one budget's worth)
+      bool drained = true;  // every frame stamped so far read
       for (Port& p : d->ports)
-        if (p.sock && p.sock->fd() >= 0) d->on_can(p);
+        if (p.sock && p.sock->fd() >= 0) {
+          d->on_can(p);
+          drained = drained && p.drained;
+        }
       const std::uint64_t holds = d->engine->hold_count();
-      d->engine->tick(d->clock.now_ns(), d->out);
+      d->engine->tick(d->clock.now_ns(), d->out, drained);
       d->tell_holds(holds);
     }
     // the heartbeat goes out from this loop, between runs too: a table will not

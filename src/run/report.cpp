@@ -314,11 +314,13 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
                    {"stale_floor_s", seq.settings().stale_floor_s},
                    {"two_stage", engine.build_settings().two_stage},
                    {"table_geometry", engine.ingest().table().geometry()}};
-  // the host's loop held (overloaded): no stream was judged lost over it
+  // the host's machine held (Engine::Hold): the silences excused, and those not
   json holds = json::array();
   for (const Engine::Hold& h : engine.holds()) holds.push_back({h.from_s, h.to_s});
-  j["loop_holds"] = {
-      {"count", engine.hold_count()}, {"longest_s", engine.longest_hold_s()}, {"at_s", holds}};
+  j["loop_holds"] = {{"count", engine.hold_count()},
+                     {"longest_s", engine.longest_hold_s()},
+                     {"not_excused", engine.holds_unexcused()},
+                     {"at_s", holds}};
   // health
   const Ingest& in = engine.ingest();
   j["health"] = {

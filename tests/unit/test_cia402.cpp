@@ -1035,6 +1035,37 @@ TEST_SUITE("cia402") {
     }
   }
 
+  TEST_CASE(
+      "the machine held past a set-point's timeout: its acknowledgement, read first, counts") {
+    // The move goes out; the whole machine stops 300 ms (the set-point's
+    // timeout is 200 ms here), the drive with it. Its acknowledgement is
+    // read before the tick that tells the master of the hold: the timeout
+    // is judged in that tick, after it, and the move goes on.
+    cia402::MasterSettings ms = master_settings();
+    ms.set_point_timeout_s = 0.2;
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    // the drive's frames held back while the move goes out
+    l.tamper = [](can::Frame& f) { f.id = 0x7FF; };
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
+    l.tamper = nullptr;
+    const double from = l.t;
+    l.t += 0.3;
+    // its heartbeat read first, then its TPDO with the acknowledgement
+    l.master.on_frame(canopen::heartbeat_frame(5, canopen::NmtState::Operational), l.t,
+                      l.from_master);
+    l.drive.advance(l.t, l.from_drive);
+    l.deliver();
+    l.master.held(from, l.t);
+    l.master.tick(l.t, l.from_master);
+    l.deliver();
+    CHECK(l.master.status().fault == FaultCode::None);
+    REQUIRE(l.in_position(2, 5));
+    CHECK(l.master.status().fault == FaultCode::None);
+  }
+
   TEST_CASE("the host heartbeat stops: the drive quick-stops per 0x6007, EMCY 0x8130") {
     Loop l;
     REQUIRE(l.turning(1.0, 180, 30));

@@ -89,8 +89,10 @@ class Engine {
   void end_of_input(std::int64_t now_ns, std::vector<OutFrame>& out);
   /// A received frame (or one of ours, as a recording has it).
   void on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out);
-  /// Deadlines and lost streams; call often (10 Hz or more).
-  void tick(std::int64_t now_ns, std::vector<OutFrame>& out);
+  /// Deadlines and lost streams; call often (10 Hz or more). `drained`:
+  /// every frame stamped before now has been given to on_frame (false: a
+  /// read left some, and no silence up to now can be known).
+  void tick(std::int64_t now_ns, std::vector<OutFrame>& out, bool drained = true);
   /// The host heartbeat's frames, rolling counter and host state.
   std::vector<OutFrame> heartbeat();
 
@@ -121,8 +123,8 @@ class Engine {
   /// (the widest such stretch since the last tick), for longer than
   /// SequencerSettings::hold_s. No stream's silence counts the time in one
   /// (the host was not listening), nor does the time waited for a table's
-  /// answer; a host held for more than half of kHoldWindowS fails the run
-  /// (it cannot keep up, and lost streams would go unnoticed for as long).
+  /// answer. Past half of kHoldWindowS held, a hold is not excused (a
+  /// host that cannot keep up would leave a lost stream unnoticed as long).
   struct Hold {
     double from_s, to_s;
   };
@@ -132,6 +134,8 @@ class Engine {
   [[nodiscard]] const std::vector<Hold>& holds() const { return holds_; }
   [[nodiscard]] std::uint64_t hold_count() const { return hold_count_; }
   [[nodiscard]] double longest_hold_s() const { return longest_hold_s_; }
+  /// Holds not excused: past half of kHoldWindowS held.
+  [[nodiscard]] std::uint64_t holds_unexcused() const { return holds_unexcused_; }
   /// The last hold (from and to NaN before any).
   [[nodiscard]] Hold last_hold() const { return last_hold_; }
   /// The time between from_s and to_s the loop was held (of the holds
@@ -184,10 +188,10 @@ class Engine {
   Hold last_hold_{NAN, NAN};
   static constexpr double kHoldKeptS = 60;
   std::deque<Hold> recent_holds_;  ///< those ending in the last kHoldKeptS
-  bool hold_fault_fed_ = false;
+  std::uint64_t holds_unexcused_ = 0;
   std::vector<Hold> replayed_holds_;
   std::size_t next_replayed_hold_ = 0;
-  void note_hold(const Hold& h, double t, std::vector<OutFrame>& out);
+  void note_hold(const Hold& h);
   [[nodiscard]] double record_end_s() const;
   void check_plausible(double t, std::vector<OutFrame>& out);
   bool report_due_ = false;
