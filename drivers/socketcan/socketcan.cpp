@@ -173,6 +173,7 @@ void Socket::link_event(RxBatch& out, can::BusEventKind kind) {
 }
 
 Result<std::size_t> Socket::receive(RxBatch& out, std::size_t max_batches) {
+  drained_ = true;
   if (fd_ < 0) return std::size_t{0};
   std::array<canfd_frame, kBatch> frames;
   std::array<iovec, kBatch> iov;
@@ -250,6 +251,7 @@ Result<std::size_t> Socket::receive(RxBatch& out, std::size_t max_batches) {
       ++total;
     }
     if (static_cast<std::size_t>(n) < kBatch) break;
+    if (batch + 1 == max_batches) drained_ = false;  // full to the last batch: more may wait
   }
   return total;
 }

@@ -902,7 +902,10 @@ void Master::held(double from_s, double to_s) {
   // what was awaited from `since` on waits as long again as it overlapped
   auto excused = [&](double since) { return std::max(0.0, to_s - std::max(from_s, since)); };
   last_drive_hb_ += excused(last_drive_hb_);
-  if (phase_ == CommPhase::WaitBootUp) boot_deadline_ += length;
+  // a boot-up awaited since before the hold (a reset sent on a frame read
+  // after it began its wait after)
+  if (phase_ == CommPhase::WaitBootUp && boot_deadline_ - s_.boot_timeout_s <= from_s)
+    boot_deadline_ += length;
   if (move_ == MoveStep::Sent) move_sent_t_ += excused(move_sent_t_);
   if (phase_ == CommPhase::Configuring) mode_since_ += excused(mode_since_);
   sdo_.held(from_s, to_s);

@@ -153,9 +153,10 @@ struct Port {
   int registered_fd = -1;
   std::uint64_t registered_generation = 0;  ///< the socket's recoveries when registered
   socketcan::Stats at_run_start;
-  /// The last read took all the socket had (a flood may leave frames
-  /// unread past one budget's worth).
-  bool drained = true;
+  /// Every frame stamped before this (host ns) has been read: the last
+  /// read's latest stamp when it left frames (a flood past one budget's
+  /// worth) or the kernel dropped some (a full queue); else no bound.
+  std::int64_t heard_until_ns = std::numeric_limits<std::int64_t>::max();
 };
 
 struct Client;
@@ -483,8 +484,15 @@ void Daemon::recover_ports() {
 
 void Daemon::on_can(Port& p) {
   rx.clear();
+  const std::uint64_t dropped = p.sock->stats().rx_dropped;
   auto n = p.sock->receive(rx, kRxBatches);
-  p.drained = !n || *n < kRxBatches * socketcan::Socket::kBatchFrames;
+  p.heard_until_ns = std::numeric_limits<std::int64_t>::max();
+  if (!n || !p.sock->drained() || p.sock->stats().rx_dropped != dropped) {
+    std::int64_t last = std::numeric_limits<std::int64_t>::min();
+    for (const can::TimedFrame& f : rx.frames) last = std::max(last, f.time_ns);
+    for (const can::TimedFrame& f : rx.confirmed) last = std::max(last, f.time_ns);
+    p.heard_until_ns = last;
+  }
   if (!n) {
     warn(n.error().describe());
     return;
@@ -1122,14 +1130,15 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
     d->check_run_space();
     if (d->engine) {
       // what has arrived counts before anything is judged lost (one budget's worth)
-      bool drained = true;  // every frame stamped so far read
+      // every frame stamped before this has been read
+      std::int64_t heard_until = std::numeric_limits<std::int64_t>::max();
       for (Port& p : d->ports)
         if (p.sock && p.sock->fd() >= 0) {
           d->on_can(p);
-          drained = drained && p.drained;
+          heard_until = std::min(heard_until, p.heard_until_ns);
         }
       const std::uint64_t holds = d->engine->hold_count();
-      d->engine->tick(d->clock.now_ns(), d->out, drained);
+      d->engine->tick(d->clock.now_ns(), d->out, heard_until);
       d->tell_holds(holds);
     }
     // the heartbeat goes out from this loop, between runs too: a table will not

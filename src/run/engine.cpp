@@ -225,7 +225,7 @@ double Engine::record_end_s() const {
                         : t0 + plan_.profile.duration_s + 1.0;
 }
 
-void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out, bool drained) {
+void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out, std::int64_t heard_until_ns) {
   const double t = stand_s(now_ns);
   // the stand has gone quiet past the end: nothing more will come
   if (t > record_end_s() + 1.0 && !(last_frame_s_ > t - 1.0)) record_complete_ = true;
@@ -233,20 +233,22 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out, bool drained)
   // machine was held as a whole, the kernel too (a paused machine, a
   // virtual stand's). Frames stamped while only this process was held say
   // what the bus did: nothing to excuse then.
-  if (t - prev_tick_s_ > seq_.settings().hold_s) {
+  if (t - prev_tick_s_ > seq_.settings().hold_s && !stamps_full_) {
     std::ranges::sort(stamps_);
+    // silence is known up to now only if nothing stamped before it is unread
+    const double known = std::min(t, stand_s(heard_until_ns));
     Hold widest{prev_tick_s_, prev_tick_s_};
     double from = prev_tick_s_;
     for (const double at : stamps_) {
-      if (at > t) break;
+      if (at > known) break;
       if (at - from > widest.to_s - widest.from_s) widest = {from, at};
       from = std::max(from, at);
     }
-    // to now only if nothing stamped before it is left unread
-    if (drained && t - from > widest.to_s - widest.from_s) widest = {from, t};
+    if (known - from > widest.to_s - widest.from_s) widest = {from, known};
     if (widest.to_s - widest.from_s > seq_.settings().hold_s) note_hold(widest);
   }
   stamps_.clear();
+  stamps_full_ = false;
   if (!(t < prev_tick_s_)) prev_tick_s_ = t;
   // a replay: from the first tick past a live hold's start, as the live
   // loop took it on its end (the frames the log holds inside it were read
@@ -281,7 +283,11 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out, bool drained)
 
 void Engine::stamped(std::int64_t time_ns) {
   const double t = stand_s(time_ns);
-  if (!(t <= prev_tick_s_) && stamps_.size() < kMaxStamps) stamps_.push_back(t);
+  if (t <= prev_tick_s_) return;
+  if (stamps_.size() < kMaxStamps)
+    stamps_.push_back(t);
+  else
+    stamps_full_ = true;
 }
 
 void Engine::replay_holds(std::vector<Hold> holds) {
@@ -297,7 +303,12 @@ void Engine::note_hold(const Hold& h) {
   if (holds_.size() < kMaxHolds) holds_.push_back(h);
   // a machine held more than half the time is excused no more: a lost
   // stream would go unnoticed for as long (its silence judged as it is)
-  if (held_between(h.to_s - kHoldWindowS, h.to_s) + length > kHoldWindowS / 2) {
+  window_holds_.push_back(h);
+  while (window_holds_.front().to_s < h.to_s - kHoldWindowS) window_holds_.pop_front();
+  double held = 0;  // of the last kHoldWindowS, excused or not
+  for (const Hold& w : window_holds_)
+    held += std::max(0.0, w.to_s - std::max(w.from_s, h.to_s - kHoldWindowS));
+  if (held > kHoldWindowS / 2) {
     ++holds_unexcused_;
     return;
   }

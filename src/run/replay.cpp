@@ -204,7 +204,6 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   TURNCAL_ASSIGN(holds, live_holds(live));
   const std::uint64_t holds_unlisted = holds.count - holds.at.size();
   engine.replay_holds(holds.at);
-  std::size_t hold_seen = 0;  // the first listed hold not yet past
   // the log's times are to the microsecond, the live loop's to the nanosecond
   const double stamp_slack_s = 2e-6 * tb.scale;
   std::int64_t first_ns = have ? rec.time_ns : 0, last_ns = first_ns;
@@ -215,11 +214,12 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
     // a hold is a stretch no frame was stamped in: one in it says the
     // report is not this log's
     const double at = engine.stand_s(rec.time_ns);
-    for (; hold_seen < holds.at.size() && holds.at[hold_seen].to_s <= at; ++hold_seen) {
-    }
-    if (hold_seen < holds.at.size() && at > holds.at[hold_seen].from_s + stamp_slack_s &&
-        at < holds.at[hold_seen].to_s - stamp_slack_s)
-      return make_error("the live report's loop_holds: at_s[" + std::to_string(hold_seen) +
+    // the log takes each port's frames in turn: its times may step back
+    const auto after = std::ranges::upper_bound(holds.at, at, {}, &Engine::Hold::from_s);
+    if (after != holds.at.begin() && at > std::prev(after)->from_s + stamp_slack_s &&
+        at < std::prev(after)->to_s - stamp_slack_s)
+      return make_error("the live report's loop_holds: at_s[" +
+                        std::to_string(std::distance(holds.at.begin(), after) - 1) +
                         "] is a stretch no frame was stamped in, and line " +
                         std::to_string(reader.line_number()) +
                         " of the log is in it: the report is not this log's; replay without it");

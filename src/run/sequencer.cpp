@@ -261,8 +261,9 @@ void Sequencer::held(double from_s, double to_s) {
   // a deadline set before the hold runs on by as long; one set after it
   // (on a frame read before the tick that ends it) by nothing
   if (!(to_s > from_s)) return;
-  if (ack_set_s_ <= from_s) ack_deadline_ += to_s - from_s;
-  if (phase_set_s_ <= from_s) phase_deadline_ += to_s - from_s;  // infinity stays
+  // (a microsecond's slack: the times of one frame, taken two ways)
+  if (ack_set_s_ <= from_s + 1e-6) ack_deadline_ += to_s - from_s;
+  if (phase_set_s_ <= from_s + 1e-6) phase_deadline_ += to_s - from_s;  // infinity stays
   // not the quick stop's give-up: what it does on running out (our
   // heartbeat withheld, so the table stops itself) is safe whenever
 }

@@ -89,10 +89,12 @@ class Engine {
   void end_of_input(std::int64_t now_ns, std::vector<OutFrame>& out);
   /// A received frame (or one of ours, as a recording has it).
   void on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out);
-  /// Deadlines and lost streams; call often (10 Hz or more). `drained`:
-  /// every frame stamped before now has been given to on_frame (false: a
-  /// read left some, and no silence up to now can be known).
-  void tick(std::int64_t now_ns, std::vector<OutFrame>& out, bool drained = true);
+  /// Deadlines and lost streams; call often (10 Hz or more).
+  /// `heard_until_ns`: every frame stamped before it has been given to
+  /// on_frame or stamped() (a read that left frames, or lost some to a full
+  /// queue, bounds it): no silence after it is known.
+  void tick(std::int64_t now_ns, std::vector<OutFrame>& out,
+            std::int64_t heard_until_ns = std::numeric_limits<std::int64_t>::max());
   /// The host heartbeat's frames, rolling counter and host state.
   std::vector<OutFrame> heartbeat();
 
@@ -138,9 +140,9 @@ class Engine {
   [[nodiscard]] std::uint64_t holds_unexcused() const { return holds_unexcused_; }
   /// The last hold (from and to NaN before any).
   [[nodiscard]] Hold last_hold() const { return last_hold_; }
-  /// The time between from_s and to_s the loop was held (of the holds
-  /// ending within kHoldKeptS of the last one: older ones, forgotten, are
-  /// not excused).
+  /// The time between from_s and to_s excused as held (the excused holds
+  /// ending within kHoldKeptS of the last one: older ones, forgotten, and
+  /// those not excused, are not).
   [[nodiscard]] double held_between(double from_s, double to_s) const;
   /// Stream `s` lost at t: silent for 10 of its periods and `floor_s`, in
   /// the time the loop ran (never heard: lost).
@@ -179,15 +181,18 @@ class Engine {
   double last_frame_s_ = NAN;
   double prev_tick_s_ = NAN;
   /// When the frames since the last tick were stamped (the first
-  /// kMaxStamps: past them, a bus that busy was not silent).
+  /// kMaxStamps; past them no hold is looked for: a bus that busy was not
+  /// silent, and the stamps left out could be anywhere).
   std::vector<double> stamps_;
+  bool stamps_full_ = false;
   static constexpr std::size_t kMaxStamps = 100000;
   std::vector<Hold> holds_;
   std::uint64_t hold_count_ = 0;
   double longest_hold_s_ = 0;
   Hold last_hold_{NAN, NAN};
   static constexpr double kHoldKeptS = 60;
-  std::deque<Hold> recent_holds_;  ///< those ending in the last kHoldKeptS
+  std::deque<Hold> recent_holds_;  ///< excused, ending in the last kHoldKeptS
+  std::deque<Hold> window_holds_;  ///< all, excused or not, of the last kHoldWindowS
   std::uint64_t holds_unexcused_ = 0;
   std::vector<Hold> replayed_holds_;
   std::size_t next_replayed_hold_ = 0;

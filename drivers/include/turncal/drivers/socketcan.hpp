@@ -123,6 +123,9 @@ class Socket {
   /// appending to `out`; stops at the first short batch (the socket is then
   /// drained). Returns the number of frames read; link changes come as events.
   Result<std::size_t> receive(RxBatch& out, std::size_t max_batches = 4);
+  /// Whether the last receive() took all the socket had (it ended on a
+  /// short batch), rather than stopping at max_batches.
+  [[nodiscard]] bool drained() const { return drained_; }
   /// Sends without blocking; queues when the kernel is full. An error only
   /// for a frame the socket cannot carry (FD frame on a classic socket).
   Result<TxOutcome> send(const can::Frame& frame);
@@ -156,6 +159,7 @@ class Socket {
   LinkState link_ = LinkState::Up;
   unsigned ifindex_ = 0;
   std::uint32_t last_ovfl_ = 0;
+  bool drained_ = true;
   std::deque<can::Frame> txq_;
   Stats stats_;
   int busy_errno_ = 0;  ///< why the last write could not go: EAGAIN or ENOBUFS
