@@ -835,11 +835,16 @@ std::string cia402_sections() {
   std::string sections = conf.substr(from, to - from) + "\n";
   // The guest runs the stand at 4x on one CPU beside the scenario tier,
   // where the stand was seen to fall 150 ms of real time (600 ms of its
-  // own) behind: the heartbeats' timeouts, in the stand's time, are well
-  // over that here (375 and 500 ms real). On a real stand, at 1x, the
-  // shipped 300 and 500 ms are six and ten times its 50 ms latency floor.
-  for (auto [key, value] : {std::pair{"drive_heartbeat_timeout_ms = ", "1500"},
-                            std::pair{"host_heartbeat_consumer_ms = ", "2000"}}) {
+  // own) behind, and CI's machine was seen to stop the guest as a whole
+  // for up to 0.9 s of real time: the virtual drive, on the same machine,
+  // then finds our heartbeat gone when it runs again (EMCY 0x8130), which
+  // a real drive, not held with the host, would not. The heartbeats'
+  // timeouts and the SDO's, in the stand's time, are over that here (1,
+  // 1.25 and 0.5 s real). On a real stand, at 1x, the shipped 300 and
+  // 500 ms are six and ten times its 50 ms latency floor.
+  for (auto [key, value] : {std::pair{"drive_heartbeat_timeout_ms = ", "4000"},
+                            std::pair{"host_heartbeat_consumer_ms = ", "5000"},
+                            std::pair{"sdo_timeout_ms = ", "2000"}}) {
     const auto at = sections.find(std::string("\n") + key);
     REQUIRE(at != std::string::npos);
     const auto v = at + 1 + std::string(key).size();
