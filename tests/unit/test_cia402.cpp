@@ -159,6 +159,17 @@ struct Loop {
     }
     return n;
   }
+  /// The statusword reads (SDO upload requests of 0x6041) the master sent,
+  /// from the `from`th frame it sent on.
+  [[nodiscard]] int statusword_reads(std::size_t from = 0) const {
+    int n = 0;
+    for (std::size_t i = from; i < sent.size(); ++i) {
+      const can::Frame& f = sent[i];
+      n += f.id == canopen::kSdoRxBase + master.settings().node_id && f.data[0] == 0x40 &&
+           f.data[1] == 0x41 && f.data[2] == 0x60;
+    }
+    return n;
+  }
   bool in_position(std::uint8_t seq, double timeout) {
     return run_until(
         [&] {
@@ -167,6 +178,14 @@ struct Loop {
         timeout);
   }
 };
+
+/// The drive's over-current fault (EMCY 0x2310) at 2 s.
+stand::Drive402Faults over_current_at_2s() {
+  stand::Drive402Faults df;
+  df.fault_at_s = 2.0;
+  df.fault_code = 0x2310;
+  return df;
+}
 
 /// The duration of a trapezoid of `dist` at peak v, acceleration a, deceleration d.
 double trapezoid_s(double dist, double v, double a, double d) {
@@ -773,10 +792,7 @@ TEST_SUITE("cia402") {
   }
 
   TEST_CASE("a drive fault with EMCY: fault with its text; fault reset brings it back") {
-    stand::Drive402Faults df;
-    df.fault_at_s = 2.0;
-    df.fault_code = 0x2310;
-    Loop l(master_settings(), drive_setup(), df);
+    Loop l(master_settings(), drive_setup(), over_current_at_2s());
     l.start();
     REQUIRE(l.running());
     REQUIRE(l.enabled(1));
@@ -806,25 +822,14 @@ TEST_SUITE("cia402") {
   TEST_CASE("EMCYs saying no error (code 0) are no news of a fault while a reset reads its word") {
     // A drive may say its error is gone (EMCY 0x0000) at any time, also
     // while the master reads its statusword to reset it: that is no new
-    // fault to read again for, and the reset goes through. A fault's code
-    // is (one read again, then the next).
-    stand::Drive402Faults df;
-    df.fault_at_s = 2.0;
-    df.fault_code = 0x2310;
-    Loop l(master_settings(), drive_setup(), df);
+    // fault to read again for, and the reset goes through with one read.
+    Loop l(master_settings(), drive_setup(), over_current_at_2s());
     l.start();
     REQUIRE(l.running());
     REQUIRE(l.enabled(1));
     REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 3));
     l.run_for(0.5);
     const std::uint8_t node = master_settings().node_id;
-    // the statusword reads (SDO upload requests of 0x6041) the master sent
-    const auto reads = [&] {
-      return std::ranges::count_if(l.sent, [&](const can::Frame& f) {
-        return f.id == canopen::kSdoRxBase + node && f.data[0] == 0x40 &&
-               canopen::get_le(f.payload(), 1, 2) == 0x6041;
-      });
-    };
     // an EMCY 0x0000 ahead of every SDO answer and TPDO from the Enable on
     const can::Frame no_error = canopen::emcy_frame(node, 0x0000, 0);
     l.tamper = [&](can::Frame& f) {
@@ -841,16 +846,14 @@ TEST_SUITE("cia402") {
     CHECK(enabled);
     CHECK(l.master.status().fault == FaultCode::None);
     CHECK(l.master.counts().emcy >= emcys + 2);  // before the answer, and the TPDO after
-    CHECK(reads() == 1);
+    CHECK(l.statusword_reads() == 1);
   }
 
   TEST_CASE("an EMCY after the statusword's fault names it, and a failed reset adds to its name") {
     // The drive's fault EMCY reaches the master after a statusword in
     // fault: the fault is then the EMCY's, and what a reset that cannot
     // read the statusword says is added to the EMCY's text.
-    stand::Drive402Faults df;
-    df.fault_at_s = 2.0;
-    df.fault_code = 0x2310;
+    stand::Drive402Faults df = over_current_at_2s();
     df.refuse_objects[0x604100] = 0x06020000;  // the statusword not readable by SDO
     Loop l(master_settings(), drive_setup(), df);
     const std::uint8_t node = master_settings().node_id;
@@ -1905,15 +1908,10 @@ TEST_SUITE("cia402") {
     l.run_for(3.0);
     CHECK(l.master.status().fault == FaultCode::Emcy);  // still latched
     CHECK(l.master.status().fault_name.find("kept disagreeing") != std::string::npos);
-    int reads = 0;
-    for (std::size_t i = from; i < l.sent.size(); ++i) {
-      const can::Frame& f = l.sent[i];
-      if (f.id == canopen::kSdoRxBase + 5 && f.data[0] == 0x40 && f.data[1] == 0x41 &&
-          f.data[2] == 0x60)
-        ++reads;
-      if (f.id == canopen::kRpdo1Base + 5) CHECK((f.data[0] & 0x80) == 0);  // no fault reset
-    }
-    CHECK(reads == cia402::Master::kConfirmReads + 1);
+    for (std::size_t i = from; i < l.sent.size(); ++i)
+      if (l.sent[i].id == canopen::kRpdo1Base + 5)
+        CHECK((l.sent[i].data[0] & 0x80) == 0);  // no fault reset
+    CHECK(l.statusword_reads(from) == cia402::Master::kConfirmReads + 1);
     CHECK(l.drive.counts().fault_resets == 0);
   }
 
