@@ -4,6 +4,9 @@
 #include <linux/can.h>
 #include <linux/can/error.h>
 #include <linux/can/raw.h>
+#include <linux/if_link.h>
+#include <linux/netlink.h>
+#include <linux/rtnetlink.h>
 #include <net/if.h>
 #include <sys/ioctl.h>
 #include <sys/socket.h>
@@ -370,6 +373,87 @@ bool Socket::try_recover(RxBatch& out) {
   }
   link_event(out, can::BusEventKind::InterfaceBack);
   return true;
+}
+
+Result<std::string> link_kind(const std::string& interface) {
+  if (interface.empty() || interface.size() >= IFNAMSIZ)
+    return make_error("'" + interface + "' is not an interface name");
+  const unsigned index = ::if_nametoindex(interface.c_str());
+  if (index == 0) return sys_error(interface, "no such interface", errno);
+  const int fd = ::socket(AF_NETLINK, SOCK_RAW | SOCK_CLOEXEC, NETLINK_ROUTE);
+  if (fd < 0) return sys_error(interface, "socket(AF_NETLINK)", errno);
+  struct Closer {
+    int fd;
+    ~Closer() { ::close(fd); }
+  } closer{fd};
+  struct {
+    nlmsghdr nh;
+    ifinfomsg ifi;
+  } req{};
+  req.nh.nlmsg_len = NLMSG_LENGTH(sizeof(ifinfomsg));
+  req.nh.nlmsg_type = RTM_GETLINK;
+  req.nh.nlmsg_flags = NLM_F_REQUEST;
+  req.nh.nlmsg_seq = 1;
+  req.ifi.ifi_family = AF_UNSPEC;
+  req.ifi.ifi_index = static_cast<int>(index);
+  if (::send(fd, &req, req.nh.nlmsg_len, 0) != static_cast<ssize_t>(req.nh.nlmsg_len))
+    return sys_error(interface, "RTM_GETLINK", errno);
+  alignas(nlmsghdr) std::array<char, 16384> buf{};
+  const ssize_t n = ::recv(fd, buf.data(), buf.size(), 0);
+  if (n < 0) return sys_error(interface, "RTM_GETLINK answer", errno);
+  // walked by hand: the NLMSG_/RTA_ macros' casts and mixed signedness
+  // are what this build's warnings refuse
+  const auto align4 = [](std::size_t x) { return (x + 3) & ~std::size_t{3}; };
+  // the attributes in [p, end): the payload of the first of type `type`
+  const auto find_attr = [&](const char* p, const char* end, unsigned short type,
+                             std::size_t& len) -> const char* {
+    while (end - p >= static_cast<std::ptrdiff_t>(sizeof(rtattr))) {
+      rtattr a{};
+      std::memcpy(&a, p, sizeof a);
+      if (a.rta_len < sizeof(rtattr) || static_cast<std::ptrdiff_t>(a.rta_len) > end - p)
+        return nullptr;
+      if (a.rta_type == type) {
+        len = a.rta_len - sizeof(rtattr);
+        return p + align4(sizeof(rtattr));
+      }
+      p += align4(a.rta_len);
+    }
+    return nullptr;
+  };
+  const char* p = buf.data();
+  const char* const end = buf.data() + n;
+  while (end - p >= static_cast<std::ptrdiff_t>(sizeof(nlmsghdr))) {
+    nlmsghdr h{};
+    std::memcpy(&h, p, sizeof h);
+    if (h.nlmsg_len < sizeof(nlmsghdr) || static_cast<std::ptrdiff_t>(h.nlmsg_len) > end - p) break;
+    const char* data = p + align4(sizeof(nlmsghdr));
+    const char* msg_end = p + h.nlmsg_len;
+    if (h.nlmsg_type == NLMSG_ERROR &&
+        msg_end - data >= static_cast<std::ptrdiff_t>(sizeof(nlmsgerr))) {
+      nlmsgerr e{};
+      std::memcpy(&e, data, sizeof e);
+      return sys_error(interface, "RTM_GETLINK", -e.error);
+    }
+    if (h.nlmsg_type == RTM_NEWLINK) {
+      const char* attrs = data + align4(sizeof(ifinfomsg));
+      std::size_t info_len = 0;
+      const char* info =
+          attrs < msg_end ? find_attr(attrs, msg_end, IFLA_LINKINFO, info_len) : nullptr;
+      if (info == nullptr) return std::string();  // a device driver's interface: no link kind
+      std::size_t kind_len = 0;
+      const char* kind = find_attr(info, info + info_len, IFLA_INFO_KIND, kind_len);
+      if (kind == nullptr) return std::string();
+      return std::string(kind, ::strnlen(kind, kind_len));
+    }
+    p += align4(h.nlmsg_len);
+  }
+  return make_error(interface + ": RTM_GETLINK: no answer for the interface");
+}
+
+Result<bool> is_virtual_can(const std::string& interface) {
+  auto kind = link_kind(interface);
+  if (!kind) return kind.error();
+  return *kind == "vcan" || *kind == "vxcan";
 }
 
 }  // namespace turncal::socketcan

@@ -44,6 +44,7 @@ constexpr double kDeg = 0.017453292519943295;
 struct Options {
   bool offline = false;
   bool scripted_host = false;
+  bool real_bus = false;  // may send on a CAN interface that is not virtual
   double speed = 1;
   std::string ins_interface, table_interface;
   std::string out, truth;
@@ -238,6 +239,9 @@ int usage(const char* why) {
                "                   [--state-out STATE.json] [common]\n"
                "        (--state-out: the table's state, the host frames and the heartbeat's\n"
                "        gaps as the stand saw them, written when it stops)\n"
+               "        [--real-bus] (send on a CAN interface that is not virtual: without\n"
+               "        it, only vcan and vxcan; a simulator never puts its encoder on a\n"
+               "        real stand's bus by mistake)\n"
                "       turncal-sim --offline --out RUN.log --truth TRUTH.json [common]\n"
                "common: [--profile PLAN.toml] [--config turncal.toml] [--seed N]\n"
                "        [--heading-offset DEG] [--ins-interface IF] [--table-interface IF]\n"
@@ -278,6 +282,8 @@ bool parse(int argc, char** argv, Options& o, std::string& err) {
       o.offline = true;
     } else if (a == "--scripted-host") {
       o.scripted_host = true;
+    } else if (a == "--real-bus") {
+      o.real_bus = true;
     } else if (a == "--fault" || a == "--ins-clock" || a == "--table-clock" || a == "--truth-in" ||
                a == "--angle-limits" || a == "--rates" || a == "--table-heartbeat-timeout") {
       const char* v = value();
@@ -511,6 +517,25 @@ int live(const Options& o) {
   ::sigaction(SIGINT, &sa, nullptr);
   ::sigaction(SIGTERM, &sa, nullptr);
 
+  // A simulator's encoder and INS frames on a real stand's bus would be
+  // read as the real table's and the real INS's: only a virtual CAN bus,
+  // unless told. A kind that cannot be read counts as real.
+  for (const std::string& name : {w->cfg.can.ins_interface, w->cfg.can.table_interface}) {
+    if (o.real_bus) break;
+    auto v = socketcan::is_virtual_can(name);
+    if (!v)
+      return fail(make_error(v.error().describe() +
+                             " (cannot tell whether it is a virtual CAN bus; --real-bus sends "
+                             "on it anyway)"));
+    if (!*v) {
+      auto kind = socketcan::link_kind(name);
+      return fail(make_error(
+          name + " is not a virtual CAN bus (" +
+          (kind && !kind->empty() ? "its kind is " + *kind : std::string("a device's interface")) +
+          "): a simulated stand's frames on it would pass for the real table's and INS's; "
+          "give --real-bus to send on it all the same"));
+    }
+  }
   // one socket per interface; the INS and the table may share one
   // receive stamps on the realtime clock at the start plus monotonic time:
   // a step of the wall clock (a host's test of one) moves no host frame

@@ -31,6 +31,21 @@ std::uint64_t backlog_drops() {
 }  // namespace
 
 TEST_SUITE("socketcan") {
+  TEST_CASE("an interface's link kind tells a virtual CAN bus from any other") {
+    const auto kind = socketcan::link_kind(hil::if0());
+    REQUIRE(kind);
+    CHECK(*kind == "vcan");
+    const auto v = socketcan::is_virtual_can(hil::if0());
+    REQUIRE(v);
+    CHECK(*v);
+    // the loopback interface registers no link kind, as a real device's does not
+    const auto lo = socketcan::is_virtual_can("lo");
+    REQUIRE(lo);
+    CHECK_FALSE(*lo);
+    const auto none = socketcan::link_kind("tcnone0");
+    REQUIRE_FALSE(none);
+    CHECK(none.error().describe().find("tcnone0") != std::string::npos);
+  }
   TEST_CASE("frames go from one socket to another") {
     auto a = hil::open(hil::if0());
     auto b = hil::open(hil::if0());

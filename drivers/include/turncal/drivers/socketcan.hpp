@@ -169,4 +169,12 @@ class Socket {
 /// receive timestamps).
 std::int64_t realtime_ns();
 
+/// The kind of a network interface as rtnetlink gives it (IFLA_INFO_KIND:
+/// "vcan", "vxcan", ...); empty for a device driver that registers no link
+/// kind, as real CAN controllers (USB, PCI, SPI, serial-line) do.
+Result<std::string> link_kind(const std::string& interface);
+/// Whether the interface is a virtual CAN bus (vcan, vxcan): a bus no real
+/// device is on.
+Result<bool> is_virtual_can(const std::string& interface);
+
 }  // namespace turncal::socketcan
