@@ -64,7 +64,7 @@ head && /^$/ { head = 0; if (nintro > 0 && !intro_done) { print ".SH DESCRIPTION
 }
 skipping { if (/^#/) { sub(/^# ?/, ""); text[++ntext] = $0 } else if (/^$/) ntext = 0; next }
 /^[ \t]+#/ { sub(/^[ \t]+# ?/, ""); inl[++ninline] = $0; next }
-/^# [a-z_0-9]+ = / { flush_keys(); sub(/^# /, ""); ex[++nex] = $0; next }
+sec == "[tolerances]" && /^# [a-z_0-9]+ = \{/ { flush_keys(); sub(/^# /, ""); ex[++nex] = $0; next }
 /^#/ {
   if (nkeys > 0) flush_keys()
   flush_example()

@@ -1,5 +1,6 @@
 # Writes turncal.toml(5): the page's head, the keys from the commented
 # configuration (toml-man.awk), its tail. Run by man/CMakeLists.txt.
+cmake_policy(SET CMP0053 NEW)  # @VAR@ left alone in quoted arguments
 file(READ ${CMAKE_CURRENT_LIST_DIR}/turncal.toml.5.head head)
 string(REPLACE "@VERSION@" "${VERSION}" head "${head}")
 execute_process(

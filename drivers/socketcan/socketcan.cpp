@@ -121,6 +121,11 @@ Status Socket::open_socket() {
   const std::string& name = opt_.interface;
   const unsigned index = ::if_nametoindex(name.c_str());
   if (index == 0) return sys_error(name, "no such CAN interface", errno);
+  if (opt_.require_virtual) {
+    auto v = is_virtual_can(name);
+    if (!v) return v.error();
+    if (!*v) return make_error(name + ": not a virtual CAN bus (vcan, vxcan): not opened");
+  }
   const int fd = ::socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_RAW);
   if (fd < 0) return sys_error(name, "socket(PF_CAN)", errno);
   auto fail = [&](const char* what) {

@@ -547,6 +547,7 @@ int live(const Options& o) {
     so.interface = name;
     so.error_frames = false;
     so.tx_queue_limit = 4096;
+    so.require_virtual = !o.real_bus;  // on every re-open too
     so.clock = &host_clock;
     auto s = socketcan::Socket::open(so);
     if (!s) return fail(s.error());

@@ -53,6 +53,10 @@ struct Options {
   /// Receive stamps and event times on this clock (it must outlive the
   /// socket); none: the kernel's CLOCK_REALTIME stamps as they are.
   HostClock* clock = nullptr;
+  /// Open (and re-open, after the interface was removed) only a virtual
+  /// CAN bus (is_virtual_can): a simulator's socket, which must never bind
+  /// a real bus that took the name of its vcan.
+  bool require_virtual = false;
 };
 
 struct Stats {
@@ -170,8 +174,8 @@ class Socket {
 std::int64_t realtime_ns();
 
 /// The kind of a network interface as rtnetlink gives it (IFLA_INFO_KIND:
-/// "vcan", "vxcan", ...); empty for a device driver that registers no link
-/// kind, as real CAN controllers (USB, PCI, SPI, serial-line) do.
+/// "vcan", "vxcan", "can" for a real controller's CAN device (USB, PCI,
+/// SPI), ...); empty for a driver that registers no link kind (slcan, lo).
 Result<std::string> link_kind(const std::string& interface);
 /// Whether the interface is a virtual CAN bus (vcan, vxcan): a bus no real
 /// device is on.
