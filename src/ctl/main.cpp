@@ -31,6 +31,7 @@
 #include <string>
 
 #include "offline.hpp"
+#include "turncal/run/calibration.hpp"
 #include "turncal/run/report.hpp"
 
 using nlohmann::json;
@@ -177,6 +178,8 @@ int turncal::ctl::usage(const char* why) {
                "                                           truth beside each estimate)\n"
                "  history UNIT                             one INS's estimates across runs:\n"
                "                                           mean and spread (repeatability)\n"
+               "  export RUN_ID|REPORT.json               the determined terms as a calibration\n"
+               "        [--format json|toml] [--out FILE]  file: corrections in instrument axes\n"
                "offline (no daemon):\n"
                "  replay LOG                               re-estimate a recorded run\n"
                "        [--config FILE]                   stand configuration (DBC, roles)\n"
@@ -214,6 +217,86 @@ int turncal::ctl::usage(const char* why) {
   return kUsage;
 }
 
+namespace {
+
+/// turncalctl export RUN_ID|REPORT.json [--format json|toml] [--out FILE]:
+/// the run's determined terms as a calibration file (calibration.hpp).
+/// RUN_ID is asked of the daemon; a report file is read here.
+int export_calibration(const std::string& socket, int argc, char** argv, int i) {
+  if (i >= argc) return usage("export: missing RUN_ID (or a report file)");
+  const std::string target = argv[i++];
+  std::string format = "json", out_path;
+  for (; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "--format" && i + 1 < argc)
+      format = argv[++i];
+    else if (a == "--out" && i + 1 < argc)
+      out_path = argv[++i];
+    else
+      return usage(("export: unknown argument " + a).c_str());
+  }
+  if (format != "json" && format != "toml") return usage("export: --format is json or toml");
+  json report;
+  std::error_code ec;
+  if (std::filesystem::is_regular_file(target, ec)) {
+    std::ifstream in(target);
+    report = json::parse(in, nullptr, false);
+    if (!in || report.is_discarded() || !report.is_object()) {
+      std::fprintf(stderr, "turncalctl: %s: not a report (JSON)\n", target.c_str());
+      return kRefused;
+    }
+  } else {
+    Connection c(socket);
+    if (!c.ok()) {
+      std::fprintf(stderr, "turncalctl: cannot reach turncald at %s: %s\n", socket.c_str(),
+                   std::strerror(errno));
+      return kUnreachable;
+    }
+    if (!c.send({{"cmd", "report"}, {"run_id", target}})) return kUnreachable;
+    const json r = c.next();
+    if (r.is_discarded()) {
+      std::fprintf(stderr, "turncalctl: no answer from turncald\n");
+      return kUnreachable;
+    }
+    if (!r.value("ok", false) || !r.contains("report")) {
+      std::fprintf(stderr, "turncalctl: %s\n", r.value("error", std::string("refused")).c_str());
+      return kRefused;
+    }
+    report = r["report"];
+  }
+  auto cal = turncal::run::calibration_json(report);
+  if (!cal) {
+    std::fprintf(stderr, "turncalctl: export: %s\n", cal.error().describe().c_str());
+    return kRefused;
+  }
+  const std::string text =
+      format == "json" ? cal->dump(2) + "\n" : turncal::run::calibration_toml(*cal);
+  if (out_path.empty()) {
+    if (std::fwrite(text.data(), 1, text.size(), stdout) != text.size() ||
+        std::fflush(stdout) != 0) {
+      std::fprintf(stderr, "turncalctl: export: writing standard output: %s\n",
+                   std::strerror(errno));
+      return kRefused;
+    }
+    return kOk;
+  }
+  std::ofstream f(out_path, std::ios::binary | std::ios::trunc);
+  f << text;
+  f.flush();
+  if (!f) {
+    std::fprintf(stderr, "turncalctl: export: cannot write %s\n", out_path.c_str());
+    return kRefused;
+  }
+  f.close();
+  if (!f) {
+    std::fprintf(stderr, "turncalctl: export: cannot write %s\n", out_path.c_str());
+    return kRefused;
+  }
+  return kOk;
+}
+
+}  // namespace
+
 int main(int argc, char** argv) {
   std::string socket = "/run/turncal/control.sock";
   if (const char* e = std::getenv("TURNCAL_SOCKET")) socket = e;
@@ -237,6 +320,7 @@ int main(int argc, char** argv) {
   if (cmd == "check") return check(argc, argv, i, as_json);
   if (cmd == "dbc") return dbc(argc, argv, i, as_json);
   if (cmd == "decode") return decode(argc, argv, i, as_json);
+  if (cmd == "export") return export_calibration(socket, argc, argv, i);
   json req = {{"cmd", cmd}};
   bool then_watch = false;
   json truth;  // turncal-sim's truth, shown beside the estimates

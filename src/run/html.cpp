@@ -1,5 +1,7 @@
 #include "turncal/run/html.hpp"
 
+#include "turncal/run/calibration.hpp"
+
 #include <Eigen/Cholesky>
 #include <algorithm>
 #include <cmath>
@@ -295,6 +297,8 @@ std::string parameter_table(const json& r) {
     }
     o += "</tbody></table>";
   }
+  if (r.value("status", std::string()) == "done" && r.contains("estimates"))
+    o += "<h2>Applying it</h2><p class=\"apply\">" + escape(kHowToApply) + "</p>";
   return o;
 }
 

@@ -1,5 +1,7 @@
 #include "turncal/run/report.hpp"
 
+#include "turncal/run/calibration.hpp"
+
 #include "turncal/earth.hpp"
 
 #include <algorithm>
@@ -385,6 +387,22 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
     for (const est::Combination& c : result->combinations)
       combos.push_back(combination_json(c, true));
     j["combinations"] = combos;
+    // the parameters' covariance, SI, in the model's order: what a
+    // calibration file exports of the block the run determined
+    // (turncalctl export); from the correlation and the sigmas above, so
+    // the two agree
+    json order = json::array();
+    json rows = json::array();
+    for (std::size_t a = 0; a < est::kParamNames.size(); ++a) {
+      order.push_back(std::string(est::kParamNames[a]));
+      json row = json::array();
+      for (std::size_t b = 0; b < est::kParamNames.size(); ++b)
+        row.push_back(
+            result->correlation(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(b)) *
+            result->parameters[a].sigma * result->parameters[b].sigma);
+      rows.push_back(row);
+    }
+    j["covariance"] = {{"order", order}, {"matrix", rows}};
     if (result->has_two_stage) {
       json ts = json::object();
       for (std::size_t i = 0; i < est::kParamNames.size(); ++i)
@@ -581,6 +599,10 @@ std::string report_text(const json& r, const json* truth) {
            (c.value("degenerate", false) ? " (one of equally sharp directions)" : ""));
     }
   }
+  if (r.value("status", std::string()) == "done" && r.contains("estimates")) {
+    line("");
+    line("  " + std::string(kHowToApply));
+  }
   if (r.contains("innovations")) {
     const auto& i = r["innovations"];
     line("");
@@ -774,6 +796,19 @@ std::string check_report(const json& r) {
       for (const char* k : {"determined", "why"}) c.field(e, at, k, Kind::String);
       c.field(e, at, "unit", Kind::String);
     });
+  if (c.field(r, "", "covariance", Kind::Object)) {
+    const json& v = r["covariance"];
+    if (c.field(v, "covariance.", "order", Kind::Array, true) &&
+        c.each(v["order"], "covariance.order", Kind::String) &&
+        c.field(v, "covariance.", "matrix", Kind::Array, true)) {
+      const std::size_t n = v["order"].size();
+      bool square = v["matrix"].size() == n;
+      for (const json& row : v["matrix"])
+        square = square && row.is_array() && row.size() == n &&
+                 c.each(row, "covariance.matrix", Kind::Number);
+      if (!square) c.fail("covariance.matrix", "expected a row of numbers per parameter of order");
+    }
+  }
   if (c.field(r, "", "combinations", Kind::Array))
     c.objects(r["combinations"], "combinations", [&](const json& m, const std::string& at) {
       c.field(m, at, "lead", Kind::String, true);

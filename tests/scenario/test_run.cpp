@@ -4,6 +4,7 @@
 // reasons, and the replay of the frames in observe mode.
 #include <doctest/doctest.h>
 
+#include <Eigen/Dense>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -17,11 +18,13 @@
 #include "turncal/can/candump.hpp"
 #include "turncal/drivers/reference.hpp"
 #include "turncal/drivers/scripted_host.hpp"
+#include "turncal/run/calibration.hpp"
 #include "turncal/run/engine.hpp"
 #include "turncal/run/html.hpp"
 #include "turncal/run/planning.hpp"
 #include "turncal/run/replay.hpp"
 #include "turncal/run/report.hpp"
+#include "turncal/sim/strapdown.hpp"
 
 using namespace turncal;
 using namespace scenario;
@@ -1137,6 +1140,150 @@ TEST_SUITE("run engine on the virtual stand") {
       shown += g.params.size();
     }
     CHECK(shown == est::kParamNames.size());
+  }
+
+  TEST_CASE("the calibration file, applied by its own convention, removes the injected errors") {
+    // The classic turn with its determined errors injected at the prior's
+    // size, signs fixed (a wrong sign in the file doubles them: 18 sigma
+    // for nu0, 20 for r), the others as drawn. The file is read back as a
+    // reader would and applied to the virtual INS's own IMU output as its
+    // convention says: w = (I + Theta)^-1 (w_m - nu0), f_i = f_m_i - df0_i
+    // - G_i3 f_3, f_2 -= [dw/dt x r + w x (w x r)]_2. What is left must be
+    // within 4 of the file's sigmas (a consistent filter passes each such
+    // check but with probability 6e-5) beside what the file rightly leaves
+    // alone (the terms it says were not determined).
+    const Plan plan = load("tactical.toml");
+    stand::StandSetup setup = setup_of(plan, 31);
+    sim::SensorErrors& e = setup.ins.sim.errors;
+    e.nu0(0) = 1.0 * kDeg / 3600;
+    e.nu0(1) = -1.0 * kDeg / 3600;
+    e.r = Eigen::Vector2d(0.030, -0.030);
+    ClosedLoop c(plan, setup);
+    c.run_until(plan.profile.align_s + plan.profile.duration_s + 60);
+    REQUIRE_MESSAGE(c.phase() == run::Phase::Done, c.course().reason, c.estimation_error);
+    auto made = run::calibration_json(c.written);
+    REQUIRE_MESSAGE(made.ok(), (made.ok() ? "" : made.error().describe()));
+    const nlohmann::json f = nlohmann::json::parse(made->dump());
+    REQUIRE(f["format"] == "turncal-calibration-1");
+    CHECK(std::string(f["convention"]).find("w = (I + Theta)^-1 (w_m - nu0)") != std::string::npos);
+    // what one turn determines is in it, what it does not is left out
+    for (const char* n : {"nu0_1", "nu0_2"}) CHECK(f["gyro"]["bias"].contains(n));
+    for (const char* n : {"r1", "r2"}) CHECK(f["accelerometer"]["proof_mass_offset"].contains(n));
+    for (const char* n : {"nu0_3", "theta_11", "theta_13", "theta_33", "df0_1", "g13"}) {
+      CAPTURE(n);
+      CHECK(f["not_determined"].contains(n));
+    }
+    CHECK_FALSE(f["gyro"].contains("scale_misalignment"));
+    CHECK_FALSE(f["accelerometer"].contains("bias"));
+    // the covariance of that block: the sigmas on its diagonal
+    const auto& cov = f["covariance"];
+    REQUIRE(cov["order"].size() == 4);
+    for (std::size_t k = 0; k < 4; ++k) {
+      const std::string n = cov["order"][k];
+      const auto& t =
+          n[0] == 'n' ? f["gyro"]["bias"][n] : f["accelerometer"]["proof_mass_offset"][n];
+      CHECK(std::sqrt(cov["matrix"][k][k].get<double>()) ==
+            doctest::Approx(t["sigma"].get<double>()).epsilon(1e-12));
+    }
+    // the accelerometer biases as the run determined them: df_obs, not split
+    REQUIRE(f["combinations"].size() == 2);
+    const double g = f["combinations"][0]["g"];
+    for (int i = 0; i < 2; ++i) {
+      const auto& cb = f["combinations"][static_cast<std::size_t>(i)];
+      CHECK(cb["name"] == (i == 0 ? "df_obs_1" : "df_obs_2"));
+      const double tv = e.df0(i) + g * e.g(i) - g * e.theta(i, 2);
+      CHECK(std::abs(cb["value"].get<double>() - tv) <= 4 * cb["sigma"].get<double>());
+    }
+
+    // the IMU's output: with the injected errors, and without any (the
+    // truth), noise-free, over the plan's motion
+    sim::Config with = setup.ins.sim;
+    with.profile = plan.profile;
+    with.motion = nullptr;
+    with.noise = sim::Noise{};
+    sim::Config none = with;
+    none.errors = sim::SensorErrors{};
+    sim::Strapdown raw(with), ideal(none);
+    Eigen::Vector3d nu0 = Eigen::Vector3d::Zero();
+    Eigen::Matrix3d theta = Eigen::Matrix3d::Zero();  // absent: no correction
+    for (int i = 0; i < 2; ++i)
+      nu0(i) = f["gyro"]["bias"][i == 0 ? "nu0_1" : "nu0_2"]["value"].get<double>();
+    const double r1 = f["accelerometer"]["proof_mass_offset"]["r1"]["value"];
+    const double r2 = f["accelerometer"]["proof_mass_offset"]["r2"]["value"];
+    const double dt = 1.0 / with.imu_rate_hz;
+    const Eigen::Matrix3d unscale = (Eigen::Matrix3d::Identity() + theta).inverse();
+    struct Window {
+      Eigen::Vector3d gyro = Eigen::Vector3d::Zero();  ///< int (w_corrected - w_true) dt
+      Eigen::Vector3d gyro_raw = Eigen::Vector3d::Zero();
+      double dv2 = 0, dv2_raw = 0;    ///< int (f_corrected_2 - f_true_2) dt
+      double domega = 0, omega2 = 0;  ///< int dOmega dt, int Omega^2 dt (truth)
+    };
+    // corrected output over [t0, t0 + n dt), one IMU period at a time
+    auto window = [&](double t0, int n) {
+      Window w;
+      double prev_rate = NAN;
+      for (int k = -1; k <= n; ++k) {
+        const double ta = t0 + k * dt;
+        const auto m = raw.imu(ta, ta + dt);
+        const auto t = ideal.imu(ta, ta + dt);
+        const Eigen::Vector3d dth = unscale * (m.dtheta - nu0 * dt);
+        const Eigen::Vector3d wr = dth / dt;  // the corrected rate, this period
+        if (k >= 0 && k < n) {
+          // size effect: [dw/dt x r + w x (w x r)]_2 with r = (r1, r2, 0),
+          // dw/dt from the neighbouring periods
+          const auto next = raw.imu(ta + dt, ta + 2 * dt);
+          const Eigen::Vector3d wn = unscale * (next.dtheta - nu0 * dt) / dt;
+          const double dw3 = (wn(2) - prev_rate) / (2 * dt);
+          const double size = dw3 * r1 + wr(0) * wr(1) * r1 - (wr(0) * wr(0) + wr(2) * wr(2)) * r2;
+          w.gyro += dth - t.dtheta;
+          w.gyro_raw += m.dtheta - t.dtheta;
+          w.dv2 += m.dv(1) - size * dt - t.dv(1);
+          w.dv2_raw += m.dv(1) - t.dv(1);
+          const double tr = t.dtheta(2) / dt;
+          w.omega2 += tr * tr * dt;
+        }
+        prev_rate = wr(2);
+      }
+      return w;
+    };
+    const auto& bias = f["gyro"]["bias"];
+    const auto& lever = f["accelerometer"]["proof_mass_offset"];
+    // gyros at rest, 100 s in a hold: the biases gone to within their
+    // sigmas, beside Theta omega_earth, which the file rightly leaves (its
+    // theta terms were not determined)
+    const double hold_s = 100;
+    const Window rest = window(1500, static_cast<int>(hold_s / dt));
+    const Eigen::Vector3d left = e.theta * ideal.imu(1500, 1500 + hold_s).dtheta;
+    for (int i = 0; i < 2; ++i) {
+      CAPTURE(i);
+      const double s = bias[i == 0 ? "nu0_1" : "nu0_2"]["sigma"].get<double>() * hold_s;
+      CHECK(std::abs(rest.gyro_raw(i)) > 10 * s);  // there was an error to remove
+      CHECK(std::abs(rest.gyro(i) - left(i)) <= 4 * s);
+    }
+    // accelerometer 2 over the turn, against as long a hold: the bias
+    // cancels, the size effect is what the file's r removes. Over the whole
+    // turn int dOmega = 0 and r2 alone is left; over the spin-up, r1 too.
+    const TurnSpec& turn = plan.profile.turns.at(0);
+    const double spin_up = turn.max_rate_rps / turn.max_accel_rps2;
+    const double turn_s = std::abs(turn.angle_rad) / turn.max_rate_rps + spin_up;
+    const int nt = static_cast<int>(std::ceil((turn_s + 1) / dt));
+    const Window in_turn = window(turn.start_s - 0.5, nt);
+    const Window before = window(turn.start_s - 0.5 - nt * dt - 10, nt);
+    const double r_res = (in_turn.dv2 - before.dv2);
+    const double r_raw = (in_turn.dv2_raw - before.dv2_raw);
+    const double s_r2 = lever["r2"]["sigma"].get<double>() * in_turn.omega2;
+    CHECK(std::abs(r_raw) > 10 * s_r2);
+    CHECK(std::abs(r_res) <= 4 * s_r2);
+    // the spin-up alone: -dr1 Omega_max + ... with both sigmas (the block's
+    // covariance: r1 and r2 are nearly independent here)
+    const int nu = static_cast<int>(std::ceil((spin_up + 0.5) / dt));
+    const Window up = window(turn.start_s - 0.5, nu);
+    const Window up_before = window(turn.start_s - 0.5 - nu * dt - 10, nu);
+    const double omega_max = turn.max_rate_rps;
+    const double s_up = std::hypot(lever["r1"]["sigma"].get<double>() * omega_max,
+                                   lever["r2"]["sigma"].get<double>() * up.omega2);
+    CHECK(std::abs(up.dv2_raw - up_before.dv2_raw) > 10 * s_up);
+    CHECK(std::abs(up.dv2 - up_before.dv2) <= 4 * s_up);
   }
 
   TEST_CASE("the tactical plan's combinations: df_obs by name, the lever arm's twins apart") {

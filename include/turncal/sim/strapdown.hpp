@@ -90,11 +90,16 @@ class Strapdown {
   /// Table angle now (truth; the encoder reads it).
   [[nodiscard]] EncoderSample encoder() const;
 
- private:
+  /// The IMU's output over [ta, tb] (simulation time from t0): angle and
+  /// velocity increments in body axes, with the configured errors and
+  /// noise. What the INS navigates on; a calibration's test applies its
+  /// corrections to it.
   struct Increments {
     Eigen::Vector3d dtheta, dv;
   };
   Increments imu(double ta, double tb);
+
+ private:
   /// Table state relative to t0, in simulation time.
   [[nodiscard]] TableMotion::State table_at(double t) const;
   void navigate(const Increments& inc, double dt);
