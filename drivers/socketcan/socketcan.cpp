@@ -122,9 +122,8 @@ Status Socket::open_socket() {
   const unsigned index = ::if_nametoindex(name.c_str());
   if (index == 0) return sys_error(name, "no such CAN interface", errno);
   if (opt_.require_virtual) {
-    auto v = is_virtual_can(name);
-    if (!v) return v.error();
-    if (!*v) return make_error(name + ": not a virtual CAN bus (vcan, vxcan): not opened");
+    if (Status v = require_virtual_can(name); !v)
+      return make_error(v.error().describe() + ": not opened");
   }
   const int fd = ::socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_RAW);
   if (fd < 0) return sys_error(name, "socket(PF_CAN)", errno);
@@ -380,6 +379,58 @@ bool Socket::try_recover(RxBatch& out) {
   return true;
 }
 
+Result<std::string> link_kind_of_answer(std::span<const char> answer,
+                                        const std::string& interface) {
+  // walked by hand: the NLMSG_/RTA_ macros' casts and mixed signedness
+  // are what this build's warnings refuse
+  const auto align4 = [](std::size_t x) { return (x + 3) & ~std::size_t{3}; };
+  // the attributes in [p, end): the payload of the first of type `type`
+  const auto find_attr = [&](const char* p, const char* end, unsigned short type,
+                             std::size_t& len) -> const char* {
+    while (end - p >= static_cast<std::ptrdiff_t>(sizeof(rtattr))) {
+      rtattr a{};
+      std::memcpy(&a, p, sizeof a);
+      if (a.rta_len < sizeof(rtattr) || static_cast<std::ptrdiff_t>(a.rta_len) > end - p)
+        return nullptr;
+      if (a.rta_type == type) {
+        len = a.rta_len - sizeof(rtattr);
+        return p + align4(sizeof(rtattr));
+      }
+      p += align4(a.rta_len);
+    }
+    return nullptr;
+  };
+  const char* p = answer.data();
+  const char* const end = answer.data() + answer.size();
+  while (end - p >= static_cast<std::ptrdiff_t>(sizeof(nlmsghdr))) {
+    nlmsghdr h{};
+    std::memcpy(&h, p, sizeof h);
+    if (h.nlmsg_len < sizeof(nlmsghdr) || static_cast<std::ptrdiff_t>(h.nlmsg_len) > end - p) break;
+    const char* data = p + align4(sizeof(nlmsghdr));
+    const char* msg_end = p + h.nlmsg_len;
+    if (h.nlmsg_type == NLMSG_ERROR) {
+      if (msg_end - data < static_cast<std::ptrdiff_t>(sizeof(nlmsgerr))) break;
+      nlmsgerr e{};
+      std::memcpy(&e, data, sizeof e);
+      if (e.error == 0) break;  // an acknowledgement, no answer
+      return sys_error(interface, "RTM_GETLINK", -e.error);
+    }
+    if (h.nlmsg_type == RTM_NEWLINK) {
+      const char* attrs = data + align4(sizeof(ifinfomsg));
+      if (attrs > msg_end) break;  // cut short: not an answer to judge by
+      std::size_t info_len = 0;
+      const char* info = find_attr(attrs, msg_end, IFLA_LINKINFO, info_len);
+      if (info == nullptr) return std::string();  // a device driver's interface: no link kind
+      std::size_t kind_len = 0;
+      const char* kind = find_attr(info, info + info_len, IFLA_INFO_KIND, kind_len);
+      if (kind == nullptr) return std::string();
+      return std::string(kind, ::strnlen(kind, kind_len));
+    }
+    p += align4(h.nlmsg_len);
+  }
+  return make_error(interface + ": RTM_GETLINK: no answer for the interface");
+}
+
 Result<std::string> link_kind(const std::string& interface) {
   if (interface.empty() || interface.size() >= IFNAMSIZ)
     return make_error("'" + interface + "' is not an interface name");
@@ -406,59 +457,23 @@ Result<std::string> link_kind(const std::string& interface) {
   alignas(nlmsghdr) std::array<char, 16384> buf{};
   const ssize_t n = ::recv(fd, buf.data(), buf.size(), 0);
   if (n < 0) return sys_error(interface, "RTM_GETLINK answer", errno);
-  // walked by hand: the NLMSG_/RTA_ macros' casts and mixed signedness
-  // are what this build's warnings refuse
-  const auto align4 = [](std::size_t x) { return (x + 3) & ~std::size_t{3}; };
-  // the attributes in [p, end): the payload of the first of type `type`
-  const auto find_attr = [&](const char* p, const char* end, unsigned short type,
-                             std::size_t& len) -> const char* {
-    while (end - p >= static_cast<std::ptrdiff_t>(sizeof(rtattr))) {
-      rtattr a{};
-      std::memcpy(&a, p, sizeof a);
-      if (a.rta_len < sizeof(rtattr) || static_cast<std::ptrdiff_t>(a.rta_len) > end - p)
-        return nullptr;
-      if (a.rta_type == type) {
-        len = a.rta_len - sizeof(rtattr);
-        return p + align4(sizeof(rtattr));
-      }
-      p += align4(a.rta_len);
-    }
-    return nullptr;
-  };
-  const char* p = buf.data();
-  const char* const end = buf.data() + n;
-  while (end - p >= static_cast<std::ptrdiff_t>(sizeof(nlmsghdr))) {
-    nlmsghdr h{};
-    std::memcpy(&h, p, sizeof h);
-    if (h.nlmsg_len < sizeof(nlmsghdr) || static_cast<std::ptrdiff_t>(h.nlmsg_len) > end - p) break;
-    const char* data = p + align4(sizeof(nlmsghdr));
-    const char* msg_end = p + h.nlmsg_len;
-    if (h.nlmsg_type == NLMSG_ERROR &&
-        msg_end - data >= static_cast<std::ptrdiff_t>(sizeof(nlmsgerr))) {
-      nlmsgerr e{};
-      std::memcpy(&e, data, sizeof e);
-      return sys_error(interface, "RTM_GETLINK", -e.error);
-    }
-    if (h.nlmsg_type == RTM_NEWLINK) {
-      const char* attrs = data + align4(sizeof(ifinfomsg));
-      std::size_t info_len = 0;
-      const char* info =
-          attrs < msg_end ? find_attr(attrs, msg_end, IFLA_LINKINFO, info_len) : nullptr;
-      if (info == nullptr) return std::string();  // a device driver's interface: no link kind
-      std::size_t kind_len = 0;
-      const char* kind = find_attr(info, info + info_len, IFLA_INFO_KIND, kind_len);
-      if (kind == nullptr) return std::string();
-      return std::string(kind, ::strnlen(kind, kind_len));
-    }
-    p += align4(h.nlmsg_len);
-  }
-  return make_error(interface + ": RTM_GETLINK: no answer for the interface");
+  return link_kind_of_answer(std::span<const char>(buf.data(), static_cast<std::size_t>(n)),
+                             interface);
 }
 
-Result<bool> is_virtual_can(const std::string& interface) {
+bool is_virtual_kind(std::string_view kind) {
+  return kind == "vcan" || kind == "vxcan";
+}
+
+Status require_virtual_can(const std::string& interface) {
   auto kind = link_kind(interface);
-  if (!kind) return kind.error();
-  return *kind == "vcan" || *kind == "vxcan";
+  if (!kind)
+    return make_error(kind.error().describe() + " (cannot tell whether it is a virtual CAN bus)");
+  if (!is_virtual_kind(*kind))
+    return make_error(
+        interface + " is not a virtual CAN bus (" +
+        (kind->empty() ? std::string("a device's interface") : "its kind is " + *kind) + ")");
+  return Status{Ok{}};
 }
 
 }  // namespace turncal::socketcan

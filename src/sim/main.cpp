@@ -522,19 +522,10 @@ int live(const Options& o) {
   // unless told. A kind that cannot be read counts as real.
   for (const std::string& name : {w->cfg.can.ins_interface, w->cfg.can.table_interface}) {
     if (o.real_bus) break;
-    auto v = socketcan::is_virtual_can(name);
-    if (!v)
+    if (Status v = socketcan::require_virtual_can(name); !v)
       return fail(make_error(v.error().describe() +
-                             " (cannot tell whether it is a virtual CAN bus; --real-bus sends "
-                             "on it anyway)"));
-    if (!*v) {
-      auto kind = socketcan::link_kind(name);
-      return fail(make_error(
-          name + " is not a virtual CAN bus (" +
-          (kind && !kind->empty() ? "its kind is " + *kind : std::string("a device's interface")) +
-          "): a simulated stand's frames on it would pass for the real table's and INS's; "
-          "give --real-bus to send on it all the same"));
-    }
+                             ": a simulated stand's frames on it would pass for the real "
+                             "table's and INS's; give --real-bus to send on it all the same"));
   }
   // one socket per interface; the INS and the table may share one
   // receive stamps on the realtime clock at the start plus monotonic time:
@@ -574,12 +565,13 @@ int live(const Options& o) {
   // the host heartbeat as the table receives it (kernel receive times, stand s)
   const can::Message* hb = (*roles)[Role::HeartbeatCounter].message;
   double hb_last = NAN;
-  std::vector<double> hb_gaps;
+  std::vector<double> hb_gaps, hb_gap_ends;     // each gap, and when it ended (stand s)
   double hb_max_gap = 0, hb_max_gap_end = NAN;  // the longest gap, and when it ended (stand s)
   // the longest gap ending in a flood (--fault flood) or the 5 s after it
   const double flood_from = w->setup.faults.flood_at_s;
   const double flood_to = flood_from + w->setup.faults.flood_s + 5;
   double hb_max_gap_flood = 0;
+  std::uint64_t hb_in_flood = 0;  // heartbeats received in that window
   while (g_stop == 0 && !loop.done()) {
     for (socketcan::Socket& s : sockets) {
       rx.clear();
@@ -598,9 +590,12 @@ int live(const Options& o) {
               hb_max_gap = at - hb_last;
               hb_max_gap_end = at;
             }
-            if (at >= flood_from && at <= flood_to)
+            if (at >= flood_from && at <= flood_to) {
               hb_max_gap_flood = std::max(hb_max_gap_flood, at - hb_last);
+              ++hb_in_flood;
+            }
             hb_gaps.push_back(at - hb_last);
+            hb_gap_ends.push_back(at);
           }
           hb_last = at;
         }
@@ -639,10 +634,15 @@ int live(const Options& o) {
     double mean_gap = 0;
     for (const double g : hb_gaps) mean_gap += g / static_cast<double>(hb_gaps.size());
     std::uint64_t off = 0;
-    std::uint64_t off_half = 0;  // more than half a period off
-    for (const double g : hb_gaps) {
+    std::uint64_t off_half = 0;                            // more than half a period off
+    nlohmann::json off_half_at = nlohmann::json::array();  // the first 50: when they ended
+    for (std::size_t i = 0; i < hb_gaps.size(); ++i) {
+      const double g = hb_gaps[i];
       off += std::abs(g - mean_gap) > 0.2 * mean_gap;
-      off_half += std::abs(g - mean_gap) > 0.5 * mean_gap;
+      if (std::abs(g - mean_gap) > 0.5 * mean_gap) {
+        ++off_half;
+        if (off_half_at.size() < 50) off_half_at.push_back({hb_gap_ends[i], g});
+      }
     }
     const auto st = loop.stand().table().status(now);
     nlohmann::json drive = nullptr;
@@ -681,8 +681,13 @@ int live(const Options& o) {
           {"max_gap_end_s", hb_max_gap_end},
           {"max_gap_in_flood_s",
            std::isnan(flood_from) ? nlohmann::json(nullptr) : nlohmann::json(hb_max_gap_flood)},
+          {"in_flood",
+           std::isnan(flood_from) ? nlohmann::json(nullptr) : nlohmann::json(hb_in_flood)},
+          {"flood_window_s", std::isnan(flood_from) ? nlohmann::json(nullptr)
+                                                    : nlohmann::json({flood_from, flood_to})},
           {"gaps_off_20_percent", off},
-          {"gaps_off_50_percent", off_half}}}};
+          {"gaps_off_50_percent", off_half},
+          {"gaps_off_50_percent_end_and_length_s", off_half_at}}}};
     std::ofstream f(o.state_out);
     f << j.dump(2) << "\n";
     f.close();

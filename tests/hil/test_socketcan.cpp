@@ -35,13 +35,14 @@ TEST_SUITE("socketcan") {
     const auto kind = socketcan::link_kind(hil::if0());
     REQUIRE(kind);
     CHECK(*kind == "vcan");
-    const auto v = socketcan::is_virtual_can(hil::if0());
-    REQUIRE(v);
-    CHECK(*v);
+    CHECK(socketcan::require_virtual_can(hil::if0()));
     // the loopback interface registers no link kind, as a real device's does not
-    const auto lo = socketcan::is_virtual_can("lo");
+    const auto lo = socketcan::link_kind("lo");
     REQUIRE(lo);
-    CHECK_FALSE(*lo);
+    CHECK(lo->empty());
+    const Status lo_virtual = socketcan::require_virtual_can("lo");
+    REQUIRE_FALSE(lo_virtual);
+    CHECK(lo_virtual.error().describe() == "lo is not a virtual CAN bus (a device's interface)");
     const auto none = socketcan::link_kind("tcnone0");
     REQUIRE_FALSE(none);
     CHECK(none.error().describe().find("tcnone0") != std::string::npos);

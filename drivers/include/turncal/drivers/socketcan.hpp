@@ -23,7 +23,9 @@
 #include <cstdint>
 #include <deque>
 #include <optional>
+#include <span>
 #include <string>
+#include <string_view>
 #include <vector>
 
 #include "turncal/can/bus_event.hpp"
@@ -54,7 +56,7 @@ struct Options {
   /// socket); none: the kernel's CLOCK_REALTIME stamps as they are.
   HostClock* clock = nullptr;
   /// Open (and re-open, after the interface was removed) only a virtual
-  /// CAN bus (is_virtual_can): a simulator's socket, which must never bind
+  /// CAN bus (require_virtual_can): a simulator's socket, which must never bind
   /// a real bus that took the name of its vcan.
   bool require_virtual = false;
 };
@@ -177,8 +179,17 @@ std::int64_t realtime_ns();
 /// "vcan", "vxcan", "can" for a real controller's CAN device (USB, PCI,
 /// SPI), ...); empty for a driver that registers no link kind (slcan, lo).
 Result<std::string> link_kind(const std::string& interface);
-/// Whether the interface is a virtual CAN bus (vcan, vxcan): a bus no real
+/// The link kind in rtnetlink's answer to RTM_GETLINK for `interface` (the
+/// bytes one recv took): the first RTM_NEWLINK's IFLA_LINKINFO /
+/// IFLA_INFO_KIND, empty when it has none; an NLMSG_ERROR's errno, or no
+/// answer (truncated, malformed, none), is an error.
+Result<std::string> link_kind_of_answer(std::span<const char> answer, const std::string& interface);
+/// Whether a link kind is a virtual CAN bus's (vcan, vxcan): a bus no real
 /// device is on.
-Result<bool> is_virtual_can(const std::string& interface);
+bool is_virtual_kind(std::string_view kind);
+/// Succeeds for a virtual CAN bus; otherwise says what the interface is (its
+/// kind, a device's interface, or that its kind cannot be read: counted as
+/// real).
+Status require_virtual_can(const std::string& interface);
 
 }  // namespace turncal::socketcan
