@@ -19,6 +19,7 @@
 //   turncald [--config FILE] [--state-dir DIR] [--socket PATH]
 #include <fcntl.h>
 #include <grp.h>
+#include <sys/resource.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
 #include <sys/un.h>
@@ -43,6 +44,7 @@
 #include <optional>
 #include <sstream>
 #include <string>
+#include <string_view>
 #include <system_error>
 #include <thread>
 #include <utility>
@@ -90,6 +92,9 @@ void say(int priority, const std::string& run_id, const char* phase, const std::
   std::fprintf(stderr, "turncald: %s%s%s\n", run_id.empty() ? "" : run_id.c_str(),
                run_id.empty() ? "" : ": ", msg.c_str());
 }
+
+/// The estimate's thread's nice value: below the loop's (0).
+constexpr int kEstimateNice = 10;
 
 std::uint64_t monotonic_us() {
   timespec ts{};
@@ -186,6 +191,10 @@ class Daemon {
   double holds_untold_longest_s = 0;  ///< the longest of them
   std::uint64_t holds_told_us = 0;    ///< when the last line about them went out
   std::uint64_t timer_ticks = 0;      ///< watchers get the status every 5th
+  /// Started by its systemd socket: exits when idle once its program was
+  /// replaced on disk, the socket starting the new one on the next request.
+  bool socket_activated = false;
+  std::uint64_t program_checked_us = 0;  ///< when /proc/self/exe was last read
   std::uint8_t heartbeat_counter = 0;
   std::optional<StateDir> state;
   /// Frames the bus has lately carried (what a run's log grows at).
@@ -216,6 +225,7 @@ class Daemon {
   std::optional<est::EstimationResult> result;
   std::string est_error;
   std::atomic<bool> worker_busy{false};
+  std::atomic<int> estimate_nice_errno{0};  ///< the worker's setpriority, failed
   std::vector<run::OutFrame> out;
   socketcan::RxBatch rx;
 
@@ -238,6 +248,7 @@ class Daemon {
   void link_back(Port& p);
   void update_io(Port& p);
   void recover_ports();
+  void exit_if_upgraded();
   void log_record(const can::LogRecord& r);
   void log_sync();
   void take_syncer_error();
@@ -579,6 +590,11 @@ void Daemon::after_engine() {
     worker_busy = true;  // before the thread starts: it reads input from its first line
     try {
       worker = std::thread([this] {
+        // below the loop: on a stand PC of one core the heartbeat, the
+        // watchdog and a quick stop go before the estimate (a thread's
+        // nice value is its own on Linux; raising it needs no privilege)
+        if (::setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), kEstimateNice) != 0)
+          estimate_nice_errno = errno;
         try {
           auto r = est::estimate(input->input);
           if (r) {
@@ -1111,6 +1127,37 @@ int on_tx_retry(sd_event_source*, uint64_t, void* u) {
   });
 }
 
+/// Whether the program this process runs has been replaced or removed on
+/// disk: a package upgrade renames the new file over the old, whose inode
+/// this process still runs, and /proc/self/exe then names it "(deleted)".
+bool program_replaced() {
+  std::array<char, 4096> buf{};
+  const ssize_t n = ::readlink("/proc/self/exe", buf.data(), buf.size() - 1);
+  if (n <= 0) return false;  // no /proc: nothing known, nothing done
+  return std::string_view(buf.data(), static_cast<std::size_t>(n)).ends_with(" (deleted)");
+}
+
+/// An upgrade stops no service (the package's units say so): a run goes on
+/// with the program it started with. Once idle (no run, no estimate, no
+/// reply unsent), a daemon its socket started exits, and the next request
+/// starts the new program; the host heartbeat pauses between the two, with
+/// the table at rest. Read once a second of real time.
+void Daemon::exit_if_upgraded() {
+  if (!socket_activated || stopping || running() || worker_busy) return;
+  const std::uint64_t now = monotonic_us();
+  if (now - program_checked_us < 1'000'000) return;
+  program_checked_us = now;
+  for (const auto& c : clients)
+    if (!c->out.empty()) return;
+  if (!program_replaced()) return;
+  info(
+      "the program was replaced on disk (an upgrade) and no run is under way: exiting; the "
+      "socket starts the new one on the next request");
+  stopping = true;
+  sd_notify(0, "STOPPING=1");
+  sd_event_exit(ev, 0);
+}
+
 int on_timer(sd_event_source* s, uint64_t usec, void* u) {
   auto* d = static_cast<Daemon*>(u);
   const double period_s = 1.0 / (d->cfg.daemon.heartbeat_hz * d->cfg.stand.time_scale);
@@ -1123,6 +1170,20 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
     return 0;
   }
   return guarded(d, "the timer", [&] {
+    // the heartbeat goes out from this loop, between runs too: a table will
+    // not start a move for a host it has not heard from. First, before a
+    // flood's backlog is read: its period is the table's to judge, and the
+    // state it carries is the last tick's
+    const bool observing = d->running() && d->engine->sequencer().settings().observe;
+    const bool gave_up = d->engine && d->engine->sequencer().course().quick_stop_gave_up;
+    if (!d->cfg.daemon.observe && !observing && !gave_up) {
+      for (const can::Frame& f :
+           d->engine ? d->engine->ingest().table().heartbeat(d->heartbeat_counter++,
+                                                             d->engine->sequencer().host_state())
+                     : d->idle_table->heartbeat(d->heartbeat_counter++, 0))
+        d->out.push_back({false, f});
+      d->send_out();
+    }
     d->recover_ports();
     d->tell_clock_steps();
     d->take_syncer_error();
@@ -1141,18 +1202,9 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
       d->engine->tick(d->clock.now_ns(), d->out, heard_until);
       d->tell_holds(holds);
     }
-    // the heartbeat goes out from this loop, between runs too: a table will not
-    // start a move for a host it has not heard from
-    const bool observing = d->running() && d->engine->sequencer().settings().observe;
-    const bool gave_up = d->engine && d->engine->sequencer().course().quick_stop_gave_up;
-    if (!d->cfg.daemon.observe && !observing && !gave_up)
-      for (const can::Frame& f :
-           d->engine ? d->engine->ingest().table().heartbeat(d->heartbeat_counter++,
-                                                             d->engine->sequencer().host_state())
-                     : d->idle_table->heartbeat(d->heartbeat_counter++, 0))
-        d->out.push_back({false, f});
     d->after_engine();
     if (d->stopping && !d->running() && !d->worker_busy) sd_event_exit(d->ev, 0);
+    d->exit_if_upgraded();
     if (++d->timer_ticks % 5 == 0) d->broadcast_watch();
     d->reap_clients();
   });
@@ -1180,6 +1232,9 @@ int on_worker_done(sd_event_source*, int fd, uint32_t, void* u) {
     (void)!::read(fd, &c, 1);
     if (d->worker.joinable()) d->worker.join();
     d->worker_busy = false;
+    if (const int e = d->estimate_nice_errno.exchange(0); e != 0)
+      d->warn(std::string("the estimate ran at the loop's priority (setpriority: ") +
+              std::strerror(e) + ")");
     if (d->engine && d->report_done) {  // the run ended while it estimated
       d->input.reset();
       d->result.reset();
@@ -1242,6 +1297,7 @@ Status Daemon::setup() {
   if (n > 1) return make_error("expected one socket from systemd, got " + std::to_string(n));
   if (n == 1) {
     listen_fd = SD_LISTEN_FDS_START;
+    socket_activated = true;
     const int fl = ::fcntl(listen_fd, F_GETFL);
     if (fl < 0 || ::fcntl(listen_fd, F_SETFL, fl | O_NONBLOCK) != 0)
       return make_error(std::string("the socket from systemd: fcntl: ") + std::strerror(errno));

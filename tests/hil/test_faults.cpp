@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <sstream>
 
 #include "daemon_stand.hpp"
 #include "turncal/can/candump.hpp"
@@ -18,6 +19,21 @@ using hil::Child;
 using nlohmann::json;
 
 namespace {
+
+/// The CPU time a process has had so far (user and system, /proc/PID/stat).
+double cpu_seconds(pid_t pid) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/stat");
+  std::string line;
+  std::getline(in, line);
+  // the fields after the command's closing parenthesis: state is the 3rd
+  // field of the line, utime and stime the 14th and 15th
+  std::istringstream rest(line.substr(line.rfind(')') + 2));
+  std::string field;
+  double ticks = 0;
+  for (int i = 3; i <= 15 && rest >> field; ++i)
+    if (i >= 14) ticks += std::stod(field);
+  return ticks / static_cast<double>(::sysconf(_SC_CLK_TCK));
+}
 
 /// turncald with its stderr (the log outside systemd) in dir/daemon.err.
 Child start_daemon(const hil::fs::path& dir) {
@@ -575,31 +591,43 @@ TEST_SUITE("faults") {
     const json r = report_of(dir.path, id);
     CAPTURE(r.value("reason", std::string()));
     CHECK(r["status"] == "done");
+    // what the guest's one CPU gave each (the stand, its flood, the daemon)
+    MESSAGE("CPU time: the stand " << cpu_seconds(sim.pid()) << " s, turncald "
+                                   << cpu_seconds(daemon.pid()) << " s");
+    // the table's record of the heartbeat ends with the run: the replay
+    // below is this test's own load on the guest's CPU, not the daemon's
+    const json st = stand_state(sim, dir.path);
     (void)replay_of_log(dir.path, id, r);  // the flood's frames in it too, whole
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
-    const json st = stand_state(sim, dir.path);
     const json& hb = st["heartbeat"];
-    MESSAGE("heartbeat at the table under the flood: mean gap "
+    MESSAGE("heartbeat at the table: mean gap "
             << hb["mean_gap_s"] << " s, max " << hb["max_gap_s"] << " s (ending at stand time "
             << hb["max_gap_end_s"] << " s), " << hb["gaps_off_20_percent"] << " of " << hb["gaps"]
-            << " gaps off by over 20%");
+            << " gaps off by over 20%, " << hb["gaps_off_50_percent"]
+            << " by over half a period, [end, length] in stand s: "
+            << hb["gaps_off_50_percent_end_and_length_s"].dump());
     CHECK(hb["gaps"].get<int>() > 500);
     // 10 Hz of stand time: within 20%
     CHECK(hb["mean_gap_s"].get<double>() == doctest::Approx(0.1).epsilon(0.2));
-    // every gap within half a period but for 1 in 100. (Within 20%, 5 ms
-    // of real time at 4x, measures the guest's one CPU, which runs the
-    // stand, its flood and the daemon: with the same code it ranged from 5
-    // to 186 gaps of 1430 from one run to the next. A loop the flood
-    // starved would miss whole periods.)
-    MESSAGE(hb["gaps_off_50_percent"] << " gaps off by over half a period");
-    CHECK(hb["gaps_off_50_percent"].get<int>() * 100 <= hb["gaps"].get<int>());
-    // in the flood and the 5 s after: under the ICD's heartbeat timeout
-    // (0.5 s; the hil stand's table allows 2 s of its time, start_sim).
-    // (The longest gap of the whole recording can be the report's writing
-    // at the end, on the loop, with the table at rest: said, not judged.)
+    // What the table needs of the host under a flood, in the flood and the
+    // 5 s after: every period's heartbeat, none later than the ICD's
+    // heartbeat timeout (0.5 s; the hil stand's table allows 2 s of its
+    // time, start_sim). A loop the flood starved would miss periods and
+    // leave gaps of several. How far each gap is off its period is said,
+    // not judged: within half a period is 12 ms of real time at 4x, and
+    // that measures the guest's one CPU, shared by the stand, its flood,
+    // the daemon and this test (from 2 to 102 such gaps of 1440 from one
+    // run of the same code to the next, clustered in the turn, where the
+    // stand integrates fastest, and in the estimate).
+    const auto window = hb["flood_window_s"];
+    REQUIRE(window.is_array());
+    const double expected = (window[1].get<double>() - window[0].get<double>()) / 0.1;
+    MESSAGE("in the flood and the 5 s after: " << hb["in_flood"] << " heartbeats of " << expected
+                                               << ", the longest gap " << hb["max_gap_in_flood_s"]
+                                               << " s");
+    CHECK(hb["in_flood"].get<double>() >= 0.95 * expected);
     CHECK(hb["max_gap_in_flood_s"].get<double>() < 0.5);
-    MESSAGE("longest gap in the flood " << hb["max_gap_in_flood_s"] << " s");
   }
 
   TEST_CASE("the fault list through the daemon: each stops the table, the log replays to it") {
