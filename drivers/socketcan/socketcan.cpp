@@ -122,7 +122,7 @@ Status Socket::open_socket() {
   const unsigned index = ::if_nametoindex(name.c_str());
   if (index == 0) return sys_error(name, "no such CAN interface", errno);
   if (opt_.require_virtual) {
-    if (Status v = require_virtual_can(name); !v)
+    if (Status v = require_virtual_can(name, index); !v)
       return make_error(v.error().describe() + ": not opened");
   }
   const int fd = ::socket(PF_CAN, SOCK_RAW | SOCK_NONBLOCK | SOCK_CLOEXEC, CAN_RAW);
@@ -379,56 +379,90 @@ bool Socket::try_recover(RxBatch& out) {
   return true;
 }
 
-Result<std::string> link_kind_of_answer(std::span<const char> answer,
-                                        const std::string& interface) {
+Result<std::string> link_kind_of_answer(std::span<const char> answer, const std::string& interface,
+                                        unsigned index) {
   // walked by hand: the NLMSG_/RTA_ macros' casts and mixed signedness
   // are what this build's warnings refuse
   const auto align4 = [](std::size_t x) { return (x + 3) & ~std::size_t{3}; };
-  // the attributes in [p, end): the payload of the first of type `type`
-  const auto find_attr = [&](const char* p, const char* end, unsigned short type,
-                             std::size_t& len) -> const char* {
-    while (end - p >= static_cast<std::ptrdiff_t>(sizeof(rtattr))) {
+  const auto no_answer = [&](const char* why) {
+    return make_error(interface + ": RTM_GETLINK: " + why);
+  };
+  const char* const begin = answer.data();
+  const char* const end = answer.data() + answer.size();
+  // [p, end) from an offset that may run past it: never a pointer beyond end
+  const auto advance = [](const char* p, std::size_t by, const char* stop) {
+    return static_cast<std::size_t>(stop - p) < by ? stop : p + by;
+  };
+  enum class Attr { Found, Absent, Malformed };
+  // the attributes in [p, to): the payload of the first of type `type`
+  const auto find_attr = [&](const char* p, const char* to, unsigned short type,
+                             const char*& payload, std::size_t& len) {
+    while (p < to) {
+      if (to - p < static_cast<std::ptrdiff_t>(sizeof(rtattr))) return Attr::Malformed;
       rtattr a{};
       std::memcpy(&a, p, sizeof a);
-      if (a.rta_len < sizeof(rtattr) || static_cast<std::ptrdiff_t>(a.rta_len) > end - p)
-        return nullptr;
-      if (a.rta_type == type) {
-        len = a.rta_len - sizeof(rtattr);
-        return p + align4(sizeof(rtattr));
+      if (a.rta_len < sizeof(rtattr) || static_cast<std::ptrdiff_t>(a.rta_len) > to - p)
+        return Attr::Malformed;
+      if ((a.rta_type & NLA_TYPE_MASK) == type) {
+        payload = advance(p, align4(sizeof(rtattr)), p + a.rta_len);
+        len = static_cast<std::size_t>(p + a.rta_len - payload);
+        return Attr::Found;
       }
-      p += align4(a.rta_len);
+      p = advance(p, align4(a.rta_len), to);
     }
-    return nullptr;
+    return Attr::Absent;
   };
-  const char* p = answer.data();
-  const char* const end = answer.data() + answer.size();
+  const char* p = begin;
   while (end - p >= static_cast<std::ptrdiff_t>(sizeof(nlmsghdr))) {
     nlmsghdr h{};
     std::memcpy(&h, p, sizeof h);
-    if (h.nlmsg_len < sizeof(nlmsghdr) || static_cast<std::ptrdiff_t>(h.nlmsg_len) > end - p) break;
-    const char* data = p + align4(sizeof(nlmsghdr));
+    if (h.nlmsg_len < sizeof(nlmsghdr) || static_cast<std::ptrdiff_t>(h.nlmsg_len) > end - p)
+      return no_answer("a message's length is out of bounds");
     const char* msg_end = p + h.nlmsg_len;
+    const char* data = advance(p, align4(sizeof(nlmsghdr)), msg_end);
     if (h.nlmsg_type == NLMSG_ERROR) {
-      if (msg_end - data < static_cast<std::ptrdiff_t>(sizeof(nlmsgerr))) break;
+      if (msg_end - data < static_cast<std::ptrdiff_t>(sizeof(nlmsgerr)))
+        return no_answer("an error message cut short");
       nlmsgerr e{};
       std::memcpy(&e, data, sizeof e);
-      if (e.error == 0) break;  // an acknowledgement, no answer
+      if (e.error == 0) return no_answer("no answer for the interface");  // an acknowledgement
       return sys_error(interface, "RTM_GETLINK", -e.error);
     }
     if (h.nlmsg_type == RTM_NEWLINK) {
-      const char* attrs = data + align4(sizeof(ifinfomsg));
-      if (attrs > msg_end) break;  // cut short: not an answer to judge by
+      if (msg_end - data < static_cast<std::ptrdiff_t>(sizeof(ifinfomsg)))
+        return no_answer("a link message cut short");
+      ifinfomsg ifi{};
+      std::memcpy(&ifi, data, sizeof ifi);
+      // the interface asked for by its index, not another that took its name
+      if (index != 0 && ifi.ifi_index != static_cast<int>(index))
+        return no_answer("the answer is for another interface");
+      const char* attrs = advance(data, align4(sizeof(ifinfomsg)), msg_end);
+      const char* info = nullptr;
       std::size_t info_len = 0;
-      const char* info = find_attr(attrs, msg_end, IFLA_LINKINFO, info_len);
-      if (info == nullptr) return std::string();  // a device driver's interface: no link kind
+      switch (find_attr(attrs, msg_end, IFLA_LINKINFO, info, info_len)) {
+        case Attr::Malformed:
+          return no_answer("a malformed attribute");
+        case Attr::Absent:
+          return std::string();  // a device driver's interface: no link kind
+        case Attr::Found:
+          break;
+      }
+      const char* kind = nullptr;
       std::size_t kind_len = 0;
-      const char* kind = find_attr(info, info + info_len, IFLA_INFO_KIND, kind_len);
-      if (kind == nullptr) return std::string();
+      switch (find_attr(info, info + info_len, IFLA_INFO_KIND, kind, kind_len)) {
+        case Attr::Malformed:
+          return no_answer("a malformed link info");
+        case Attr::Absent:
+          return std::string();
+        case Attr::Found:
+          break;
+      }
       return std::string(kind, ::strnlen(kind, kind_len));
     }
-    p += align4(h.nlmsg_len);
+    p = advance(p, align4(h.nlmsg_len), end);
   }
-  return make_error(interface + ": RTM_GETLINK: no answer for the interface");
+  if (p != end) return no_answer("a message cut short");
+  return no_answer("no answer for the interface");
 }
 
 Result<std::string> link_kind(const std::string& interface) {
@@ -436,6 +470,10 @@ Result<std::string> link_kind(const std::string& interface) {
     return make_error("'" + interface + "' is not an interface name");
   const unsigned index = ::if_nametoindex(interface.c_str());
   if (index == 0) return sys_error(interface, "no such interface", errno);
+  return link_kind(interface, index);
+}
+
+Result<std::string> link_kind(const std::string& interface, unsigned index) {
   const int fd = ::socket(AF_NETLINK, SOCK_RAW | SOCK_CLOEXEC, NETLINK_ROUTE);
   if (fd < 0) return sys_error(interface, "socket(AF_NETLINK)", errno);
   struct Closer {
@@ -458,15 +496,15 @@ Result<std::string> link_kind(const std::string& interface) {
   const ssize_t n = ::recv(fd, buf.data(), buf.size(), 0);
   if (n < 0) return sys_error(interface, "RTM_GETLINK answer", errno);
   return link_kind_of_answer(std::span<const char>(buf.data(), static_cast<std::size_t>(n)),
-                             interface);
+                             interface, index);
 }
 
 bool is_virtual_kind(std::string_view kind) {
   return kind == "vcan" || kind == "vxcan";
 }
 
-Status require_virtual_can(const std::string& interface) {
-  auto kind = link_kind(interface);
+Status require_virtual_can(const std::string& interface, unsigned index) {
+  auto kind = index != 0 ? link_kind(interface, index) : link_kind(interface);
   if (!kind)
     return make_error(kind.error().describe() + " (cannot tell whether it is a virtual CAN bus)");
   if (!is_virtual_kind(*kind))

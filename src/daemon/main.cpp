@@ -19,6 +19,7 @@
 //   turncald [--config FILE] [--state-dir DIR] [--socket PATH]
 #include <fcntl.h>
 #include <grp.h>
+#include <sys/ioctl.h>
 #include <sys/resource.h>
 #include <sys/socket.h>
 #include <sys/stat.h>
@@ -44,7 +45,6 @@
 #include <optional>
 #include <sstream>
 #include <string>
-#include <string_view>
 #include <system_error>
 #include <thread>
 #include <utility>
@@ -191,10 +191,10 @@ class Daemon {
   double holds_untold_longest_s = 0;  ///< the longest of them
   std::uint64_t holds_told_us = 0;    ///< when the last line about them went out
   std::uint64_t timer_ticks = 0;      ///< watchers get the status every 5th
-  /// Started by its systemd socket: exits when idle once its program was
-  /// replaced on disk, the socket starting the new one on the next request.
+  /// Started by its systemd socket, which starts it again on the next
+  /// request: what lets a reload (SIGHUP) be an exit once idle.
   bool socket_activated = false;
-  std::uint64_t program_checked_us = 0;  ///< when /proc/self/exe was last read
+  bool exit_when_idle = false;  ///< a reload asked for: the next idle tick exits
   std::uint8_t heartbeat_counter = 0;
   std::optional<StateDir> state;
   /// Frames the bus has lately carried (what a run's log grows at).
@@ -248,7 +248,8 @@ class Daemon {
   void link_back(Port& p);
   void update_io(Port& p);
   void recover_ports();
-  void exit_if_upgraded();
+  void exit_if_reloading();
+  void ask_reload();
   void log_record(const can::LogRecord& r);
   void log_sync();
   void take_syncer_error();
@@ -593,8 +594,9 @@ void Daemon::after_engine() {
         // below the loop: on a stand PC of one core the heartbeat, the
         // watchdog and a quick stop go before the estimate (a thread's
         // nice value is its own on Linux; raising it needs no privilege)
-        if (::setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), kEstimateNice) != 0)
-          estimate_nice_errno = errno;
+        estimate_nice_errno =
+            ::setpriority(PRIO_PROCESS, static_cast<id_t>(::gettid()), kEstimateNice) != 0 ? errno
+                                                                                           : 0;
         try {
           auto r = est::estimate(input->input);
           if (r) {
@@ -1127,32 +1129,45 @@ int on_tx_retry(sd_event_source*, uint64_t, void* u) {
   });
 }
 
-/// Whether the program this process runs has been replaced or removed on
-/// disk: a package upgrade renames the new file over the old, whose inode
-/// this process still runs, and /proc/self/exe then names it "(deleted)".
-bool program_replaced() {
-  std::array<char, 4096> buf{};
-  const ssize_t n = ::readlink("/proc/self/exe", buf.data(), buf.size() - 1);
-  if (n <= 0) return false;  // no /proc: nothing known, nothing done
-  return std::string_view(buf.data(), static_cast<std::size_t>(n)).ends_with(" (deleted)");
+/// A reload (SIGHUP: `systemctl reload turncald`, and the package's
+/// postinst after an upgrade): the configuration and the program are read
+/// when turncald starts, so a socket-activated turncald exits once idle and
+/// its socket starts it anew, as installed then, on the next request. A run
+/// goes on with what it started with.
+void Daemon::ask_reload() {
+  if (!socket_activated) {
+    warn(
+        "SIGHUP ignored: not started by its systemd socket, nothing would start turncald "
+        "again; restart it by hand when no run is under way");
+    return;
+  }
+  exit_when_idle = true;
+  info(running() || worker_busy
+           ? "reload asked: turncald exits when this run has ended, and its socket starts it "
+             "anew on the next request"
+           : "reload asked: turncald exits now that no run is under way, and its socket starts "
+             "it anew on the next request");
 }
 
-/// An upgrade stops no service (the package's units say so): a run goes on
-/// with the program it started with. Once idle (no run, no estimate, no
-/// reply unsent), a daemon its socket started exits, and the next request
-/// starts the new program; the host heartbeat pauses between the two, with
-/// the table at rest. Read once a second of real time.
-void Daemon::exit_if_upgraded() {
-  if (!socket_activated || stopping || running() || worker_busy) return;
-  const std::uint64_t now = monotonic_us();
-  if (now - program_checked_us < 1'000'000) return;
-  program_checked_us = now;
-  for (const auto& c : clients)
-    if (!c->out.empty()) return;
-  if (!program_replaced()) return;
-  info(
-      "the program was replaced on disk (an upgrade) and no run is under way: exiting; the "
-      "socket starts the new one on the next request");
+/// Idle for a reload: no run, no estimate, no request part read or unread
+/// on a connection, no reply unsent. Never with a quick stop unconfirmed:
+/// that refusal of new runs, and the withheld heartbeat, live in this
+/// process only (a restart, by hand, is the operator's call).
+void Daemon::exit_if_reloading() {
+  if (!exit_when_idle || stopping || running() || worker_busy) return;
+  if (engine && engine->sequencer().course().quick_stop_gave_up) {
+    warn(
+        "reload refused: the last run's quick stop was never confirmed; check the table, "
+        "then restart turncald");
+    exit_when_idle = false;
+    return;
+  }
+  for (const auto& c : clients) {
+    int unread = 0;
+    if (!c->in.empty() || !c->out.empty() || ::ioctl(c->fd, FIONREAD, &unread) != 0 || unread > 0)
+      return;
+  }
+  info("reloading: exiting, idle; the socket starts turncald anew on the next request");
   stopping = true;
   sd_notify(0, "STOPPING=1");
   sd_event_exit(ev, 0);
@@ -1171,9 +1186,11 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
   }
   return guarded(d, "the timer", [&] {
     // the heartbeat goes out from this loop, between runs too: a table will
-    // not start a move for a host it has not heard from. First, before a
-    // flood's backlog is read: its period is the table's to judge, and the
-    // state it carries is the last tick's
+    // not start a move for a host it has not heard from. The reference
+    // table's goes first, before a flood's backlog is read (its period is
+    // the table's to judge), so it carries the last tick's state: withheld
+    // from the tick after a quick stop's give-up, one period (0.1 s) after
+    // it. (A CiA 402 master's NMT heartbeat is its own, sent by its tick.)
     const bool observing = d->running() && d->engine->sequencer().settings().observe;
     const bool gave_up = d->engine && d->engine->sequencer().course().quick_stop_gave_up;
     if (!d->cfg.daemon.observe && !observing && !gave_up) {
@@ -1204,7 +1221,7 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
     }
     d->after_engine();
     if (d->stopping && !d->running() && !d->worker_busy) sd_event_exit(d->ev, 0);
-    d->exit_if_upgraded();
+    d->exit_if_reloading();
     if (++d->timer_ticks % 5 == 0) d->broadcast_watch();
     d->reap_clients();
   });
@@ -1213,6 +1230,7 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
 int on_signal(sd_event_source*, const struct signalfd_siginfo* si, void* u) {
   auto* d = static_cast<Daemon*>(u);
   return guarded(d, "a signal", [&] {
+    if (si->ssi_signo == SIGHUP) return d->ask_reload();
     const char* name = si->ssi_signo == SIGTERM ? "SIGTERM" : "SIGINT";
     d->info(std::string(name) + " received");
     d->stopping = true;
@@ -1235,6 +1253,8 @@ int on_worker_done(sd_event_source*, int fd, uint32_t, void* u) {
     if (const int e = d->estimate_nice_errno.exchange(0); e != 0)
       d->warn(std::string("the estimate ran at the loop's priority (setpriority: ") +
               std::strerror(e) + ")");
+    else
+      d->info("the estimate ran at nice " + std::to_string(kEstimateNice) + ", below the loop");
     if (d->engine && d->report_done) {  // the run ended while it estimated
       d->input.reset();
       d->result.reset();
@@ -1334,9 +1354,11 @@ Status Daemon::setup() {
   sigemptyset(&ss);
   sigaddset(&ss, SIGTERM);
   sigaddset(&ss, SIGINT);
+  sigaddset(&ss, SIGHUP);
   sigprocmask(SIG_BLOCK, &ss, nullptr);
   TURNCAL_TRY(check(sd_event_add_signal(ev, nullptr, SIGTERM, on_signal, this), "SIGTERM"));
   TURNCAL_TRY(check(sd_event_add_signal(ev, nullptr, SIGINT, on_signal, this), "SIGINT"));
+  TURNCAL_TRY(check(sd_event_add_signal(ev, nullptr, SIGHUP, on_signal, this), "SIGHUP"));
   for (Port& p : ports) {
     p.owner = this;
     if (!p.sock) continue;

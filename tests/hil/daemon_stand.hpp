@@ -142,13 +142,25 @@ inline std::string raw_request(const hil::fs::path& sock, const std::string& byt
 /// Polls the daemon's status until its phase is `phase`: raw requests on
 /// the control socket every 20 ms (no turncalctl started each time: in a
 /// user-mode Linux guest a process start can take longer than a turn).
+/// The last status a wait_phase read: what a failed wait shows.
+inline std::string& last_status() {
+  static std::string s;
+  return s;
+}
+
+/// Waits until the daemon's run is in `phase`; false on the timeout, or at
+/// once when the run ended first (last_status() says how).
 inline bool wait_phase(const hil::fs::path& dir, const std::string& phase,
                        std::chrono::milliseconds timeout) {
   const std::string want = "\"phase\":\"" + phase + "\"";
   for (auto end = std::chrono::steady_clock::now() + timeout;
-       std::chrono::steady_clock::now() < end; std::this_thread::sleep_for(20ms))
-    if (raw_request(dir / "control.sock", "{\"cmd\":\"status\"}\n").find(want) != std::string::npos)
-      return true;
+       std::chrono::steady_clock::now() < end; std::this_thread::sleep_for(20ms)) {
+    last_status() = raw_request(dir / "control.sock", "{\"cmd\":\"status\"}\n");
+    if (last_status().find(want) != std::string::npos) return true;
+    for (const char* ended :
+         {"\"phase\":\"done\"", "\"phase\":\"failed\"", "\"phase\":\"aborted\""})
+      if (last_status().find(ended) != std::string::npos) return false;
+  }
   return false;
 }
 

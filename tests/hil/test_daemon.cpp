@@ -162,7 +162,7 @@ TEST_SUITE("daemon") {
     // with a slower turn, so the abort is surely in it)
     write_plan(dir.path, "slow.toml", 60, kSlowTurnDps);
     REQUIRE(ctl(dir.path, {"start", "--profile", (dir.path / "slow.toml").string()}) == 0);
-    REQUIRE(wait_phase(dir.path, "turn", 60000ms));
+    REQUIRE_MESSAGE(wait_phase(dir.path, "turn", 60000ms), last_status());
     CHECK(ctl(dir.path, {"abort"}) == 0);
     CHECK(ctl(dir.path, {"watch"}, "w2.out", 20000ms) == 1);  // the watched run ended aborted
     REQUIRE(ctl(dir.path, {"--json", "reports"}, "list2.json") == 0);
@@ -233,7 +233,7 @@ TEST_SUITE("daemon") {
       Child daemon({kDaemon, "--config", config}, dir.path);
       REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
       REQUIRE(ctl(dir.path, {"start"}) == 0);
-      REQUIRE(wait_phase(dir.path, "turn", 60000ms));
+      REQUIRE_MESSAGE(wait_phase(dir.path, "turn", 60000ms), last_status());
       daemon.terminate();
       CHECK(daemon.wait(20000ms) == 0);
     }
@@ -264,7 +264,7 @@ TEST_SUITE("daemon") {
       REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
       REQUIRE(ctl(dir.path, {"--json", "start"}, "start.json") == 0);
       killed = nlohmann::json::parse(slurp(dir.path / "start.json"))["run_id"];
-      REQUIRE(wait_phase(dir.path, "turn", 60000ms));
+      REQUIRE_MESSAGE(wait_phase(dir.path, "turn", 60000ms), last_status());
       // the destructor of a running Child sends SIGKILL
     }
     // the table's heartbeat timeout, 0.5 s of real time (start_sim), and

@@ -24,7 +24,7 @@ namespace {
 double cpu_seconds(pid_t pid) {
   std::ifstream in("/proc/" + std::to_string(pid) + "/stat");
   std::string line;
-  std::getline(in, line);
+  if (!std::getline(in, line) || line.rfind(')') == std::string::npos) return NAN;
   // the fields after the command's closing parenthesis: state is the 3rd
   // field of the line, utime and stime the 14th and 15th
   std::istringstream rest(line.substr(line.rfind(')') + 2));
@@ -113,7 +113,7 @@ TEST_SUITE("faults") {
     CHECK(json::parse(slurp(dir.path / "h.json"))["history"]["runs"].empty());
 
     const std::string id = start_run(dir.path);
-    REQUIRE(wait_phase(dir.path, "turn", 60000ms));
+    REQUIRE_MESSAGE(wait_phase(dir.path, "turn", 60000ms), last_status());
     // each of these killed turncald before
     CHECK(raw_request(sock, "{\"cmd\":\"abort\",\"reason\":1}\n").find("expected a string") !=
           std::string::npos);
@@ -231,7 +231,7 @@ TEST_SUITE("faults") {
     Child daemon = start_daemon(dir.path);
     REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
     const std::string id = start_run(dir.path);
-    REQUIRE(wait_phase(dir.path, "turn", 60000ms));
+    REQUIRE_MESSAGE(wait_phase(dir.path, "turn", 60000ms), last_status());
     std::this_thread::sleep_for(500ms);  // well into the turn: the table moves
     REQUIRE(std::system(("ip link set " + hil::if0() + " down").c_str()) == 0);
     std::this_thread::sleep_for(700ms);
@@ -324,7 +324,7 @@ TEST_SUITE("faults") {
     Child daemon = start_daemon(dir.path);
     REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
     const std::string id = start_run(dir.path);
-    REQUIRE(wait_phase(dir.path, "turn", 60000ms));
+    REQUIRE_MESSAGE(wait_phase(dir.path, "turn", 60000ms), last_status());
     // everything left, to another file (dd ends at "No space left")
     CHECK(std::system(("dd if=/dev/zero of=" + state + "/filler bs=16k 2>/dev/null").c_str()) != 0);
     CHECK(ctl(dir.path, {"watch"}, "w.out", 90000ms) == 1);
@@ -416,7 +416,7 @@ TEST_SUITE("faults") {
     Child daemon = start_daemon(dir.path);
     REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
     const std::string id = start_run(dir.path);
-    REQUIRE(wait_phase(dir.path, "turn", 60000ms));
+    REQUIRE_MESSAGE(wait_phase(dir.path, "turn", 60000ms), last_status());
     REQUIRE(std::system(table("error").c_str()) == 0);
     CHECK(ctl(dir.path, {"watch"}, "w.out", 90000ms) == 1);
     REQUIRE(ctl(dir.path, {"--json", "status"}, "st.json") == 0);
@@ -796,11 +796,11 @@ TEST_SUITE("faults") {
         if (steps > 0) (void)!std::system("date -s '-1 hour' >/dev/null");
       }
     } put_back;
-    REQUIRE(wait_phase(dir.path, "hold", 60000ms));
+    REQUIRE_MESSAGE(wait_phase(dir.path, "hold", 60000ms), last_status());
     std::this_thread::sleep_for(1000ms);
     REQUIRE(std::system("date -s '+1 hour' >/dev/null") == 0);
     put_back.steps = 1;
-    REQUIRE(wait_phase(dir.path, "turn", 60000ms));
+    REQUIRE_MESSAGE(wait_phase(dir.path, "turn", 60000ms), last_status());
     std::this_thread::sleep_for(300ms);
     REQUIRE(std::system("date -s '-1 hour' >/dev/null") == 0);
     put_back.steps = 0;

@@ -7,8 +7,10 @@
 #include <linux/rtnetlink.h>
 
 #include <cerrno>
+#include <cstdint>
 #include <cstring>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "turncal/drivers/socketcan.hpp"
@@ -155,12 +157,37 @@ TEST_SUITE("socketcan link kind") {
     Answer bad = newlink("vcan");
     bad.set_len<nlmsghdr>(0, 4);
     CHECK_FALSE(bad.kind());
-    // an attribute whose length overruns its message: no kind read past it
-    Answer over = newlink("vcan");
-    over.set_len<rtattr>(sizeof(nlmsghdr) + sizeof(ifinfomsg), 0xfff0);
-    const auto over_kind = over.kind();
-    REQUIRE(over_kind);
-    CHECK(over_kind->empty());
+    // an attribute whose length overruns its message, or is under its own
+    // header's: nothing read past it, and no answer
+    for (const unsigned short len : {std::uint16_t{0xfff0}, std::uint16_t{2}}) {
+      Answer over = newlink("vcan");
+      over.set_len<rtattr>(sizeof(nlmsghdr) + sizeof(ifinfomsg), len);
+      CAPTURE(len);
+      const auto over_kind = over.kind();
+      REQUIRE_FALSE(over_kind);
+      CHECK(over_kind.error().describe().find("malformed") != std::string::npos);
+    }
+    // the kind's own attribute overrunning the link info that holds it
+    Answer inner = newlink("vcan");
+    const std::size_t kind_at = inner.bytes.size() - 12;  // rtattr + "vcan\0" + pad
+    inner.set_len<rtattr>(kind_at, 40);
+    CHECK_FALSE(inner.kind());
+    // a link message too short for its ifinfomsg
+    Answer shorty;
+    const std::size_t m = shorty.begin_message(RTM_NEWLINK);
+    shorty.put(std::uint32_t{0});
+    shorty.end_message(m);
+    CHECK_FALSE(shorty.kind());
+  }
+
+  TEST_CASE("an answer for another interface than the one asked by its index is refused") {
+    const Answer a = newlink("vcan");  // index 7
+    const auto same = socketcan::link_kind_of_answer(a.bytes, "tcx0", 7);
+    REQUIRE(same);
+    CHECK(*same == "vcan");
+    const auto other = socketcan::link_kind_of_answer(a.bytes, "tcx0", 8);
+    REQUIRE_FALSE(other);
+    CHECK(other.error().describe().find("another interface") != std::string::npos);
   }
 
   TEST_CASE("the first RTM_NEWLINK after other messages is the answer") {

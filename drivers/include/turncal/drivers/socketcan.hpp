@@ -179,17 +179,22 @@ std::int64_t realtime_ns();
 /// "vcan", "vxcan", "can" for a real controller's CAN device (USB, PCI,
 /// SPI), ...); empty for a driver that registers no link kind (slcan, lo).
 Result<std::string> link_kind(const std::string& interface);
+/// The same for the interface of that index (the name only for messages):
+/// an answer for another index is an error.
+Result<std::string> link_kind(const std::string& interface, unsigned index);
 /// The link kind in rtnetlink's answer to RTM_GETLINK for `interface` (the
 /// bytes one recv took): the first RTM_NEWLINK's IFLA_LINKINFO /
-/// IFLA_INFO_KIND, empty when it has none; an NLMSG_ERROR's errno, or no
-/// answer (truncated, malformed, none), is an error.
-Result<std::string> link_kind_of_answer(std::span<const char> answer, const std::string& interface);
+/// IFLA_INFO_KIND, empty when it has none. An NLMSG_ERROR's errno, an
+/// answer cut short or malformed anywhere it is read, one for an index
+/// other than `index` (unless 0), or none, is an error.
+Result<std::string> link_kind_of_answer(std::span<const char> answer, const std::string& interface,
+                                        unsigned index = 0);
 /// Whether a link kind is a virtual CAN bus's (vcan, vxcan): a bus no real
 /// device is on.
 bool is_virtual_kind(std::string_view kind);
 /// Succeeds for a virtual CAN bus; otherwise says what the interface is (its
 /// kind, a device's interface, or that its kind cannot be read: counted as
-/// real).
-Status require_virtual_can(const std::string& interface);
+/// real). With `index`, the interface of that index (what a socket binds).
+Status require_virtual_can(const std::string& interface, unsigned index = 0);
 
 }  // namespace turncal::socketcan
