@@ -195,6 +195,8 @@ class Daemon {
   /// request: what lets a reload (SIGHUP) be an exit once idle.
   bool socket_activated = false;
   bool exit_when_idle = false;  ///< a reload asked for: the next idle tick exits
+  bool replaced_told = false;   ///< that the program was replaced on disk, said
+  std::uint64_t replaced_checked_us = 0;
   std::uint8_t heartbeat_counter = 0;
   std::optional<StateDir> state;
   /// Frames the bus has lately carried (what a run's log grows at).
@@ -1142,29 +1144,50 @@ void Daemon::ask_reload() {
     return;
   }
   exit_when_idle = true;
-  info(running() || worker_busy
-           ? "reload asked: turncald exits when this run has ended, and its socket starts it "
-             "anew on the next request"
-           : "reload asked: turncald exits now that no run is under way, and its socket starts "
-             "it anew on the next request");
+  if (running() || worker_busy)
+    info(
+        "reload asked: turncald exits when this run has ended, and its socket starts it anew "
+        "on the next request");
+  else
+    info("reload asked");  // the next tick says what it does
 }
 
-/// Idle for a reload: no run, no estimate, no request part read or unread
-/// on a connection, no reply unsent. Never with a quick stop unconfirmed:
+/// Idle for a reload: no run, no estimate, no frame waiting to go out, no
+/// connection made or heard from in the last second, no request part read
+/// or unread on one, no reply unsent. Never with a quick stop unconfirmed:
 /// that refusal of new runs, and the withheld heartbeat, live in this
-/// process only (a restart, by hand, is the operator's call).
+/// process only (a restart, by hand, is the operator's call). Without a
+/// reload asked for, a program replaced on disk (an upgrade whose reload
+/// did not come) is said once.
 void Daemon::exit_if_reloading() {
-  if (!exit_when_idle || stopping || running() || worker_busy) return;
+  if (stopping || running() || worker_busy) return;
+  const std::uint64_t now = monotonic_us();
+  if (!exit_when_idle) {
+    if (replaced_told || now - replaced_checked_us < 10'000'000) return;
+    replaced_checked_us = now;
+    std::array<char, 4096> exe{};
+    const ssize_t n = ::readlink("/proc/self/exe", exe.data(), exe.size() - 1);
+    if (n > 0 && std::string(exe.data(), static_cast<std::size_t>(n)).ends_with(" (deleted)")) {
+      warn(
+          "this program was replaced on disk (an upgrade?) and runs on as it was: `systemctl "
+          "reload turncald` starts the new one once no run is in progress");
+      replaced_told = true;
+    }
+    return;
+  }
   if (engine && engine->sequencer().course().quick_stop_gave_up) {
     warn(
-        "reload refused: the last run's quick stop was never confirmed; check the table, "
-        "then restart turncald");
+        "reload refused: the last run's quick stop was never confirmed; check the table, then "
+        "restart turncald");
     exit_when_idle = false;
     return;
   }
+  for (const Port& p : ports)
+    if (p.sock && p.sock->tx_pending()) return;
   for (const auto& c : clients) {
     int unread = 0;
-    if (!c->in.empty() || !c->out.empty() || ::ioctl(c->fd, FIONREAD, &unread) != 0 || unread > 0)
+    if (now - c->last_request_us < 1'000'000 || !c->in.empty() || !c->out.empty() ||
+        ::ioctl(c->fd, FIONREAD, &unread) != 0 || unread > 0)
       return;
   }
   info("reloading: exiting, idle; the socket starts turncald anew on the next request");

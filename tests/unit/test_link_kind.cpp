@@ -171,7 +171,9 @@ TEST_SUITE("socketcan link kind") {
     Answer inner = newlink("vcan");
     const std::size_t kind_at = inner.bytes.size() - 12;  // rtattr + "vcan\0" + pad
     inner.set_len<rtattr>(kind_at, 40);
-    CHECK_FALSE(inner.kind());
+    const auto inner_kind = inner.kind();
+    REQUIRE_FALSE(inner_kind);
+    CHECK(inner_kind.error().describe().find("malformed link info") != std::string::npos);
     // a link message too short for its ifinfomsg
     Answer shorty;
     const std::size_t m = shorty.begin_message(RTM_NEWLINK);
