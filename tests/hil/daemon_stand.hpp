@@ -98,11 +98,30 @@ inline void write_stand(const hil::fs::path& dir, const std::string& iface, bool
 }
 
 /// turncalctl with these arguments; its exit status, its stdout in `out`.
+/// The time allowed is for a process start in a guest whose one CPU the
+/// stand, the daemon and the test share; one that takes over 3 s says so.
 inline int ctl(const hil::fs::path& dir, std::vector<std::string> args,
-               const std::string& out = "ctl.out", std::chrono::milliseconds timeout = 10000ms) {
+               const std::string& out = "ctl.out", std::chrono::milliseconds timeout = 30000ms) {
   args.insert(args.begin(), {kCtl, "--socket", (dir / "control.sock").string()});
+  std::string what;
+  bool long_by_design = false;  // a watch lasts the run; a replay runs a filter
+  for (const auto& a : args) {
+    what += a + " ";
+    long_by_design = long_by_design || a == "watch" || a == "--watch" || a == "replay";
+  }
+  const auto t0 = std::chrono::steady_clock::now();
   hil::Child c(args, dir, dir / out);
-  return c.wait(timeout);
+  const int rc = c.wait(timeout);
+  const auto ms =
+      std::chrono::duration_cast<std::chrono::milliseconds>(std::chrono::steady_clock::now() - t0)
+          .count();
+  // a slow or stuck turncalctl says where it was and what it had printed
+  if (rc < 0)
+    MESSAGE(what << "did not end in " << ms << " ms; it was in " << c.proc_state()
+                 << "; its stdout: " << slurp(dir / out));
+  else if (ms > 3000 && !long_by_design)
+    MESSAGE(what << "took " << ms << " ms");
+  return rc;
 }
 
 /// A connection to the control socket, whose reads give up after 10 s (a
@@ -137,6 +156,13 @@ inline std::string raw_request(const hil::fs::path& sock, const std::string& byt
   while (::recv(fd, &c, 1, 0) == 1 && c != '\n') out += c;
   ::close(fd);
   return out;
+}
+
+/// An abort sent at once on the control socket, its reply: what a case that
+/// must act within a turn uses (turncalctl's own abort is tested where its
+/// start-up time does not matter).
+inline std::string abort_now(const hil::fs::path& dir, const std::string& reason) {
+  return raw_request(dir / "control.sock", "{\"cmd\":\"abort\",\"reason\":\"" + reason + "\"}\n");
 }
 
 /// Polls the daemon's status until its phase is `phase`: raw requests on

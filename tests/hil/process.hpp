@@ -56,6 +56,18 @@ class Child {
       ::waitpid(pid_, nullptr, 0);
     }
   }
+  /// What the kernel says the child is doing ("S do_select", "R 0"...):
+  /// what a child that did not end in time shows before it is killed.
+  [[nodiscard]] std::string proc_state() const {
+    if (pid_ <= 0) return "ended";
+    const std::string base = "/proc/" + std::to_string(pid_) + "/";
+    std::string stat = read_small(base + "stat");
+    const auto close = stat.rfind(')');
+    const std::string state = close != std::string::npos && close + 2 < stat.size()
+                                  ? stat.substr(close + 2, 1)
+                                  : std::string("?");
+    return state + " " + read_small(base + "wchan");
+  }
   /// Exit status, or -1 when it did not end within `timeout` (then killed).
   int wait(std::chrono::milliseconds timeout) {
     const auto end = std::chrono::steady_clock::now() + timeout;
@@ -72,6 +84,14 @@ class Child {
   }
 
  private:
+  static std::string read_small(const std::string& path) {
+    const int fd = ::open(path.c_str(), O_RDONLY);
+    if (fd < 0) return "?";
+    char buf[512];
+    const ssize_t n = ::read(fd, buf, sizeof buf);
+    ::close(fd);
+    return n > 0 ? std::string(buf, static_cast<std::size_t>(n)) : std::string("?");
+  }
   pid_t pid_ = -1;
 };
 

@@ -163,8 +163,12 @@ TEST_SUITE("daemon") {
     write_plan(dir.path, "slow.toml", 60, kSlowTurnDps);
     REQUIRE(ctl(dir.path, {"start", "--profile", (dir.path / "slow.toml").string()}) == 0);
     REQUIRE_MESSAGE(wait_phase(dir.path, "turn", 60000ms), last_status());
-    CHECK(ctl(dir.path, {"abort"}) == 0);
-    CHECK(ctl(dir.path, {"watch"}, "w2.out", 20000ms) == 1);  // the watched run ended aborted
+    const std::string aborted = abort_now(dir.path, "aborted in the turn");
+    CHECK(aborted.find("\"ok\":true") != std::string::npos);
+    CHECK(ctl(dir.path, {"watch"}, "w2.out") == 1);  // the watched run ended aborted
+    // turncalctl's abort with no run to abort: refused, the daemon says why
+    CHECK(ctl(dir.path, {"--json", "abort"}, "abort.json") == 1);
+    CHECK(slurp(dir.path / "abort.json").find("no run in progress") != std::string::npos);
     REQUIRE(ctl(dir.path, {"--json", "reports"}, "list2.json") == 0);
     const auto reports2 = nlohmann::json::parse(slurp(dir.path / "list2.json"));
     REQUIRE(reports2["reports"].size() == 2);
@@ -172,6 +176,9 @@ TEST_SUITE("daemon") {
     const auto r2 = nlohmann::json::parse(slurp(dir.path / "state" / (id2 + ".report.json")));
     CHECK(r2["status"] == "aborted");
     CHECK(r2["phases"].back()["phase"] == "aborted");
+    CHECK(r2["reason"] == "aborted in the turn");
+    REQUIRE(r2["phases"].size() >= 2);
+    CHECK(r2["phases"][r2["phases"].size() - 2]["phase"] == "turn");  // in the turn
     CHECK(r2["quick_stop"]["sent"] == true);
     CHECK(r2["quick_stop"]["acknowledged"] == true);
     // its log is kept and replays whole: hold 1 and the turn up to the abort
