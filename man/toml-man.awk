@@ -60,6 +60,11 @@ head && /^$/ { head = 0; if (nintro > 0 && !intro_done) { print ".SH DESCRIPTION
   flush_keys(); flush_example()
   print ".SS " esc(sec)
   if (ntext > 0) { print ".PP"; flush_text() }
+  # a section taken from an example stand shows that stand's values
+  if (FILENAME == onlyfile) {
+    print ".PP"
+    line_out("The values shown are the example CiA 402 stand's (stands/cia402/turncal.toml), not always the defaults: each key's description gives its default.")
+  }
   next
 }
 skipping { if (/^#/) { sub(/^# ?/, ""); text[++ntext] = $0 } else if (/^$/) ntext = 0; next }

@@ -486,6 +486,7 @@ ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, st
   const ParamVec prior = prior_params(in.priors);
   ParamMat consider = ParamMat::Zero();
   int considered = 0;
+  std::string which;
   for (int i = 0; i < 2; ++i) {
     ParamVec dir = ParamVec::Zero();  // df_z_i and g Theta_i3 by the same: df_obs kept
     dir(sx::kDf0 - sx::kNu0 + i) = 1;
@@ -509,19 +510,24 @@ ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, st
         break;
       }
       x[side] = moved->x.segment<sx::kParams>(sx::kNu0);
+      if (!x[side].allFinite()) {  // a covariance term of NaN would void every sigma
+        failed = "the estimate moved by the split is not finite";
+        break;
+      }
     }
     if (!failed.empty()) {
       told += "; the split of df_obs_" + std::to_string(i + 1) + " not considered: " + failed;
       continue;
     }
     ++considered;
+    which += (which.empty() ? "" : ", ") + std::string("df_obs_") + std::to_string(i + 1);
     // the same data and prior: a linear model would give the same
     // estimates about either point
     const ParamVec d = 0.5 * (x[0] - x[1]);
     consider += d * d.transpose();
   }
   if (considered > 0)
-    told += "; its sensitivity to how df_obs splits (" + std::to_string(considered) +
+    told += "; its sensitivity to how df_obs splits (" + which + ": " + std::to_string(considered) +
             " of 2 axes) added to the covariance";
   return consider;
 }

@@ -229,6 +229,7 @@ TEST_SUITE("second pass") {
     // holds; the estimates themselves are those of the same iterations.
     Simulated run = recommended_run(3.0, 2000);
     run.in.second_pass.mode = est::SecondPassSettings::Mode::Always;
+    run.in.with_two_stage = true;
     const auto with = est::estimate(run.in);
     est::EstimationInput without_in = run.in;
     without_in.second_pass.consider_split = false;
@@ -236,9 +237,15 @@ TEST_SUITE("second pass") {
     REQUIRE(with.ok());
     REQUIRE(without.ok());
     MESSAGE(with->second_pass.reason);
-    CHECK(with->second_pass.reason.find("2 of 2 axes") != std::string::npos);
+    CHECK(with->second_pass.reason.find("(df_obs_1, df_obs_2: 2 of 2 axes)") != std::string::npos);
     CHECK(without->second_pass.reason.find("axes") == std::string::npos);
     CHECK(with->x == without->x);
+    // the two-stage baseline compares the filters on the linear covariance:
+    // the consider term is not in it
+    REQUIRE(with->has_two_stage);
+    REQUIRE(without->has_two_stage);
+    CHECK(with->two_stage.sigma == without->two_stage.sigma);
+    CHECK(with->two_stage.ratio == without->two_stage.ratio);
     double widest = 0;
     for (std::size_t i = 0; i < 2; ++i) {
       const double ratio = with->df_obs[i].sigma / without->df_obs[i].sigma;
@@ -262,7 +269,7 @@ TEST_SUITE("second pass") {
     const auto r = est::estimate(run.in);
     REQUIRE(r.ok());
     MESSAGE(r->second_pass.reason);
-    CHECK(r->second_pass.reason.find("1 of 2 axes") != std::string::npos);
+    CHECK(r->second_pass.reason.find("(df_obs_2: 1 of 2 axes)") != std::string::npos);
   }
 
   TEST_CASE("without a nominal, or turned off, it says so and the first pass stands") {
