@@ -8,6 +8,11 @@ namespace turncal::run {
 
 namespace {
 
+/// What a fault found at a run's start needs: a person at the stand.
+constexpr const char* kUnseenFault =
+    ": turncal resets no fault whose cause it did not see; reset it at the stand, then start "
+    "again";
+
 constexpr double kPi = std::numbers::pi;
 constexpr double kDeg = kPi / 180;
 
@@ -420,7 +425,10 @@ void Sequencer::on_table(const TableStatusEvent& e, std::vector<Command>& out) {
     // the table as it is before we command it: a drive in fault or moving
     // is not enabled (a quick-stopped one is: enable clears it)
     if (e.state == kFault)
-      return fail(t, "table fault: " + (e.fault_name.empty() ? "unknown" : e.fault_name), out);
+      return fail(t,
+                  "table fault: " + (e.fault_name.empty() ? "unknown" : e.fault_name) +
+                      ", found before the run commanded the table" + kUnseenFault,
+                  out);
     if (e.state == kMoving)
       return fail(t, "the table is moving before the run commanded it: stop it at the stand", out);
     enable_pending_ = false;
@@ -435,7 +443,13 @@ void Sequencer::on_table(const TableStatusEvent& e, std::vector<Command>& out) {
   }
   const bool ours_acked = !awaiting_ack_ && e.ack == seq_;
   if (e.state == kFault)
-    return fail(t, "table fault: " + (e.fault_name.empty() ? "unknown" : e.fault_name), out);
+    return fail(t,
+                "table fault: " + (e.fault_name.empty() ? "unknown" : e.fault_name) +
+                    // a drive first heard once enabled (a CANopen one starts
+                    // up first) may show a fault from before the run
+                    (deadline_is_enable_ ? std::string(", found while enabling it") + kUnseenFault
+                                         : std::string()),
+                out);
   if (e.state == kQuickStopped && ours_acked)
     return fail(t,
                 "the table quick-stopped by itself" +

@@ -21,6 +21,8 @@
 #include <utility>
 #include <vector>
 
+#include <nlohmann/json.hpp>
+
 #include "hil.hpp"
 #include "process.hpp"
 #include "turncal/can/candump.hpp"
@@ -119,6 +121,8 @@ inline int ctl(const hil::fs::path& dir, std::vector<std::string> args,
   if (rc < 0)
     MESSAGE(what << "did not end in " << ms << " ms; it was in " << c.proc_state()
                  << "; its stdout: " << slurp(dir / out));
+  else if (rc > 128)
+    MESSAGE(what << "was ended by signal " << rc - 128 << " after " << ms << " ms");
   else if (ms > 3000 && !long_by_design)
     MESSAGE(what << "took " << ms << " ms");
   return rc;
@@ -162,7 +166,8 @@ inline std::string raw_request(const hil::fs::path& sock, const std::string& byt
 /// must act within a turn uses (turncalctl's own abort is tested where its
 /// start-up time does not matter).
 inline std::string abort_now(const hil::fs::path& dir, const std::string& reason) {
-  return raw_request(dir / "control.sock", "{\"cmd\":\"abort\",\"reason\":\"" + reason + "\"}\n");
+  const nlohmann::json req = {{"cmd", "abort"}, {"reason", reason}};
+  return raw_request(dir / "control.sock", req.dump() + "\n");
 }
 
 /// Polls the daemon's status until its phase is `phase`: raw requests on

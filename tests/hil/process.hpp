@@ -68,7 +68,8 @@ class Child {
                                   : std::string("?");
     return state + " " + read_small(base + "wchan");
   }
-  /// Exit status, or -1 when it did not end within `timeout` (then killed).
+  /// Exit status, 128 + the signal's number when a signal ended it (as a
+  /// shell says), or -1 when it did not end within `timeout` (then killed).
   int wait(std::chrono::milliseconds timeout) {
     const auto end = std::chrono::steady_clock::now() + timeout;
     int status = 0;
@@ -76,7 +77,7 @@ class Child {
       const pid_t r = ::waitpid(pid_, &status, WNOHANG);
       if (r == pid_) {
         pid_ = -1;
-        return WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+        return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
       }
       std::this_thread::sleep_for(10ms);
     }

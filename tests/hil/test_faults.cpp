@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <fstream>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <sstream>
 
@@ -881,6 +882,18 @@ std::string cia402_sections() {
   return sections;
 }
 
+/// The EMCYs 0x8130 (life guard or heartbeat error: ours lost) the drive
+/// (node 1) sends on `iface` within `window`.
+int lost_host_emcys(const std::string& iface, std::chrono::milliseconds window) {
+  auto bus = hil::open(iface);
+  const auto rx = hil::receive(bus, std::numeric_limits<std::size_t>::max(), window);
+  int n = 0;
+  for (const auto& f : rx.frames)
+    n += f.frame.id == 0x81 && f.frame.len == 8 && f.frame.data[0] == 0x30 &&
+         f.frame.data[1] == 0x81;
+  return n;
+}
+
 }  // namespace
 
 TEST_SUITE("faults of a CiA 402 drive through the daemon") {
@@ -918,6 +931,82 @@ TEST_SUITE("faults of a CiA 402 drive through the daemon") {
     const double angle = st["drive"]["angle_deg"].get<double>();
     CHECK(angle > 10);
     CHECK(angle < 170);
+  }
+
+  TEST_CASE(
+      "a CiA 402 stand: turncald stopped when idle, as a reload does: the drive takes its abort "
+      "connection option on losing our heartbeat; the next run takes up a quick-stopped drive "
+      "and refuses one in fault") {
+    struct Case {
+      const char* name;
+      int option;     ///< abort connection option code, 0x6007
+      bool taken_up;  ///< the next run done; else refused, nothing moved
+    };
+    const std::vector<Case> cases = {
+        {"3, quick stop (shipped): taken up again", 3, true},
+        // a fault found before the run: its cause was not seen (the EMCY
+        // went out while no turncald listened), so it is no fault of ours
+        // to reset
+        {"1, fault: refused until reset at the stand", 1, false},
+    };
+    for (const Case& k : cases) SUBCASE(k.name) {
+        hil::TempDir dir;
+        std::string sections = cia402_sections();
+        const std::string key = "\nabort_connection_option_code = ";
+        const auto at = sections.find(key);
+        REQUIRE(at != std::string::npos);
+        sections.replace(at + key.size(), 1, std::to_string(k.option));
+        write_stand(dir.path, hil::if0(), false, 40, 30, "config/stands/cia402/cia402.dbc",
+                    sections);
+        Child sim = start_sim(dir.path, "5", {"--state-out", "stand.json"});
+        {
+          // a run done leaves the drive in operation enabled, holding,
+          // watching our heartbeat (0x1016), which the idle daemon goes on
+          // sending
+          Child daemon = start_daemon(dir.path);
+          REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+          const std::string first = start_run(dir.path);
+          CHECK(ctl(dir.path, {"watch"}, "w1.out", 120000ms) == 0);
+          CHECK(report_of(dir.path, first)["status"] == "done");
+          // idle for twice the drive's consumer time (5000 ms of the
+          // stand's time, 1.25 s real): no loss of ours
+          CHECK(lost_host_emcys(hil::if0(), 2500ms) == 0);
+          daemon.terminate();
+          CHECK(daemon.wait(10000ms) == 0);
+        }
+        // our heartbeat gone: the drive says so
+        CHECK(lost_host_emcys(hil::if0(), 2500ms) == 1);
+        Child daemon = start_daemon(dir.path);
+        REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+        const std::string id = start_run(dir.path);
+        CHECK(ctl(dir.path, {"watch"}, "w.out", 120000ms) == (k.taken_up ? 0 : 1));
+        const json r = report_of(dir.path, id);
+        const std::string reason = r.value("reason", std::string());
+        CAPTURE(reason);
+        CHECK(r["status"] == (k.taken_up ? "done" : "failed"));
+        if (k.taken_up) {
+          REQUIRE(r["turns_achieved"].size() == 1);  // it turned: 0 in prepare, then 180
+          CHECK(std::abs(r["turns_achieved"][0]["angle_rad"].get<double>() - M_PI) < 1e-3);
+        } else {
+          CHECK(reason.starts_with("table fault: drive in fault (statusword"));
+          CHECK(reason.find("reset it at the stand") != std::string::npos);
+          CHECK(r["phases"][r["phases"].size() - 2]["phase"] == "prepare");
+        }
+        // the stand's account taken while this turncald still sends its
+        // heartbeat (stopping it first would be a second loss, in a race)
+        const json st = stand_state(sim, dir.path);
+        daemon.terminate();
+        CHECK(daemon.wait(10000ms) == 0);
+        REQUIRE(st["drive"].is_object());
+        CHECK(st["drive"]["host_heartbeat_lost"] == 1);
+        if (k.option == 3) CHECK(st["drive"]["quick_stops"] == 1);  // the loss's alone
+        CHECK(st["drive"]["coasts"] == 0);
+        CHECK(st["drive"]["moving"] == false);
+        CHECK(st["drive"]["state"] == (k.taken_up ? "operation enabled" : "fault"));
+        // where the first run's turn left it (the second's prepare takes
+        // it back to 0, its turn to 180 again), or never moved since
+        CHECK(std::abs(st["drive"]["angle_deg"].get<double>() - 180) < 0.01);
+      }
   }
 
   TEST_CASE(

@@ -244,7 +244,6 @@ TEST_SUITE("second pass") {
     // the consider term is not in it
     REQUIRE(with->has_two_stage);
     REQUIRE(without->has_two_stage);
-    CHECK(with->two_stage.sigma == without->two_stage.sigma);
     CHECK(with->two_stage.ratio == without->two_stage.ratio);
     double widest = 0;
     for (std::size_t i = 0; i < 2; ++i) {

@@ -356,7 +356,9 @@ TEST_SUITE("sequencer") {
       REQUIRE(out.size() == 1);  // a quick stop, never an enable
       CHECK(std::get<TableCommand>(out[0]).code == TableCode::QuickStop);
       CHECK(q.course().reason ==
-            (state == 4 ? "table fault: stall"
+            (state == 4 ? "table fault: stall, found before the run commanded the table: turncal "
+                          "resets no fault whose cause it did not see; reset it at the stand, then "
+                          "start again"
                         : "the table is moving before the run commanded it: stop it at the stand"));
     }
   }
