@@ -254,8 +254,10 @@ void Ingest::saw(Stream s, double host_s, double device_s) {
   if (std::isnan(h.first_host_s)) h.first_host_s = host_s;
   h.last_host_s = host_s;
   double& last = last_device_s_[s];
-  if (std::isnan(device_s)) {
-    // no device clock (table status): the mean receive rate
+  if (std::isnan(device_s) || device_s == host_s) {
+    // no device clock (table status), or one that is the receive time
+    // itself (a CiA 402 TPDO without SYNC): the mean receive rate, and no
+    // gaps counted, as two frames read in one burst are no period
     h.nominal_hz = h.rate_hz();
     return;
   }

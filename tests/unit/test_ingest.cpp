@@ -6,6 +6,7 @@
 #include <numbers>
 #include <random>
 
+#include "turncal/drivers/reference.hpp"
 #include "turncal/run/ingest.hpp"
 #include "turncal/run/sequencer.hpp"
 
@@ -203,6 +204,60 @@ TEST_SUITE("ingest") {
     in4.on_frame(ranged.vel(30, true, tag, 150.0));
     CHECK(std::holds_alternative<VelocitySample>(in4.on_frame(ranged.vel(30, false, tag, 0.0))));
     CHECK(in4.health(kVelocity).implausible == 0);
+  }
+
+  /// The reference table, its encoder samples timed by their receive time
+  /// (a fake seam: a CiA 402 drive's TPDO without SYNC has no clock of its
+  /// own either).
+  class ReceiveTimed : public TableDriver {
+   public:
+    explicit ReceiveTimed(std::unique_ptr<TableDriver> t) : t_(std::move(t)) {}
+    Decoded decode(const FrameView& v) override {
+      Decoded d = t_->decode(v);
+      if (d.verdict == Decoded::Verdict::Taken && d.stream == kEncoder) d.device_s = v.host_s;
+      return d;
+    }
+    void accept_encoder() override { t_->accept_encoder(); }
+    [[nodiscard]] double angle_resolution_rad() const override {
+      return t_->angle_resolution_rad();
+    }
+    Result<std::vector<can::Frame>> command(const TableCommand& c) override {
+      return t_->command(c);
+    }
+    [[nodiscard]] std::vector<can::Frame> heartbeat(std::uint8_t c, int s) const override {
+      return t_->heartbeat(c, s);
+    }
+    [[nodiscard]] SignalSpan target() const override { return t_->target(); }
+    [[nodiscard]] SignalSpan rate_limit() const override { return t_->rate_limit(); }
+    [[nodiscard]] std::vector<std::pair<std::uint32_t, bool>> receive_ids() const override {
+      return t_->receive_ids();
+    }
+
+   private:
+    std::unique_ptr<TableDriver> t_;
+  };
+
+  TEST_CASE("an encoder timed by its receive time: frames read in a burst count no drops") {
+    Ref r;
+    Ingest in(r.db, drivers::make_reference_ins(r.roles, {}),
+              std::make_unique<ReceiveTimed>(drivers::make_reference_table(r.roles, {})));
+    auto enc = [&](double host, int k) {
+      return in.on_frame(
+          r.at(host, r.roles.encode(Role::EncoderAngle, {{Role::EncoderAngle, 0.0},
+                                                         {Role::EncoderTimeTag, 1e6 + 4e4 * k}})));
+    };
+    // 25 Hz, the 11th frame read 0.1 ms after the 10th (the host was late)
+    int kept = 0;
+    for (int k = 0; k < 100; ++k)
+      kept +=
+          std::holds_alternative<EncoderSample>(enc(10 + 0.04 * k + (k == 10 ? -0.0399 : 0), k));
+    CHECK(kept == 100);
+    // timed by the receive time, a gap is no drop: the period a burst
+    // showed would make every later interval hundreds of "lost" frames
+    CHECK(in.health(kEncoder).dropped == 0);
+    CHECK(in.health(kEncoder).nominal_hz == doctest::Approx(in.health(kEncoder).rate_hz()));
+    CHECK(in.health(kEncoder).nominal_hz > 24);
+    CHECK(in.health(kEncoder).nominal_hz < 26);
   }
 
   TEST_CASE("an encoder step faster than the table can turn is skipped, and turns nothing") {
