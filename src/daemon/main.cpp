@@ -282,6 +282,9 @@ struct Client {
   bool watching = false;
   std::uint64_t last_request_us = 0;  ///< monotonic
   std::uint64_t unread_since_us = 0;  ///< monotonic; 0: nothing waits
+  /// monotonic: when the unfinished request line in `in` began (its first
+  /// byte); 0: none
+  std::uint64_t partial_since_us = 0;
   ~Client() {
     sd_event_source_unref(src);
     ::close(fd);
@@ -967,7 +970,12 @@ void Daemon::reap_clients() {
   const std::uint64_t now = monotonic_us();
   const auto idle = static_cast<std::uint64_t>(cfg.daemon.client_idle_s * 1e6);
   for (auto& c : clients) {
-    if (c->unread_since_us != 0 && now - c->unread_since_us > idle) {
+    if (!c->in.empty() && now - c->partial_since_us > idle) {
+      // a line never finished (a watcher's too) would hold a reload off
+      warn("control client dropped: a request left unfinished for " +
+           std::to_string(static_cast<int>(cfg.daemon.client_idle_s)) + " s");
+      c->broken = true;
+    } else if (c->unread_since_us != 0 && now - c->unread_since_us > idle) {
       warn("control client dropped: its replies were left unread for " +
            std::to_string(static_cast<int>(cfg.daemon.client_idle_s)) + " s");
       c->broken = true;
@@ -1035,11 +1043,13 @@ int on_client(sd_event_source*, int fd, uint32_t revents, void* u) {
             c->close_after = true;
           } else if (n > 0) {
             c->last_request_us = monotonic_us();
+            if (c->in.empty()) c->partial_since_us = c->last_request_us;
             c->in.append(buf, static_cast<std::size_t>(n));
             std::size_t nl;
             while (!c->close_after && !c->broken && (nl = c->in.find('\n')) != std::string::npos) {
               const std::string line = c->in.substr(0, nl);
               c->in.erase(0, nl + 1);
+              c->partial_since_us = c->last_request_us;  // what follows began in this read
               if (line.size() > kMaxRequest) {
                 c->reply({{"ok", false}, {"error", "request too large"}});
                 c->close_after = true;

@@ -172,9 +172,36 @@ TEST_SUITE("faults") {
     REQUIRE(::send(greedy, reqs.data(), reqs.size(), MSG_NOSIGNAL) ==
             static_cast<ssize_t>(reqs.size()));
     const int silent = connect_control(sock);
-    std::this_thread::sleep_for(3000ms);
+    // a watcher that leaves its next request unfinished (it would hold a
+    // reload off), and one that sends a line a byte at a time, never ending it
+    const int unfinished = connect_control(sock);
+    const std::string part = "{\"cmd\":\"watch\"}\n{\"cmd\":\"sta";
+    REQUIRE(::send(unfinished, part.data(), part.size(), MSG_NOSIGNAL) ==
+            static_cast<ssize_t>(part.size()));
+    const int trickle = connect_control(sock);
+    int sent = 0;  // until the daemon closes it
+    for (; sent < 20 && ::send(trickle, "x", 1, MSG_NOSIGNAL) == 1; ++sent)
+      std::this_thread::sleep_for(300ms);
+    MESSAGE("the trickle sent " << sent << " bytes, one each 0.3 s, before it was dropped");
+    CHECK(sent >= 4);  // not before its line had taken a second
+    CHECK(sent < 20);
     char c;
     CHECK(::recv(silent, &c, 1, 0) == 0);  // closed by the daemon
+    // the watcher got its statuses, then was closed (it would get one each
+    // 0.5 s for ever otherwise: 10 s at most)
+    std::size_t statuses = 0;
+    ssize_t last = -1;
+    {
+      std::string wbuf(65536, '\0');
+      const auto until = std::chrono::steady_clock::now() + 10s;
+      while (std::chrono::steady_clock::now() < until &&
+             (last = ::recv(unfinished, wbuf.data(), wbuf.size(), 0)) > 0)
+        statuses += static_cast<std::size_t>(std::count(wbuf.begin(), wbuf.begin() + last, '\n'));
+    }
+    CHECK(statuses >= 1);
+    CHECK(last == 0);
+    ::close(unfinished);
+    ::close(trickle);
     std::size_t replies = 0;
     std::string buf(65536, '\0');
     for (ssize_t n; (n = ::recv(greedy, buf.data(), buf.size(), 0)) > 0;)
@@ -218,6 +245,13 @@ TEST_SUITE("faults") {
     CHECK(log.find("control client dropped: its replies were left unread for 1 s") !=
           std::string::npos);
     CHECK(log.find("control client dropped: no request for 1 s") != std::string::npos);
+    std::size_t unfinished_drops = 0;
+    for (std::size_t at = 0;
+         (at = log.find("control client dropped: a request left unfinished for 1 s", at)) !=
+         std::string::npos;
+         ++at)
+      ++unfinished_drops;
+    CHECK(unfinished_drops == 2);  // the watcher and the trickle
   }
 
   TEST_CASE(
