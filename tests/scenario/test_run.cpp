@@ -1286,6 +1286,100 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(std::abs(up.dv2 - up_before.dv2) <= 4 * s_up);
   }
 
+  TEST_CASE("the calibration file's Theta_33, from whole revolutions, applied to the IMU output") {
+    // The recommended navigation-grade plan: four reversals and ten whole
+    // revolutions, which determine the vertical gyro's scale factor. It is
+    // injected at 100 ppm, three times its prior and some twelve of its
+    // predicted sigma (8.5 ppm), sign fixed, the other errors as drawn: a
+    // file that left Theta_33 out fails by some 12 sigma, one with its sign
+    // wrong by 24. The file is applied as its convention says, w = (I +
+    // Theta)^-1 (w_m - nu0), with the terms it gives (Theta_33 alone of
+    // the Theta, nu0_1 and nu0_2) and none it leaves out; over the ten
+    // revolutions, against as long a hold before them (which takes out the
+    // vertical bias the file rightly leaves alone), what is left of the
+    // vertical gyro's error must be within 4 of the file's sigmas (a
+    // consistent filter fails such a check with probability 6e-5).
+    const Plan plan = load("navigation-grade-recommended.toml");
+    stand::StandSetup setup = setup_of(plan, 32);
+    sim::SensorErrors& e = setup.ins.sim.errors;
+    e.theta(2, 2) = 100e-6;
+    ClosedLoop c(plan, setup);
+    c.run_until(plan.profile.align_s + plan.profile.duration_s + 60);
+    REQUIRE_MESSAGE(c.phase() == run::Phase::Done, c.course().reason, c.estimation_error);
+    auto made = run::calibration_json(c.written);
+    REQUIRE_MESSAGE(made.ok(), (made.ok() ? "" : made.error().describe()));
+    const nlohmann::json f = nlohmann::json::parse(made->dump());
+    // Theta_33 is the one Theta term in it; the vertical bias, partly
+    // determined, is not a correction
+    REQUIRE(f["gyro"].contains("scale_misalignment"));
+    const auto& sm = f["gyro"]["scale_misalignment"];
+    REQUIRE(sm.contains("theta_33"));
+    CHECK(sm.size() == 1);
+    CHECK_FALSE(f["gyro"]["bias"].contains("nu0_3"));
+    REQUIRE(f["not_determined"].contains("nu0_3"));
+    CHECK(std::string(f["not_determined"]["nu0_3"]).find("partly determined") == 0);
+    const double th33 = sm["theta_33"]["value"];
+    const double s33 = sm["theta_33"]["sigma"];
+    CHECK(sm["theta_33"]["display_unit"] == "ppm");
+    CHECK(sm["theta_33"]["display_value"].get<double>() ==
+          doctest::Approx(th33 * 1e6).epsilon(1e-12));
+    // its variance in the covariance of the determined block
+    const auto& cov = f["covariance"];
+    bool in_cov = false;
+    for (std::size_t k = 0; k < cov["order"].size(); ++k)
+      if (cov["order"][k] == "theta_33") {
+        in_cov = true;
+        CHECK(std::sqrt(cov["matrix"][k][k].get<double>()) == doctest::Approx(s33).epsilon(1e-12));
+      }
+    CHECK(in_cov);
+
+    // the IMU's output with the injected errors and without (the truth),
+    // noise-free, over the plan's motion
+    sim::Config with = setup.ins.sim;
+    with.profile = plan.profile;
+    with.motion = nullptr;
+    with.noise = sim::Noise{};
+    sim::Config none = with;
+    none.errors = sim::SensorErrors{};
+    sim::Strapdown raw(with), ideal(none);
+    Eigen::Vector3d nu0 = Eigen::Vector3d::Zero();  // nu0_3 absent: no correction
+    for (int i = 0; i < 2; ++i)
+      nu0(i) = f["gyro"]["bias"][i == 0 ? "nu0_1" : "nu0_2"]["value"].get<double>();
+    Eigen::Matrix3d theta = Eigen::Matrix3d::Zero();
+    theta(2, 2) = th33;
+    const Eigen::Matrix3d unscale = (Eigen::Matrix3d::Identity() + theta).inverse();
+    const double dt = 1.0 / with.imu_rate_hz;
+    // int (w_3 - w_true_3) dt over [t0, t1), corrected and raw, one IMU
+    // period at a time
+    auto vertical = [&](double t0, double t1) {
+      std::pair<double, double> err{0, 0};
+      const auto n = static_cast<long>(std::ceil((t1 - t0) / dt));
+      for (long k = 0; k < n; ++k) {
+        const double ta = t0 + static_cast<double>(k) * dt;
+        const auto m = raw.imu(ta, ta + dt);
+        const auto t = ideal.imu(ta, ta + dt);
+        err.first += (unscale * (m.dtheta - nu0 * dt))(2) - t.dtheta(2);
+        err.second += m.dtheta(2) - t.dtheta(2);
+      }
+      return err;
+    };
+    const TurnSpec& turn = plan.profile.turns.back();
+    REQUIRE(std::abs(turn.angle_rad) >= 3600 * kDeg - 1e-9);  // ten whole revolutions
+    const double turn_s =
+        std::abs(turn.angle_rad) / turn.max_rate_rps + turn.max_rate_rps / turn.max_accel_rps2;
+    const double span = turn_s + 2;
+    const auto in_turn = vertical(turn.start_s - 1, turn.start_s - 1 + span);
+    const auto before = vertical(turn.start_s - 11 - span, turn.start_s - 11);
+    const double res = in_turn.first - before.first;
+    const double left = in_turn.second - before.second;
+    const double s = s33 * std::abs(turn.angle_rad);
+    MESSAGE("Theta_33 " << th33 * 1e6 << " +- " << s33 * 1e6 << " ppm (truth "
+                        << e.theta(2, 2) * 1e6 << "): over the revolutions " << left / s
+                        << " sigma before, " << res / s << " after");
+    CHECK(std::abs(left) > 10 * s);  // there was an error to remove
+    CHECK(std::abs(res) <= 4 * s);
+  }
+
   TEST_CASE("the tactical plan's combinations: df_obs by name, the lever arm's twins apart") {
     run::PlanningSettings ps;
     auto j = run::plan_json(load("tactical.toml"), ps);
