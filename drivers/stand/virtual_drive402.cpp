@@ -600,6 +600,15 @@ bool VirtualDrive402::event_driven() const {
   return u32(obj::kTpdo1Comm, 2) >= 0xFE;
 }
 
+bool VirtualDrive402::timed_by_receipt(const can::Frame& f) const {
+  if (f.extended || !event_driven()) return false;
+  for (const std::uint16_t comm : {obj::kTpdo1Comm, obj::kTpdo2Comm}) {
+    const std::uint32_t cob = u32(comm, 1);
+    if ((cob & 0x80000000u) == 0 && f.id == (cob & 0x7FF)) return true;
+  }
+  return false;
+}
+
 void VirtualDrive402::send_tpdo(double t, std::vector<DriveFrame>& out) {
   if (nmt_ != canopen::NmtState::Operational || booting_ || !tpdo_valid()) return;
   const bool in_fault = state_ == State::Fault || state_ == State::FaultReactionActive;

@@ -263,4 +263,54 @@ inline std::uint64_t log_records(const hil::fs::path& log) {
   return n;
 }
 
+/// Copies these files into the build's hil-artifacts/, each name prefixed,
+/// for a look after a failure.
+inline void keep_artifacts(const std::string& prefix, const std::vector<hil::fs::path>& files) {
+  const hil::fs::path keep = TURNCAL_ARTIFACTS_DIR;
+  std::error_code ec;
+  hil::fs::create_directories(keep, ec);
+  for (const hil::fs::path& f : files)
+    hil::fs::copy_file(f, keep / (prefix + f.filename().string()),
+                       hil::fs::copy_options::overwrite_existing, ec);
+}
+
+/// A done run's estimates against the stand's truth (truth.json), as the
+/// scenario tier judges them, a fixed seed: each combination the run
+/// determined, and each parameter it determined, within 4 of its sigmas (a
+/// parameter determined only partly or not at all has a sigma near its
+/// prior's, and the check would prove little). Returns how many
+/// parameters were judged.
+inline int check_against_truth(const nlohmann::json& r, const nlohmann::json& truth) {
+  std::ostringstream judged;
+  for (const auto& [name, t] : truth["errors"].items())
+    if (r["estimates"].contains(name) && r["estimates"][name]["determined"] == "determined") {
+      const auto& e = r["estimates"][name];
+      judged << name << " " << e["value"].get<double>() << " +- " << e["sigma"].get<double>()
+             << " (truth " << t.get<double>() << ", z "
+             << (e["value"].get<double>() - t.get<double>()) / e["sigma"].get<double>() << "); ";
+    }
+  MESSAGE("determined: " << judged.str());
+  // when an estimate is off, the clocks that put the encoder on the INS
+  // timeline are the first suspects
+  CAPTURE(r["health"].dump());
+  CAPTURE(r["turns_achieved"].dump());
+  for (const auto& c : r["combinations"]) {
+    CAPTURE(c.dump());
+    double tv = 0;
+    for (const auto& [name, k] : c["coefficients"].items())
+      tv += k.get<double>() * truth["errors"][name].get<double>();
+    CHECK(std::abs(c["value"].get<double>() - tv) <= 4 * c["sigma"].get<double>());
+  }
+  int params = 0;
+  for (const auto& [name, t] : truth["errors"].items()) {
+    if (!r["estimates"].contains(name)) continue;
+    const auto& e = r["estimates"][name];
+    if (e["determined"] != "determined") continue;
+    CAPTURE(name);
+    CHECK(std::abs(e["value"].get<double>() - t.get<double>()) <= 4 * e["sigma"].get<double>());
+    ++params;
+  }
+  return params;
+}
+
 }  // namespace hil::stand

@@ -67,45 +67,17 @@ TEST_SUITE("daemon") {
     // the log in the state directory is the one the report names, intact
     const hil::fs::path log = dir.path / "state" / r["log"]["file"].get<std::string>();
     CHECK(slurp(log).size() > 100000);
-    // against the truth: the sharp combinations within 4 sigma
-    const auto truth = nlohmann::json::parse(slurp(dir.path / "truth.json"));
-    // when an estimate is off, the clocks that put the encoder on the INS
-    // timeline are the first suspects
-    CAPTURE(r["health"].dump());
-    CAPTURE(r["turns_achieved"].dump());
     // the run's report, log and truth are kept for a look after a failure
-    {
-      const hil::fs::path keep = TURNCAL_ARTIFACTS_DIR;
-      std::error_code ec;
-      hil::fs::create_directories(keep, ec);
-      for (const hil::fs::path& f :
-           {dir.path / "state" / (id + ".report.json"), log, dir.path / "truth.json"})
-        hil::fs::copy_file(f, keep / ("daemon-run-" + f.filename().string()),
-                           hil::fs::copy_options::overwrite_existing, ec);
-    }
+    keep_artifacts("daemon-run-",
+                   {dir.path / "state" / (id + ".report.json"), log, dir.path / "truth.json"});
     MESSAGE("clocks: ins rms " << r["health"]["ins_clock_rms_s"] << " s, table rms "
                                << r["health"]["table_clock_rms_s"] << " s, outliers "
                                << r["health"]["clock_outliers"]);
+    // against the truth: the sharp combinations and the parameters the run
+    // determined within 4 sigma
     REQUIRE(!r["combinations"].empty());
-    for (const auto& c : r["combinations"]) {
-      CAPTURE(c.dump());
-      double tv = 0;
-      for (const auto& [name, k] : c["coefficients"].items())
-        tv += k.get<double>() * truth["errors"][name].get<double>();
-      CHECK(std::abs(c["value"].get<double>() - tv) <= 4 * c["sigma"].get<double>());
-    }
-    // and the parameters the run determined (a fixed seed: 4 sigma, as in
-    // the scenario tier; for one it determined only partly or not at all,
-    // the sigma is near the prior's and the check would prove little)
-    int params = 0;
-    for (const auto& [name, t] : truth["errors"].items()) {
-      if (!r["estimates"].contains(name)) continue;
-      CAPTURE(name);
-      const auto& e = r["estimates"][name];
-      if (e["determined"] != "determined") continue;
-      CHECK(std::abs(e["value"].get<double>() - t.get<double>()) <= 4 * e["sigma"].get<double>());
-      ++params;
-    }
+    const int params =
+        check_against_truth(r, nlohmann::json::parse(slurp(dir.path / "truth.json")));
     CHECK(params >= 4);  // the short plan determines nu0_1, nu0_2, r1, r2 at least
 
     // turncalctl replay of the log (no daemon): with the live run's settings,
@@ -187,7 +159,8 @@ TEST_SUITE("daemon") {
                (dir.path / "turncal.toml").string()},
               "replay2.json", 60000ms) == 0);
     const auto rp2 = nlohmann::json::parse(slurp(dir.path / "replay2.json"));
-    CAPTURE(rp2.value("status", std::string()));
+    const std::string rp2_status = rp2.value("status", std::string());
+    CAPTURE(rp2_status);
     CAPTURE(rp2.contains("reason") ? rp2["reason"].dump() : std::string());
     CAPTURE(rp2.contains("phases") ? rp2["phases"].dump() : std::string());
     CAPTURE(r2["phases"].dump());
@@ -335,17 +308,7 @@ TEST_SUITE("daemon") {
     CHECK(r["health"]["velocity_untimed"] == 0);
     // the run determines what the short plan determines, within 4 sigma of
     // the truth (a fixed seed, as in the first daemon test)
-    const auto truth = nlohmann::json::parse(slurp(dir.path / "truth.json"));
-    int params = 0;
-    for (const auto& [name, t] : truth["errors"].items()) {
-      if (!r["estimates"].contains(name)) continue;
-      CAPTURE(name);
-      const auto& e = r["estimates"][name];
-      if (e["determined"] != "determined") continue;
-      CHECK(std::abs(e["value"].get<double>() - t.get<double>()) <= 4 * e["sigma"].get<double>());
-      ++params;
-    }
-    CHECK(params >= 4);
+    CHECK(check_against_truth(r, nlohmann::json::parse(slurp(dir.path / "truth.json"))) >= 4);
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
     sim.terminate();

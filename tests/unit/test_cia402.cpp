@@ -521,6 +521,44 @@ TEST_SUITE("cia402") {
     CHECK(l.samples.back().angle_rad == 0);
   }
 
+  TEST_CASE("the virtual drive's TPDOs timed by their receipt: event-driven ones, not SYNC's") {
+    // what turncal-sim leaves unsent when it is late (a real drive samples
+    // such a frame as it sends it); a SYNC's TPDO is timed by the SYNC
+    can::Frame tpdo1;
+    tpdo1.id = 0x185;
+    tpdo1.len = 6;
+    can::Frame tpdo2 = tpdo1;
+    tpdo2.id = 0x285;
+    can::Frame heartbeat = tpdo1;
+    heartbeat.id = 0x705;
+    heartbeat.len = 1;
+    {
+      cia402::MasterSettings ms = master_settings();
+      ms.configure_mapping = true;
+      ms.velocity_pdo = true;
+      Loop l(ms);
+      l.start();
+      REQUIRE(l.running());
+      CHECK(*l.drive.value(0x1800, 2) >= 0xFE);  // event-driven
+      CHECK(l.drive.timed_by_receipt(tpdo1));
+      CHECK(l.drive.timed_by_receipt(tpdo2));
+      CHECK_FALSE(l.drive.timed_by_receipt(heartbeat));
+      can::Frame ext = tpdo1;
+      ext.extended = true;
+      CHECK_FALSE(l.drive.timed_by_receipt(ext));
+    }
+    {
+      cia402::MasterSettings ms = master_settings();
+      ms.configure_mapping = true;
+      ms.sync_period_s = 0.02;
+      Loop l(ms);
+      l.start();
+      REQUIRE(l.running());
+      CHECK(*l.drive.value(0x1800, 2) == 1);  // synchronous
+      CHECK_FALSE(l.drive.timed_by_receipt(tpdo1));
+    }
+  }
+
   TEST_CASE("the PDO mappings written when asked, with SYNC: samples carry the SYNC's time") {
     cia402::MasterSettings ms = master_settings();
     ms.configure_mapping = true;

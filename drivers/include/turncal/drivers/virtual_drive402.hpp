@@ -168,6 +168,10 @@ class VirtualDrive402 {
   [[nodiscard]] const std::vector<std::uint16_t>& emcy_sent() const { return emcy_sent_; }
   [[nodiscard]] const Drive402Counts& counts() const { return counts_; }
   [[nodiscard]] double counts_per_rad() const { return cpr_; }
+  /// A frame of this drive's whose only time is its receipt: TPDO1, or
+  /// TPDO2 which goes with it, sent on its event timer or on change (no
+  /// SYNC). A real drive samples what such a frame carries as it sends it.
+  [[nodiscard]] bool timed_by_receipt(const can::Frame& f) const;
 
  private:
   struct Entry {
