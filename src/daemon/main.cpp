@@ -283,7 +283,7 @@ struct Client {
   std::uint64_t last_request_us = 0;  ///< monotonic
   std::uint64_t unread_since_us = 0;  ///< monotonic; 0: nothing waits
   /// monotonic: when the unfinished request line in `in` began (its first
-  /// byte); 0: none
+  /// byte read); 0 while `in` is empty
   std::uint64_t partial_since_us = 0;
   ~Client() {
     sd_event_source_unref(src);
@@ -970,13 +970,17 @@ void Daemon::reap_clients() {
   const std::uint64_t now = monotonic_us();
   const auto idle = static_cast<std::uint64_t>(cfg.daemon.client_idle_s * 1e6);
   for (auto& c : clients) {
-    if (!c->in.empty() && now - c->partial_since_us > idle) {
-      // a line never finished (a watcher's too) would hold a reload off
-      warn("control client dropped: a request left unfinished for " +
+    int unread = 0;
+    if (c->unread_since_us != 0 && now - c->unread_since_us > idle) {
+      warn("control client dropped: its replies were left unread for " +
            std::to_string(static_cast<int>(cfg.daemon.client_idle_s)) + " s");
       c->broken = true;
-    } else if (c->unread_since_us != 0 && now - c->unread_since_us > idle) {
-      warn("control client dropped: its replies were left unread for " +
+    } else if (!c->in.empty() && now - c->partial_since_us > idle &&
+               ::ioctl(c->fd, FIONREAD, &unread) == 0 && unread == 0) {
+      // a line never finished (a watcher's too) would hold a reload off;
+      // one whose end waits in the socket, unread by us, is not the
+      // client's doing
+      warn("control client dropped: a request left unfinished for " +
            std::to_string(static_cast<int>(cfg.daemon.client_idle_s)) + " s");
       c->broken = true;
     } else if (!c->watching && c->out.empty() && now - c->last_request_us > idle) {
@@ -1057,6 +1061,7 @@ int on_client(sd_event_source*, int fd, uint32_t revents, void* u) {
                 d.handle_request(*c, line);
               }
             }
+            if (c->in.empty()) c->partial_since_us = 0;
             if (!c->close_after && c->in.size() > kMaxRequest) {
               c->reply({{"ok", false},
                         {"error",
@@ -1421,10 +1426,12 @@ Status Daemon::setup() {
   return Status{Ok{}};
 }
 
+constexpr const char* kUsage =
+    "usage: turncald [--config FILE] [--state-dir DIR] [--socket PATH]\n"
+    "The turntable calibration service (turncald(8)); turncalctl(1) talks to it.\n";
+
 int usage(const char* why) {
-  std::fprintf(stderr,
-               "turncald: %s\nusage: turncald [--config FILE] [--state-dir DIR] [--socket PATH]\n",
-               why);
+  std::fprintf(stderr, "turncald: %s\n%s", why, kUsage);
   return 2;
 }
 
@@ -1435,6 +1442,10 @@ int main(int argc, char** argv) {
   Daemon d;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
+    if (a == "--help" || a == "-h") {
+      std::fputs(kUsage, stdout);
+      return std::fflush(stdout) == 0 && !std::ferror(stdout) ? 0 : 1;
+    }
     if (i + 1 >= argc) return usage(("missing value after " + a).c_str());
     if (a == "--config")
       d.opt.config = argv[++i];
