@@ -600,6 +600,10 @@ bool VirtualDrive402::event_driven() const {
   return u32(obj::kTpdo1Comm, 2) >= 0xFE;
 }
 
+void VirtualDrive402::unsent(const can::Frame& f) {
+  if (timed_by_receipt(f)) last_sent_sw_.reset();
+}
+
 bool VirtualDrive402::timed_by_receipt(const can::Frame& f) const {
   if (f.extended || !event_driven()) return false;
   for (const std::uint16_t comm : {obj::kTpdo1Comm, obj::kTpdo2Comm}) {

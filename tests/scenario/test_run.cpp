@@ -1309,6 +1309,8 @@ TEST_SUITE("run engine on the virtual stand") {
     auto made = run::calibration_json(c.written);
     REQUIRE_MESSAGE(made.ok(), (made.ok() ? "" : made.error().describe()));
     const nlohmann::json f = nlohmann::json::parse(made->dump());
+    // the convention applied below is the one the file states
+    CHECK(std::string(f["convention"]).find("w = (I + Theta)^-1 (w_m - nu0)") != std::string::npos);
     // Theta_33 is the one Theta term in it; the vertical bias, partly
     // determined, is not a correction
     REQUIRE(f["gyro"].contains("scale_misalignment"));

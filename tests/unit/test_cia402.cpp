@@ -546,6 +546,21 @@ TEST_SUITE("cia402") {
       can::Frame ext = tpdo1;
       ext.extended = true;
       CHECK_FALSE(l.drive.timed_by_receipt(ext));
+      // one that was not sent after all: the drive sends its word again at
+      // its next chance (any frame it hears), not only on its timer
+      can::Frame other;
+      other.id = 0x7FF;
+      other.len = 0;
+      auto tpdos_on = [&](bool drop) {
+        if (drop) l.drive.unsent(tpdo1);
+        std::vector<stand::DriveFrame> out;
+        l.drive.receive(l.t, other, out);  // the same time: no timer due
+        return std::count_if(out.begin(), out.end(),
+                             [](const stand::DriveFrame& f) { return f.frame.id == 0x185; });
+      };
+      CHECK(tpdos_on(false) == 0);
+      CHECK(tpdos_on(true) == 1);
+      CHECK(tpdos_on(false) == 0);
     }
     {
       cia402::MasterSettings ms = master_settings();

@@ -72,6 +72,7 @@ class StandLoop {
   /// Why the scripted host ended its run early, or nullptr.
   [[nodiscard]] const Error* error() const { return host_ != nullptr ? host_->error() : nullptr; }
   [[nodiscard]] const VirtualStand& stand() const { return stand_; }
+  [[nodiscard]] VirtualStand& stand() { return stand_; }
 
  private:
   VirtualStand stand_;

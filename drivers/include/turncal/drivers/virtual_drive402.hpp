@@ -172,6 +172,9 @@ class VirtualDrive402 {
   /// TPDO2 which goes with it, sent on its event timer or on change (no
   /// SYNC). A real drive samples what such a frame carries as it sends it.
   [[nodiscard]] bool timed_by_receipt(const can::Frame& f) const;
+  /// Such a frame was not sent after all (turncal-sim, late): as if the bus
+  /// had lost it, the change it carried goes with the drive's next TPDO.
+  void unsent(const can::Frame& f);
 
  private:
   struct Entry {

@@ -107,6 +107,7 @@ class VirtualStand {
   [[nodiscard]] const VirtualIns& ins() const { return ins_; }
   /// The CiA 402 drive, when the stand has one (else nullptr).
   [[nodiscard]] const VirtualDrive402* drive() const { return drive_ ? &*drive_ : nullptr; }
+  [[nodiscard]] VirtualDrive402* drive() { return drive_ ? &*drive_ : nullptr; }
   [[nodiscard]] const StandCounts& counts() const { return counts_; }
 
  private:
