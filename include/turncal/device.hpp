@@ -136,10 +136,6 @@ struct Decoded {
   Verdict verdict = Verdict::NotMine;
   Stream stream = kStreams;
   double device_s = NAN;  ///< the sample's device time (NaN: the device sends none)
-  /// device_s is a time of the host's, not of a device clock (a CiA 402
-  /// TPDO's SYNC or its receipt): its intervals show the host's timing, so
-  /// no gaps are counted from them.
-  bool host_time = false;
   Sample sample;
 
   static Decoded malformed() { return of(Verdict::Malformed, kStreams); }

@@ -247,18 +247,17 @@ Ingest::Ingest(const can::Database& db, std::unique_ptr<InsDriver> ins,
   health_[kTableStatus].name = "table-status";
 }
 
-void Ingest::saw(Stream s, double host_s, double device_s, bool host_time) {
+void Ingest::saw(Stream s, double host_s, double device_s) {
   StreamHealth& h = health_[s];
   ++h.frames;
   h.implausible_run = 0;
   if (std::isnan(h.first_host_s)) h.first_host_s = host_s;
   h.last_host_s = host_s;
   double& last = last_device_s_[s];
-  if (std::isnan(device_s) || device_s == host_s || host_time) {
-    // no device clock (table status), or a time of the host's (a CiA 402
-    // TPDO's receipt, or its SYNC's): the mean receive rate, and no gaps
-    // counted, as two frames read in one burst are no period, nor a SYNC
-    // sent late and the next on time
+  if (std::isnan(device_s) || device_s == host_s) {
+    // no device clock (table status), or one that is the receive time
+    // itself (a CiA 402 TPDO without SYNC): the mean receive rate, and no
+    // gaps counted, as two frames read in one burst are no period
     h.nominal_hz = h.rate_hz();
     return;
   }
@@ -361,7 +360,7 @@ Sample Ingest::take(Decoded d, double host) {
       table_->accept_encoder();
       last_encoder_host_ = host;
       last_encoder_angle_ = a;
-      saw(kEncoder, host, d.device_s, d.host_time);
+      saw(kEncoder, host, d.device_s);
       clock_sample(table_clock_, d.device_s, host);
       break;
     }

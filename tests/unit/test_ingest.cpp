@@ -2,7 +2,6 @@
 #include <doctest/doctest.h>
 
 #include <cmath>
-#include <functional>
 #include <limits>
 #include <numbers>
 #include <random>
@@ -207,21 +206,15 @@ TEST_SUITE("ingest") {
     CHECK(in4.health(kVelocity).implausible == 0);
   }
 
-  /// The reference table, its encoder samples timed by a time of the
-  /// host's (a fake seam: a CiA 402 drive's TPDO has no clock of its own
-  /// either): by default their receive time, as without SYNC, unflagged;
-  /// or `time_of` the receive time, flagged as the CiA 402 table does.
+  /// The reference table, its encoder samples timed by their receive time
+  /// (a fake seam: a CiA 402 drive's TPDO without SYNC has no clock of its
+  /// own either).
   class ReceiveTimed : public TableDriver {
    public:
-    explicit ReceiveTimed(std::unique_ptr<TableDriver> t,
-                          std::function<double(double)> time_of = nullptr)
-        : t_(std::move(t)), time_of_(std::move(time_of)) {}
+    explicit ReceiveTimed(std::unique_ptr<TableDriver> t) : t_(std::move(t)) {}
     Decoded decode(const FrameView& v) override {
       Decoded d = t_->decode(v);
-      if (d.verdict == Decoded::Verdict::Taken && d.stream == kEncoder) {
-        d.device_s = time_of_ ? time_of_(v.host_s) : v.host_s;
-        d.host_time = static_cast<bool>(time_of_);
-      }
+      if (d.verdict == Decoded::Verdict::Taken && d.stream == kEncoder) d.device_s = v.host_s;
       return d;
     }
     void accept_encoder() override { t_->accept_encoder(); }
@@ -242,7 +235,6 @@ TEST_SUITE("ingest") {
 
    private:
     std::unique_ptr<TableDriver> t_;
-    std::function<double(double)> time_of_;
   };
 
   TEST_CASE("an encoder timed by its receive time: frames read in a burst count no drops") {
@@ -264,31 +256,6 @@ TEST_SUITE("ingest") {
     // showed would make every later interval hundreds of "lost" frames
     CHECK(in.health(kEncoder).dropped == 0);
     CHECK(in.health(kEncoder).nominal_hz == doctest::Approx(in.health(kEncoder).rate_hz()));
-    CHECK(in.health(kEncoder).nominal_hz > 24);
-    CHECK(in.health(kEncoder).nominal_hz < 26);
-  }
-
-  TEST_CASE("an encoder timed by its SYNC: a SYNC sent late and the next on time count no drops") {
-    // TPDO1 on every SYNC, 25 Hz: each sample is dated by its SYNC, 2 ms
-    // before its receipt; the 11th SYNC went out 30 ms late (the host's
-    // timer), the 12th on its time, 10 ms after it
-    Ref r;
-    auto sync_of = [](double host) {
-      const double t = host - 0.002;
-      return std::abs(t - 10.4) < 1e-9 ? t + 0.03 : t;
-    };
-    Ingest in(r.db, drivers::make_reference_ins(r.roles, {}),
-              std::make_unique<ReceiveTimed>(drivers::make_reference_table(r.roles, {}), sync_of));
-    int kept = 0;
-    for (int k = 0; k < 100; ++k)
-      kept += std::holds_alternative<EncoderSample>(in.on_frame(r.at(
-          10.002 + 0.04 * k,
-          r.roles.encode(Role::EncoderAngle,
-                         {{Role::EncoderAngle, 0.0}, {Role::EncoderTimeTag, 1e6 + 4e4 * k}}))));
-    CHECK(kept == 100);
-    // a 10 ms interval is no period: every later 40 ms would count three
-    // frames lost (some 270 in all)
-    CHECK(in.health(kEncoder).dropped == 0);
     CHECK(in.health(kEncoder).nominal_hz > 24);
     CHECK(in.health(kEncoder).nominal_hz < 26);
   }

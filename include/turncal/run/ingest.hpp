@@ -226,7 +226,7 @@ class Ingest {
   }
 
  private:
-  void saw(Stream s, double host_s, double device_s, bool host_time = false);
+  void saw(Stream s, double host_s, double device_s);
   /// A frame of `s` that cannot be: counted, and nothing more.
   Sample implausible(Stream s);
   Plausibility plausible_;
