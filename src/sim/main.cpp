@@ -572,11 +572,13 @@ int live(const Options& o) {
   constexpr double kReceiptSlackS = 0.001;
   std::uint64_t late_tpdo_frames = 0;
   stand::VirtualDrive402* receipt_drive = loop.stand().drive();
-  // The stand sleeps to the next tick in steps of this (real s): whole
-  // milliseconds, as poll(2) had them, and half of one with a CiA 402 drive
-  // (the slack above must hold a step and the guest's scheduling), so a
-  // fast stand runs its ticks in batches and does not wake up for each.
-  const double sleep_step_s = receipt_drive != nullptr ? 0.5e-3 : 1e-3;
+  // The stand sleeps to the next tick in steps of whole milliseconds, as
+  // poll(2) had them, so a fast stand runs its ticks in batches and does
+  // not wake up for each (at 16x, sleeping to the microsecond woke it for
+  // every tick and loaded a user-mode Linux guest); with a CiA 402 drive
+  // to the microsecond, as a step's rounding up would date every TPDO
+  // timed by its receipt up to a step late.
+  const double sleep_step_s = receipt_drive != nullptr ? 0.0 : 1e-3;
   // the host heartbeat as the table receives it (kernel receive times, stand s)
   const can::Message* hb = (*roles)[Role::HeartbeatCounter].message;
   double hb_last = NAN;
@@ -619,15 +621,15 @@ int live(const Options& o) {
     const double target = std::chrono::duration<double>(Clock::now() - wall0).count() * o.speed;
     // how far behind real time the stand fell (its frames then go out late, in a burst)
     max_lag_s = std::max(max_lag_s, (target - loop.next_time()) / o.speed);
-    double real_s = target / o.speed;  // read again every few ticks of a batch
-    for (int ticks = 0; loop.next_time() <= target && !loop.done(); ++ticks) {
+    double real_s = target / o.speed;  // with a CiA 402 drive read again each tick
+    while (loop.next_time() <= target && !loop.done()) {
       while (!from_bus.empty() && from_bus.front().first <= loop.next_time()) {
         due.push_back(from_bus.front().second);
         from_bus.pop_front();
       }
       loop.tick(due, frames);
       due.clear();
-      if (receipt_drive != nullptr && ticks % 8 == 7)
+      if (receipt_drive != nullptr)
         real_s = std::chrono::duration<double>(Clock::now() - wall0).count();
       for (const stand::StandFrame& f : frames) {
         // how late it goes out: now, against the stand time it is due
@@ -642,14 +644,17 @@ int live(const Options& o) {
       frames.clear();
     }
     for (socketcan::Socket& s : sockets) s.flush();
-    // sleep until the next tick is due, or a host frame arrives
-    const double wait_s = (loop.next_time() - target) / o.speed;
+    // sleep until the next tick is due, or a host frame arrives (from now:
+    // the batch took time)
+    const double wait_s =
+        loop.next_time() / o.speed - std::chrono::duration<double>(Clock::now() - wall0).count();
     std::vector<pollfd> fds;
     for (socketcan::Socket& s : sockets)
       if (s.fd() >= 0)
         fds.push_back({s.fd(), static_cast<short>(POLLIN | (s.tx_pending() ? POLLOUT : 0)), 0});
-    const auto wait_ns = static_cast<long long>(
-        std::max(0.0, std::ceil(wait_s / sleep_step_s) * sleep_step_s * 1e9));
+    const double sleep_s =
+        sleep_step_s > 0 ? std::ceil(wait_s / sleep_step_s) * sleep_step_s : wait_s;
+    const auto wait_ns = static_cast<long long>(std::max(0.0, std::ceil(sleep_s * 1e9)));
     const timespec wait_ts{static_cast<time_t>(wait_ns / 1'000'000'000),
                            static_cast<long>(wait_ns % 1'000'000'000)};
     ::ppoll(fds.data(), fds.size(), &wait_ts, nullptr);

@@ -284,11 +284,13 @@ inline int check_against_truth(const nlohmann::json& r, const nlohmann::json& tr
   REQUIRE(r.contains("estimates"));
   std::ostringstream judged;
   for (const auto& [name, t] : truth.at("errors").items())
-    if (r.at("estimates").contains(name) && r.at("estimates")[name]["determined"] == "determined") {
-      const auto& e = r.at("estimates")[name];
-      judged << name << " " << e["value"].get<double>() << " +- " << e["sigma"].get<double>()
+    if (r.at("estimates").contains(name) &&
+        r.at("estimates").at(name).at("determined") == "determined") {
+      const auto& e = r.at("estimates").at(name);
+      judged << name << " " << e.at("value").get<double>() << " +- " << e.at("sigma").get<double>()
              << " (truth " << t.get<double>() << ", z "
-             << (e["value"].get<double>() - t.get<double>()) / e["sigma"].get<double>() << "); ";
+             << (e.at("value").get<double>() - t.get<double>()) / e.at("sigma").get<double>()
+             << "); ";
     }
   MESSAGE("determined: " << judged.str());
   // when an estimate is off, the clocks that put the encoder on the INS
@@ -298,17 +300,18 @@ inline int check_against_truth(const nlohmann::json& r, const nlohmann::json& tr
   for (const auto& c : r.value("combinations", nlohmann::json::array())) {
     CAPTURE(c.dump());
     double tv = 0;
-    for (const auto& [name, k] : c["coefficients"].items())
+    for (const auto& [name, k] : c.at("coefficients").items())
       tv += k.get<double>() * truth.at("errors").at(name).get<double>();
-    CHECK(std::abs(c["value"].get<double>() - tv) <= 4 * c["sigma"].get<double>());
+    CHECK(std::abs(c.at("value").get<double>() - tv) <= 4 * c.at("sigma").get<double>());
   }
   int params = 0;
   for (const auto& [name, t] : truth.at("errors").items()) {
     if (!r.at("estimates").contains(name)) continue;
-    const auto& e = r.at("estimates")[name];
-    if (e["determined"] != "determined") continue;
+    const auto& e = r.at("estimates").at(name);
+    if (e.at("determined") != "determined") continue;
     CAPTURE(name);
-    CHECK(std::abs(e["value"].get<double>() - t.get<double>()) <= 4 * e["sigma"].get<double>());
+    CHECK(std::abs(e.at("value").get<double>() - t.get<double>()) <=
+          4 * e.at("sigma").get<double>());
     ++params;
   }
   return params;
