@@ -180,6 +180,16 @@ void Socket::link_event(RxBatch& out, can::BusEventKind kind) {
 }
 
 Result<std::size_t> Socket::receive(RxBatch& out, std::size_t max_batches) {
+  if (down_on_write_) {
+    // the write consumed the socket's NETDEV_DOWN error (the kernel's send
+    // path reads and clears it): the link went down all the same, and the
+    // receive below will not say so
+    down_on_write_ = false;
+    if (link_ == LinkState::Up && fd_ >= 0) {
+      link_event(out, can::BusEventKind::InterfaceDown);
+      link_ = LinkState::Down;
+    }
+  }
   drained_ = true;
   if (fd_ < 0) return std::size_t{0};
   std::array<canfd_frame, kBatch> frames;
@@ -275,6 +285,7 @@ Socket::TxResult Socket::write_frame(const can::Frame& f) {
       busy_errno_ = errno == ENOBUFS ? ENOBUFS : EAGAIN;
       return TxResult::Busy;
     }
+    if (n < 0 && errno == ENETDOWN) down_on_write_ = true;
     return TxResult::Failed;
   }
 }

@@ -270,6 +270,27 @@ TEST_SUITE("socketcan") {
     CHECK(after.frames[0].frame.id == 0x42);
   }
 
+  TEST_CASE("an interface that goes down while a frame is written: the write's error is the news") {
+    // the kernel's send path takes the socket's NETDEV_DOWN error before a
+    // receive can (a daemon's tick writes its heartbeat before it reads):
+    // the loss must be reported all the same
+    auto b = hil::open(hil::if1());
+    REQUIRE(hil::sh("ip link set " + hil::if1() + " down") == 0);
+    auto sent = b.send(hil::frame(0x43, {1}));
+    REQUIRE(sent.ok());
+    CHECK(*sent == socketcan::TxOutcome::Dropped);
+    socketcan::RxBatch rx;
+    REQUIRE(b.receive(rx).ok());
+    REQUIRE(rx.events.size() == 1);
+    CHECK(rx.events[0].kind == can::BusEventKind::InterfaceDown);
+    CHECK(b.link() == socketcan::LinkState::Down);
+    REQUIRE(hil::sh("ip link set " + hil::if1() + " up") == 0);
+    socketcan::RxBatch ev;
+    CHECK(b.try_recover(ev));
+    REQUIRE(ev.events.size() == 1);
+    CHECK(ev.events[0].kind == can::BusEventKind::InterfaceBack);
+  }
+
   TEST_CASE("an interface deleted and re-created is recovered without reopening by hand") {
     const std::string name = "tchil9";
     hil::sh("ip link del " + name + " 2>/dev/null");

@@ -163,6 +163,10 @@ class Socket {
   Options opt_;
   int fd_ = -1;
   LinkState link_ = LinkState::Up;
+  /// A write found the interface down (ENETDOWN): a write takes the
+  /// socket's pending NETDEV_DOWN error before a receive can, so the next
+  /// receive reports the loss instead.
+  bool down_on_write_ = false;
   unsigned ifindex_ = 0;
   std::uint32_t last_ovfl_ = 0;
   bool drained_ = true;
