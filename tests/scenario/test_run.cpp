@@ -329,6 +329,19 @@ stand::StandSetup setup_of(const Plan& plan, std::uint64_t seed) {
   return s;
 }
 
+/// The virtual INS's IMU over the plan's motion, noise-free: with the
+/// setup's injected errors, and without any (the truth).
+std::pair<sim::Config, sim::Config> imu_with_and_without_errors(const stand::StandSetup& setup,
+                                                                const Plan& plan) {
+  sim::Config with = setup.ins.sim;
+  with.profile = plan.profile;
+  with.motion = nullptr;
+  with.noise = sim::Noise{};
+  sim::Config none = with;
+  none.errors = sim::SensorErrors{};
+  return {with, none};
+}
+
 /// A folder of its own under the system's temporary folder, removed after.
 struct TempDir {
   std::filesystem::path path;
@@ -1197,12 +1210,7 @@ TEST_SUITE("run engine on the virtual stand") {
 
     // the IMU's output: with the injected errors, and without any (the
     // truth), noise-free, over the plan's motion
-    sim::Config with = setup.ins.sim;
-    with.profile = plan.profile;
-    with.motion = nullptr;
-    with.noise = sim::Noise{};
-    sim::Config none = with;
-    none.errors = sim::SensorErrors{};
+    const auto [with, none] = imu_with_and_without_errors(setup, plan);
     sim::Strapdown raw(with), ideal(none);
     Eigen::Vector3d nu0 = Eigen::Vector3d::Zero();
     Eigen::Matrix3d theta = Eigen::Matrix3d::Zero();  // absent: no correction
@@ -1337,12 +1345,7 @@ TEST_SUITE("run engine on the virtual stand") {
 
     // the IMU's output with the injected errors and without (the truth),
     // noise-free, over the plan's motion
-    sim::Config with = setup.ins.sim;
-    with.profile = plan.profile;
-    with.motion = nullptr;
-    with.noise = sim::Noise{};
-    sim::Config none = with;
-    none.errors = sim::SensorErrors{};
+    const auto [with, none] = imu_with_and_without_errors(setup, plan);
     sim::Strapdown raw(with), ideal(none);
     Eigen::Vector3d nu0 = Eigen::Vector3d::Zero();  // nu0_3 absent: no correction
     for (int i = 0; i < 2; ++i)
