@@ -256,6 +256,7 @@ Result<std::size_t> Socket::receive(RxBatch& out, std::size_t max_batches) {
       if (opt_.confirm && (m.msg_hdr.msg_flags & MSG_CONFIRM) != 0) {
         ++stats_.tx_confirmed;  // our own frame, echoed: it went out
         out.confirmed.push_back(tf);
+        out.echoed.push_back(true);
         continue;
       }
       if (tf.frame.error) {
@@ -265,6 +266,7 @@ Result<std::size_t> Socket::receive(RxBatch& out, std::size_t max_batches) {
       }
       ++stats_.rx_frames;
       out.frames.push_back(tf);
+      out.echoed.push_back(false);
       ++total;
     }
     if (static_cast<std::size_t>(n) < kBatch) break;

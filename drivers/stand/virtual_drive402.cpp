@@ -601,11 +601,12 @@ bool VirtualDrive402::event_driven() const {
 }
 
 void VirtualDrive402::unsent(const can::Frame& f) {
-  if (timed_by_receipt(f)) last_sent_sw_.reset();
+  // event-driven: its change goes with the next; synchronous: the next SYNC's
+  if (event_driven() && timed_on_the_bus(f)) last_sent_sw_.reset();
 }
 
-bool VirtualDrive402::timed_by_receipt(const can::Frame& f) const {
-  if (f.extended || !event_driven()) return false;
+bool VirtualDrive402::timed_on_the_bus(const can::Frame& f) const {
+  if (f.extended) return false;
   for (const std::uint16_t comm : {obj::kTpdo1Comm, obj::kTpdo2Comm}) {
     const std::uint32_t cob = u32(comm, 1);
     if ((cob & 0x80000000u) == 0 && f.id == (cob & 0x7FF)) return true;

@@ -867,10 +867,12 @@ void Master::tick(double now_s, std::vector<can::Frame>& out) {
     if (next_host_hb_ <= now_s) next_host_hb_ = now_s + s_.host_heartbeat_period_s;
   }
   if (s_.sync_period_s > 0 && phase_ == CommPhase::Running && now_s >= next_sync_) {
-    out.push_back(canopen::sync_frame());
-    last_sync_ = now_s;
-    next_sync_ += s_.sync_period_s;
-    if (next_sync_ <= now_s) next_sync_ = now_s + s_.sync_period_s;
+    out.push_back(canopen::sync_frame());  // its time is its echo's (on_frame)
+    // on its schedule, but never two within half a period after a late
+    // tick: a drive answers each SYNC within its cycle, and a SYNC on the
+    // heels of the last could go out before the last's TPDO1 came back,
+    // which would then be dated by the wrong one (and the last read lost)
+    next_sync_ = std::max(next_sync_ + s_.sync_period_s, now_s + s_.sync_period_s / 2);
   }
   if (phase_ == CommPhase::WaitBootUp && now_s >= boot_deadline_) {
     latch(FaultCode::NoBootUp,
@@ -915,6 +917,22 @@ void Master::on_frame(const can::Frame& f, double t_s, std::vector<can::Frame>& 
   now_ = std::max(now_, t_s);
   if (f.extended || f.error || f.remote || f.fd) return;
   const std::uint32_t node = s_.node_id;
+  if (f.id == canopen::kSyncId) {
+    // CiA 301's SYNC: no data, or one byte of counter
+    if (f.len > 1) {
+      ++counts_.malformed;
+      return;
+    }
+    last_sync_ = t_s;
+    if (syncs_unanswered_ >= 0) ++syncs_unanswered_;
+    return;
+  }
+  if (f.id == 0) {
+    // NMT to the drive or to all: its TPDOs start over; SYNCs until the
+    // first TPDO1 after are no losses (a drive in pre-operational sends none)
+    if (f.len == 2 && (f.data[1] == node || f.data[1] == 0)) syncs_unanswered_ = -1;
+    return;
+  }
   if (f.id == canopen::kSdoTxBase + node) {
     sdo_.on_frame(f, t_s, out);
   } else if (f.id == canopen::kHeartbeatBase + node) {
@@ -1053,7 +1071,13 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
   last_raw_ = raw;
   angle_ = sense() * static_cast<double>(pos_counts_) / cpr_;
   EncoderSample smp;
-  smp.t_s = s_.sync_period_s > 0 && !std::isnan(last_sync_) ? last_sync_ : t_s;
+  const bool synced = s_.sync_period_s > 0 && !std::isnan(last_sync_);
+  smp.t_s = synced ? last_sync_ : t_s;
+  // the SYNCs before this TPDO1's that none answered; the first since a
+  // start, or a TPDO1 before any SYNC, says nothing of losses
+  smp.lost_before =
+      synced && syncs_unanswered_ >= 0 ? std::max<std::int64_t>(syncs_unanswered_ - 1, 0) : -1;
+  syncs_unanswered_ = synced ? 0 : -1;
   smp.angle_rad = angle_;
   smp.counts = pos_counts_;
   smp.statusword = word;

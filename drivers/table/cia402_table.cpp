@@ -127,7 +127,17 @@ class Cia402Table final : public TableDriver {
           break;  // no command CiA 301 defines: the drive ignores it too
       }
     }
-    if (ours(f.id)) return Decoded::taken(kStreams, NAN, std::monostate{});
+    if (ours(f.id)) {
+      // a SYNC (the time of the TPDO1s that answer it) and NMT (their
+      // stream starts over), as the bus had them: our echoes live, the
+      // log's lines in a replay
+      if (f.id == canopen::kSyncId || f.id == 0) {
+        const std::uint64_t malformed = master_.counts().malformed;
+        master_.on_frame(f, v.host_s, tx_);
+        if (master_.counts().malformed != malformed) return Decoded::malformed();
+      }
+      return Decoded::taken(kStreams, NAN, std::monostate{});
+    }
     if (!drives(f.id)) return Decoded{};
     const cia402::MasterCounts before = master_.counts();
     master_.on_frame(f, v.host_s, tx_);
@@ -144,6 +154,7 @@ class Cia402Table final : public TableDriver {
     if (!samples_.empty()) {
       const cia402::EncoderSample& e = samples_.back();
       d = Decoded::taken(kEncoder, e.t_s, EncoderSample{e.t_s, v.host_s, e.angle_rad});
+      d.lost_before = e.lost_before;
     }
     // a TPDO1 is the drive's status too; anything else, when it changed it
     queue_status(v.host_s, after.tpdo != before.tpdo);

@@ -137,6 +137,10 @@ struct Decoded {
   Stream stream = kStreams;
   double device_s = NAN;  ///< the sample's device time (NaN: the device sends none)
   Sample sample;
+  /// Samples of the stream lost just before this one, as the device's own
+  /// sequence tells (a CiA 402 TPDO answers each SYNC); -1: not known, the
+  /// gap in device time since the last sample says.
+  std::int64_t lost_before = -1;
 
   static Decoded malformed() { return of(Verdict::Malformed, kStreams); }
   static Decoded implausible(Stream s) { return of(Verdict::Implausible, s); }

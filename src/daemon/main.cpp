@@ -524,14 +524,13 @@ void Daemon::on_can(Port& p) {
       host_fault("CAN interface " + iface + " " +
                  (e.kind == can::BusEventKind::InterfaceDown ? "went down" : "disappeared"));
   }
-  for (const can::TimedFrame& f : rx.confirmed) {
-    log_record({f.time_ns, iface, f.frame});
-    if (engine) engine->stamped(f.time_ns);
-  }
-  for (const can::TimedFrame& f : rx.frames) {
+  // Our own frames' echoes too, in the order read: the log holds them so,
+  // and a replay reads that log, so the engine sees what a replay will (a
+  // SYNC dates the encoder samples that answer it by its echo).
+  rx.in_order([&](const can::TimedFrame& f, bool /*echoed*/) {
     log_record({f.time_ns, iface, f.frame});
     if (engine) engine->on_frame(f, out);
-  }
+  });
   if (log) {
     if (auto st = log->flush(); !st) log_fault(st.error().describe());
   }

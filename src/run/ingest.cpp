@@ -247,13 +247,25 @@ Ingest::Ingest(const can::Database& db, std::unique_ptr<InsDriver> ins,
   health_[kTableStatus].name = "table-status";
 }
 
-void Ingest::saw(Stream s, double host_s, double device_s) {
+void Ingest::saw(Stream s, double host_s, double device_s, std::int64_t lost_before) {
   StreamHealth& h = health_[s];
   ++h.frames;
   h.implausible_run = 0;
   if (std::isnan(h.first_host_s)) h.first_host_s = host_s;
   h.last_host_s = host_s;
   double& last = last_device_s_[s];
+  // the device's own count when it keeps one: a SYNC sent late and the
+  // next on time are no loss, though their gap is 1.5 periods; the rate is
+  // then the mean one, the losses counted in, as the intervals are the
+  // SYNCs' jitter
+  if (lost_before >= 0) {
+    h.dropped += static_cast<std::uint64_t>(lost_before);
+    const double span = h.last_host_s - h.first_host_s;
+    if (h.frames >= 2 && span > 0)
+      h.nominal_hz = static_cast<double>(h.frames - 1 + h.dropped) / span;
+    last = device_s;
+    return;
+  }
   if (std::isnan(device_s) || device_s == host_s) {
     // no device clock (table status), or one that is the receive time
     // itself (a CiA 402 TPDO without SYNC): the mean receive rate, and no
@@ -360,7 +372,7 @@ Sample Ingest::take(Decoded d, double host) {
       table_->accept_encoder();
       last_encoder_host_ = host;
       last_encoder_angle_ = a;
-      saw(kEncoder, host, d.device_s);
+      saw(kEncoder, host, d.device_s, d.lost_before);
       clock_sample(table_clock_, d.device_s, host);
       break;
     }

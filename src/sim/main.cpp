@@ -562,22 +562,29 @@ int live(const Options& o) {
   std::vector<can::Frame> due;
   socketcan::RxBatch rx;
   double max_lag_s = 0;
-  // A CiA 402 drive's TPDO timed by its receipt only (no SYNC) that would go
-  // out more than this late (real s) is not sent: a real drive samples its
-  // position as it sends it, so its receive time dates it to the bus's
-  // latency; a stand that fell behind real time (its host stalled) and sent
-  // it late, in a burst, would date the position by the stall (at 10x a
-  // guest's 150 ms stall put the turn 1.5 s of the stand's time late, and
-  // the lever arm 13 sigma off). The host sees a TPDO missed instead.
+  // A CiA 402 drive's TPDO that would go out more than this late (real s)
+  // is not sent: a real drive samples its position as it sends it, so the
+  // host dates it to the bus's latency, by its receive time (event-driven)
+  // or by the SYNC it answers (synchronous); a stand that fell behind real
+  // time (its host stalled) and sent it late, in a burst, would date the
+  // position by the stall (at 10x a guest's 150 ms stall put the turn 1.5 s
+  // of the stand's time late, and the lever arm 13 sigma off), or answer a
+  // SYNC after the next one went out. The host sees a TPDO missed instead.
   constexpr double kReceiptSlackS = 0.001;
+  // A TPDO answering a SYNC holds what the drive sampled at the SYNC: it
+  // may go out later, as a real drive's waits for the bus, but not after
+  // the host's next SYNC, which would date it. A quarter of the shortest
+  // interval between two SYNCs seen (stand s) stays clear of that.
+  double sync_last_at = NAN;
+  double sync_min_gap = INFINITY;
   std::uint64_t late_tpdo_frames = 0;
   stand::VirtualDrive402* receipt_drive = loop.stand().drive();
   // The stand sleeps to the next tick in steps of whole milliseconds, as
   // poll(2) had them, so a fast stand runs its ticks in batches and does
   // not wake up for each (at 16x, sleeping to the microsecond woke it for
   // every tick and loaded a user-mode Linux guest); with a CiA 402 drive
-  // to the microsecond, as a step's rounding up would date every TPDO
-  // timed by its receipt up to a step late.
+  // to the microsecond, as a step's rounding up would send every TPDO up
+  // to a step late.
   const double sleep_step_s = receipt_drive != nullptr ? 0.0 : 1e-3;
   // the host heartbeat as the table receives it (kernel receive times, stand s)
   const can::Message* hb = (*roles)[Role::HeartbeatCounter].message;
@@ -601,6 +608,11 @@ int live(const Options& o) {
       for (const can::TimedFrame& f : rx.frames) {
         const double at = static_cast<double>(f.time_ns - kernel0_ns) * 1e-9 * o.speed;
         from_bus.emplace_back(at, f.frame);
+        if (f.frame.id == 0x080 && !f.frame.extended) {  // CiA 301 SYNC
+          if (!std::isnan(sync_last_at) && at > sync_last_at)
+            sync_min_gap = std::min(sync_min_gap, at - sync_last_at);
+          sync_last_at = at;
+        }
         if (hb != nullptr && f.frame.id == hb->id && f.frame.extended == hb->extended) {
           if (!std::isnan(hb_last)) {
             if (at - hb_last > hb_max_gap) {
@@ -633,8 +645,13 @@ int live(const Options& o) {
         real_s = std::chrono::duration<double>(Clock::now() - wall0).count();
       for (const stand::StandFrame& f : frames) {
         // how late it goes out: now, against the stand time it is due
-        if (receipt_drive != nullptr && !f.ins_side && receipt_drive->timed_by_receipt(f.frame) &&
-            real_s - f.t_s / o.speed > kReceiptSlackS) {
+        const auto slack = [&] {
+          return receipt_drive->event_driven() || !std::isfinite(sync_min_gap)
+                     ? kReceiptSlackS
+                     : std::max(kReceiptSlackS, sync_min_gap / 4 / o.speed);
+        };
+        if (receipt_drive != nullptr && !f.ins_side && receipt_drive->timed_on_the_bus(f.frame) &&
+            real_s - f.t_s / o.speed > slack()) {
           ++late_tpdo_frames;
           receipt_drive->unsent(f.frame);
           continue;
@@ -735,7 +752,8 @@ int live(const Options& o) {
   std::fprintf(stderr,
                "turncal-sim: stopped at %.3f s simulated; host frames %llu (undecodable %llu, "
                "refused commands %llu); send queue overflow %llu; at most %.0f ms behind real "
-               "time; drive TPDO frames not sent as over %.0f ms late %llu\n",
+               "time; drive TPDO frames not sent as late (over %.0f ms, on SYNC over a quarter of "
+               "its shortest interval) %llu\n",
                loop.next_time(), static_cast<unsigned long long>(c.host_frames),
                static_cast<unsigned long long>(c.host_undecodable),
                static_cast<unsigned long long>(c.refused),

@@ -1064,9 +1064,13 @@ TEST_SUITE("faults of a CiA 402 drive through the daemon") {
       std::vector<std::string> sim;  ///< turncal-sim's fault, none: the whole run
       /// a part of the report's reason, any of them; none: done
       std::vector<std::string> reasons;
+      int sync_ms = 0;  ///< sync_period_ms: TPDO1 on our SYNC, its samples dated by it
     };
     const std::vector<Case> cases = {
         {"no fault: the run is done", {}, {}},
+        // the replay dates each sample by the SYNC's echo in the log, as the
+        // live run did: the estimates agree bit for bit
+        {"no fault, TPDO1 on our SYNC: the run is done, its replay the same", {}, {}, 100},
         {"a drive fault with EMCY in hold 1", {"--fault", "table-fault=30"}, {"EMCY 0x2310"}},
         {"a following error in hold 1",
          {"--fault", "drive-following-error=30"},
@@ -1083,8 +1087,16 @@ TEST_SUITE("faults of a CiA 402 drive through the daemon") {
     };
     for (const Case& k : cases) SUBCASE(k.name) {
         hil::TempDir dir;
+        std::string sections = cia402_sections();
+        if (k.sync_ms > 0) {
+          const std::string key = "\nsync_period_ms = 0\n";
+          const auto at = sections.find(key);
+          REQUIRE(at != std::string::npos);
+          sections.replace(at, key.size(),
+                           "\nsync_period_ms = " + std::to_string(k.sync_ms) + "\n");
+        }
         write_stand(dir.path, hil::if0(), false, 40, 30, "config/stands/cia402/cia402.dbc",
-                    cia402_sections());
+                    sections);
         std::vector<std::string> args = {"--state-out", "stand.json"};
         args.insert(args.end(), k.sim.begin(), k.sim.end());
         Child sim = start_sim(dir.path, "5", args);
@@ -1110,6 +1122,7 @@ TEST_SUITE("faults of a CiA 402 drive through the daemon") {
         // drive's start-up told from the NMT frames) reaches the phase the
         // live run ended in
         const json rp = replay_of_log(dir.path, id, r);
+        std::uint64_t sync_dropped = 0;
         if (done) {
           // the whole run: the replay estimates what the live run did, and
           // that is as near the truth as on the reference stand (its
@@ -1117,6 +1130,18 @@ TEST_SUITE("faults of a CiA 402 drive through the daemon") {
           // parameters within 4 sigma, the short plan's four at least)
           CHECK(rp.value("status", std::string()) == "done");
           CHECK(rp["estimates"].dump() == r["estimates"].dump());
+          CHECK(rp["turns_achieved"].dump() == r["turns_achieved"].dump());
+          if (k.sync_ms > 0) {
+            // the rate the SYNCs' (late ticks make it lower, never higher:
+            // none goes out within half a period of the last), not the
+            // shortest gap between two, and the TPDOs lost counted in
+            const json& enc = r["health"]["table_encoder"];
+            CAPTURE(enc.dump());
+            const double periods = enc["nominal_hz"].get<double>() * k.sync_ms / 1000;
+            CHECK(periods > 0.8);
+            CHECK(periods < 1.02);
+            sync_dropped = enc["dropped"].get<std::uint64_t>();
+          }
           CHECK(!r["combinations"].empty());
           CHECK(check_against_truth(r, json::parse(slurp(dir.path / "truth.json"))) >= 4);
           keep_artifacts("cia402-run-", {dir.path / "state" / (id + ".report.json"),
@@ -1137,6 +1162,10 @@ TEST_SUITE("faults of a CiA 402 drive through the daemon") {
                                   << st["drive"]["tpdo_frames_not_sent_late"]
                                   << " frames of them (TPDO1 and TPDO2) were not sent, as the "
                                      "stand was late");
+        // with SYNC, a SYNC the drive did not answer in time (the stand was
+        // late, and sent nothing rather than a late TPDO1) is the one drop
+        // turncald may count; no TPDO2 here, so frames are TPDO1s
+        if (k.sync_ms > 0) CHECK(sync_dropped <= st["drive"]["tpdo_frames_not_sent_late"]);
         if (done) {
           CHECK(st["drive"]["emcy"].empty());
           CHECK(st["drive"]["quick_stops"] == 0);

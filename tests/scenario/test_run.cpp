@@ -97,6 +97,24 @@ const Stand& cia402_stand() {
   return s;
 }
 
+/// The shipped CiA 402 stand with SYNC every 10 ms: TPDO1 synchronous, an
+/// encoder sample dated by the SYNC it answers.
+struct SyncStand {
+  Stand stand;
+  RoleMap roles;
+};
+const SyncStand& cia402_sync_stand() {
+  static const SyncStand s = [] {
+    SyncStand st{cia402_stand(), {}};
+    st.stand.cfg.can.table.cia402.sync_period_s = 0.01;
+    auto roles = resolve_roles(st.stand.cfg.can, st.stand.db);
+    REQUIRE_MESSAGE(roles.ok(), (roles.ok() ? "" : roles.error().describe()));
+    st.roles = *roles;
+    return st;
+  }();
+  return s;
+}
+
 const RoleMap& cia402_roles() {
   static const RoleMap r = [] {
     auto roles = resolve_roles(cia402_stand().cfg.can, cia402_stand().db);
@@ -148,7 +166,9 @@ struct ClosedLoop {
   /// the daemon's loop does). With `lose` for the same times, the machine
   /// held as a whole: the stand did not run either.
   std::function<bool(double)> held;
-  std::vector<can::TimedFrame> unread;  ///< stamped while held
+  /// Frames stamped and not read yet (while held): the stand's, and the
+  /// echoes of ours, in the order the bus had them, as the daemon reads them.
+  std::vector<Logged> unread;
   bool was_held = false;
   /// What the host had read of the bus at a tick (Engine::tick's
   /// heard_until_ns): everything, unless said.
@@ -226,7 +246,7 @@ struct ClosedLoop {
   void send(std::vector<run::OutFrame>& out, double t) {
     for (const run::OutFrame& o : out) {
       to_stand.push_back(o.frame);
-      log.push_back({{ns(t), o.frame}, true});
+      unread.push_back({{ns(t), o.frame}, true});  // echoed at once, read at the next tick
     }
     out.clear();
   }
@@ -246,15 +266,15 @@ struct ClosedLoop {
         started = true;
       }
       for (const stand::StandFrame& f : frames)
-        if (!lose || !lose(f)) unread.push_back({ns(f.t_s), f.frame});
+        if (!lose || !lose(f)) unread.push_back({{ns(f.t_s), f.frame}, false});
       if (held && held(t)) {
         was_held = true;
         continue;
       }
       const bool resumed = std::exchange(was_held, false);
-      for (const can::TimedFrame& tf : unread) {
-        if (started) log.push_back({tf, false});  // the recorder runs from the start
-        engine->on_frame(tf, out);
+      for (const Logged& l : unread) {
+        if (started || l.sent) log.push_back(l);  // the recorder runs from the start
+        engine->on_frame(l.f, out);
       }
       unread.clear();
       if (k % 10 == 0 || resumed)
@@ -2165,6 +2185,83 @@ TEST_SUITE("run engine on the virtual CiA 402 stand") {
     CHECK(deg > 5);
     CHECK(deg < 175);
     CHECK(d->emcy_sent().at(0) == 0x4210);
+  }
+
+  TEST_CASE(
+      "a CiA 402 run with SYNC: the replay dates its samples as the live run; a TPDO1 lost is one "
+      "drop") {
+    // given a live run on the CiA 402 stand with SYNC every 10 ms, where
+    // every 97th TPDO1 of the drive's in the first 100 s never reaches us
+    const Plan plan = short_plan();
+    const SyncStand& st = cia402_sync_stand();
+    ClosedLoop live(plan, cia402_setup_of(plan, 7), st.stand, st.roles);
+    const std::uint32_t tpdo1 = 0x180 + st.stand.cfg.can.table.cia402.node_id;
+    int tpdos = 0;
+    int lost = 0;
+    live.lose = [&](const stand::StandFrame& f) {
+      if (f.frame.id != tpdo1 || f.t_s > 100 || ++tpdos % 97 != 0) return false;
+      ++lost;
+      return true;
+    };
+    live.run_until(200);
+    REQUIRE_MESSAGE(live.phase() == run::Phase::Done, live.course().reason);
+    REQUIRE(live.input);
+    REQUIRE(lost > 50);
+    // then every loss is counted once, and nothing else: SYNCs late by a
+    // tick (the engine's 10 ms ticks in 1 ms steps) are no losses
+    const run::StreamHealth& enc = live.engine->ingest().health(kEncoder);
+    CHECK(enc.dropped == static_cast<std::uint64_t>(lost));
+    // the mean rate, the losses counted in: the SYNC's 100 Hz
+    CHECK(enc.nominal_hz == doctest::Approx(100).epsilon(0.002));
+    // and every sample is dated by the echo of a SYNC we sent, not its receipt
+    std::vector<std::int64_t> syncs;
+    for (const Logged& l : live.log)
+      if (l.sent && l.f.frame.id == canopen::kSyncId) syncs.push_back(l.f.time_ns);
+    const auto& raw = live.engine->record().encoder();
+    REQUIRE(raw.size() > 500);  // a constant run keeps its ends only
+    int not_a_sync = 0;
+    for (const EncoderSample& e : raw) {
+      // host seconds since the Unix epoch: a double's 0.24 us apart here,
+      // and a TPDO1 is received 1 ms (a stand tick) after its SYNC
+      const double t = e.t_table_s - static_cast<double>(kEpochNs / 1'000'000'000);
+      const auto near = [&](std::int64_t s) {
+        return std::abs(static_cast<double>(s - kEpochNs) * 1e-9 - t) < 1e-6;
+      };
+      not_a_sync += std::none_of(syncs.begin(), syncs.end(), near);
+    }
+    CHECK(not_a_sync == 0);
+    const auto& enc_live = live.input->input.timeline.encoder;
+    REQUIRE(enc_live.size() > 500);
+    // when an observer's engine replays the log (the drive's frames, ours echoed)
+    run::SequencerSettings q = ClosedLoop::settings_of(plan, live.setup);
+    q.observe = true;
+    auto dev = drivers::make_devices(st.stand.cfg.can, st.roles, {}, 1);
+    run::Engine replay(st.stand.db, std::move(dev.ins), std::move(dev.table), plan, q,
+                       run::BuildSettings{}, run::TimeBase{kEpochNs / 1000, 1});
+    std::vector<run::OutFrame> out;
+    replay.start(live.log.front().f.time_ns, out);
+    std::optional<run::BuiltInput> in;
+    for (const Logged& l : live.log) {
+      replay.on_frame(l.f, out);
+      replay.tick(l.f.time_ns, out);
+      if (replay.estimation_due()) {
+        auto b = replay.take_estimation_input();
+        REQUIRE(b.ok());
+        in = std::move(*b);
+        break;
+      }
+    }
+    // then its encoder samples are the live run's, bit for bit, and so are its drops
+    CHECK(out.empty());
+    REQUIRE(in);
+    const auto& enc_replay = in->input.timeline.encoder;
+    REQUIRE(enc_live.size() == enc_replay.size());
+    int differ = 0;
+    for (std::size_t i = 0; i < enc_live.size(); ++i)
+      differ +=
+          enc_live[i].t_s != enc_replay[i].t_s || enc_live[i].psi_rad != enc_replay[i].psi_rad;
+    CHECK(differ == 0);
+    CHECK(replay.ingest().health(kEncoder).dropped == enc.dropped);
   }
 
   TEST_CASE("replay of a CiA 402 run in observe mode: the same input, sending nothing") {

@@ -84,6 +84,8 @@ struct Loop {
         sent.push_back(f);
         if (f.id == canopen::kSyncId) sync_times.push_back(t);
         drive.receive(t, f, from_drive);
+        // the bus's echo of our SYNC and NMT, as the kernel gives it
+        if (f.id == canopen::kSyncId || f.id == 0) master.on_frame(f, t, from_master);
       }
       if (held()) continue;
       std::vector<stand::DriveFrame> d;
@@ -521,9 +523,9 @@ TEST_SUITE("cia402") {
     CHECK(l.samples.back().angle_rad == 0);
   }
 
-  TEST_CASE("the virtual drive's TPDOs timed by their receipt: event-driven ones, not SYNC's") {
+  TEST_CASE("the virtual drive's TPDOs timed on the bus: event-driven ones and SYNC's") {
     // what turncal-sim leaves unsent when it is late (a real drive samples
-    // such a frame as it sends it); a SYNC's TPDO is timed by the SYNC
+    // such a frame as it sends it, by its receipt or within its SYNC's cycle)
     can::Frame tpdo1;
     tpdo1.id = 0x185;
     tpdo1.len = 6;
@@ -540,12 +542,12 @@ TEST_SUITE("cia402") {
       l.start();
       REQUIRE(l.running());
       CHECK(*l.drive.value(0x1800, 2) >= 0xFE);  // event-driven
-      CHECK(l.drive.timed_by_receipt(tpdo1));
-      CHECK(l.drive.timed_by_receipt(tpdo2));
-      CHECK_FALSE(l.drive.timed_by_receipt(heartbeat));
+      CHECK(l.drive.timed_on_the_bus(tpdo1));
+      CHECK(l.drive.timed_on_the_bus(tpdo2));
+      CHECK_FALSE(l.drive.timed_on_the_bus(heartbeat));
       can::Frame ext = tpdo1;
       ext.extended = true;
-      CHECK_FALSE(l.drive.timed_by_receipt(ext));
+      CHECK_FALSE(l.drive.timed_on_the_bus(ext));
       // one that was not sent after all: the drive sends its word again at
       // its next chance (any frame it hears), not only on its timer
       can::Frame other;
@@ -569,8 +571,20 @@ TEST_SUITE("cia402") {
       Loop l(ms);
       l.start();
       REQUIRE(l.running());
-      CHECK(*l.drive.value(0x1800, 2) == 1);  // synchronous
-      CHECK_FALSE(l.drive.timed_by_receipt(tpdo1));
+      CHECK(*l.drive.value(0x1800, 2) == 1);  // synchronous: dated by its SYNC
+      CHECK(l.drive.timed_on_the_bus(tpdo1));
+      CHECK_FALSE(l.drive.timed_on_the_bus(heartbeat));
+      // one not sent: the next SYNC's carries its change, nothing before
+      l.drive.unsent(tpdo1);
+      can::Frame other;
+      other.id = 0x7FF;
+      other.len = 0;
+      std::vector<stand::DriveFrame> out;
+      l.drive.receive(l.t, other, out);
+      CHECK(out.empty());
+      l.drive.receive(l.t, canopen::sync_frame(), out);
+      CHECK(std::count_if(out.begin(), out.end(),
+                          [](const stand::DriveFrame& f) { return f.frame.id == 0x185; }) == 1);
     }
   }
 
@@ -610,6 +624,119 @@ TEST_SUITE("cia402") {
     CHECK(l.drive.counts().sync >= 25);
     REQUIRE(l.enabled(3));
     CHECK(l.drive.state() == State::OperationEnabled);
+  }
+
+  TEST_CASE("with SYNC: a sample has its SYNC's echo's time; a SYNC no TPDO1 answered is a loss") {
+    cia402::MasterSettings ms = master_settings();
+    ms.sync_period_s = 0.01;
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    l.run_for(0.1);
+    REQUIRE_FALSE(l.samples.empty());
+    // from here the bus is written by hand: the drive's TPDO1 as it stands
+    const double t0 = l.t;
+    std::vector<can::Frame> out;
+    std::vector<cia402::EncoderSample> got;
+    auto sync = [&](double t) { l.master.on_frame(canopen::sync_frame(), t0 + t, out); };
+    auto tpdo = [&](double t) {
+      can::Frame f;
+      f.id = 0x185;
+      f.len = 6;
+      const std::uint16_t sw = l.drive.statusword();
+      const auto pos = static_cast<std::uint32_t>(l.drive.position_counts(l.t));
+      f.data[0] = static_cast<std::uint8_t>(sw);
+      f.data[1] = static_cast<std::uint8_t>(sw >> 8);
+      for (unsigned b = 0; b < 4; ++b) f.data[2 + b] = static_cast<std::uint8_t>(pos >> (8 * b));
+      l.master.on_frame(f, t0 + t, out);
+      got.clear();
+      l.master.take_samples(got);
+      REQUIRE(got.size() == 1);
+      return got.back();
+    };
+    // the SYNC on the bus dates the TPDO1 that answers it
+    sync(0.0012);
+    cia402::EncoderSample e = tpdo(0.0017);
+    CHECK(e.t_s == t0 + 0.0012);
+    CHECK(e.lost_before == 0);
+    // a SYNC queued by the tick is not yet on the bus: its echo's time counts
+    l.master.tick(t0 + 0.01, out);
+    REQUIRE(std::count_if(out.begin(), out.end(),
+                          [](const can::Frame& f) { return f.id == canopen::kSyncId; }) == 1);
+    sync(0.0134);  // the echo, 3.4 ms after the tick queued it
+    e = tpdo(0.0139);
+    CHECK(e.t_s == t0 + 0.0134);
+    CHECK(e.lost_before == 0);
+    // two SYNCs, one TPDO1: the first one's answer was lost
+    sync(0.02);
+    sync(0.03);
+    e = tpdo(0.0305);
+    CHECK(e.t_s == t0 + 0.03);
+    CHECK(e.lost_before == 1);
+    // three unanswered before it: three lost
+    for (int k = 4; k <= 7; ++k) sync(0.01 * k);
+    CHECK(tpdo(0.0705).lost_before == 3);
+    // a SYNC sent 6 ms late and the next on time, both answered: no loss
+    // (their 4 ms gap after a 16 ms one reads as a period missed by time)
+    sync(0.086);
+    CHECK(tpdo(0.0865).lost_before == 0);
+    sync(0.09);
+    CHECK(tpdo(0.0905).lost_before == 0);
+    // an NMT command to the drive starts its stream over: the SYNCs before
+    // its first TPDO1 after are no losses
+    l.master.on_frame(canopen::nmt_frame(canopen::NmtCommand::Start, 5), t0 + 0.095, out);
+    sync(0.1);
+    sync(0.11);
+    e = tpdo(0.1105);
+    CHECK(e.t_s == t0 + 0.11);
+    CHECK(e.lost_before == -1);
+    sync(0.12);
+    CHECK(tpdo(0.1205).lost_before == 0);
+    // an NMT command to another node changes nothing
+    l.master.on_frame(canopen::nmt_frame(canopen::NmtCommand::Start, 6), t0 + 0.125, out);
+    sync(0.13);
+    sync(0.14);
+    CHECK(tpdo(0.1405).lost_before == 1);
+    // a SYNC of a wrong length (CiA 301: none or one byte of counter) is not one
+    can::Frame bad = canopen::sync_frame();
+    bad.len = 2;
+    const auto malformed = l.master.counts().malformed;
+    l.master.on_frame(bad, t0 + 0.15, out);
+    CHECK(l.master.counts().malformed == malformed + 1);
+    e = tpdo(0.1505);
+    CHECK(e.t_s == t0 + 0.14);
+    CHECK(e.lost_before == 0);
+  }
+
+  TEST_CASE("SYNC keeps its schedule after a late tick, and never two within half a period") {
+    cia402::MasterSettings ms = master_settings();
+    ms.sync_period_s = 0.01;
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    l.run_for(0.1);
+    REQUIRE_FALSE(l.sync_times.empty());
+    const double grid = l.sync_times.back();  // SYNCs due at grid + k * 10 ms
+    l.sync_times.clear();
+    // a tick 3 ms late: the next SYNC on the grid again, 7 ms after it
+    l.step(grid + 0.013 - l.t);
+    l.run_for(0.0495);
+    REQUIRE(l.sync_times.size() >= 2);
+    CHECK(l.sync_times[0] == doctest::Approx(grid + 0.013).epsilon(1e-9));
+    CHECK(l.sync_times[1] == doctest::Approx(grid + 0.02).epsilon(1e-9));
+    // a tick 8 ms late (the one at grid + 0.07 and its due SYNC missed):
+    // the next SYNC half a period after it, not at the grid's next 2 ms on
+    const std::size_t late = l.sync_times.size();
+    l.step(grid + 0.078 - l.t);
+    l.run_for(0.05);
+    REQUIRE(l.sync_times.size() >= late + 3);
+    CHECK(l.sync_times[late] == doctest::Approx(grid + 0.078).epsilon(1e-9));
+    CHECK(l.sync_times[late + 1] == doctest::Approx(grid + 0.083).epsilon(1e-9));
+    double shortest = 1;
+    for (std::size_t i = 1; i < l.sync_times.size(); ++i)
+      shortest = std::min(shortest, l.sync_times[i] - l.sync_times[i - 1]);
+    CHECK(shortest >= 0.005 - 1e-9);
   }
 
   TEST_CASE("velocity actual in TPDO2: the table's rate is the drive's own") {

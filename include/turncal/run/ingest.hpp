@@ -226,7 +226,9 @@ class Ingest {
   }
 
  private:
-  void saw(Stream s, double host_s, double device_s);
+  /// lost_before: the device's own count of samples lost before this one
+  /// (Decoded::lost_before); -1: counted from the gap in device time.
+  void saw(Stream s, double host_s, double device_s, std::int64_t lost_before = -1);
   /// A frame of `s` that cannot be: counted, and nothing more.
   Sample implausible(Stream s);
   Plausibility plausible_;

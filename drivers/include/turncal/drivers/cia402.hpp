@@ -70,7 +70,8 @@
 // Wiring (the daemon, the replay, a test):
 //   auto m = Master::create(settings);           // an error names the misfit
 //   m->start(now_s, out);                         // send `out`
-//   every frame of the table's bus: m->on_frame(frame, t_s, out);
+//   every frame of the table's bus: m->on_frame(frame, t_s, out), and the
+//     echoes of our own SYNC and NMT frames, in the order the bus had them;
 //   the main loop, at least every heartbeat period: m->tick(now_s, out);
 //   a sequencer TableCommand: m->command(code, seq, target_rad, rate_rps,
 //     now_s, out) -- an error means nothing was sent;
@@ -370,7 +371,11 @@ struct TableView {
 
 /// One position actual from TPDO1, as a table angle.
 struct EncoderSample {
-  double t_s = 0;           ///< its SYNC's time, else the TPDO's receive time
+  double t_s = 0;  ///< its SYNC's echo's time, else the TPDO's receive time
+  /// With SYNC: the SYNCs since the last TPDO1 that none answered (a TPDO
+  /// lost, or a drive that skipped a cycle); -1 when not known (no SYNC,
+  /// the first TPDO1 since a start).
+  std::int64_t lost_before = -1;
   double angle_rad = 0;     ///< multi-turn (the drive's s32 unwrapped)
   std::int64_t counts = 0;  ///< the unwrapped position actual
   std::uint16_t statusword = 0;
@@ -382,7 +387,7 @@ struct MasterCounts {
   std::uint64_t velocity_pdo = 0;
   std::uint64_t emcy = 0;
   std::uint64_t heartbeats = 0;
-  std::uint64_t malformed = 0;           ///< a TPDO, EMCY or heartbeat of a wrong length
+  std::uint64_t malformed = 0;           ///< a TPDO, EMCY, heartbeat or SYNC of a wrong length
   std::uint64_t nmt_resets = 0;          ///< reset communication sent
   std::uint64_t configurations = 0;      ///< configurations completed
   std::uint64_t unknown_nmt_states = 0;  ///< drive heartbeats with a state byte CiA 301 lacks
@@ -423,7 +428,9 @@ class Master {
   /// set-point's acknowledgement, the mode switch) do not count that time.
   void held(double from_s, double to_s);
   /// A frame from the bus at t_s. Frames of other nodes are ignored; ours
-  /// of a wrong length are counted and skipped.
+  /// of a wrong length are counted and skipped. A SYNC (ours, echoed, or
+  /// another producer's) is the time of the TPDO1s that answer it: the
+  /// time it was on the bus, not the time it was queued.
   void on_frame(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
 
   /// A sequencer command. target_rad: MoveAbsolute's angle, MoveRelative's
@@ -583,7 +590,8 @@ class Master {
   std::uint64_t tpdo_running_ = 0;  // TPDO1s since then
   bool drive_seen_operational_ = false;
   double next_sync_ = 0;
-  double last_sync_ = NAN;
+  double last_sync_ = NAN;              // the last SYNC seen on the bus
+  std::int64_t syncs_unanswered_ = -1;  // SYNCs since the last TPDO1; -1: none since a start
   // the drive
   std::optional<std::uint16_t> sw_;
   std::uint64_t sw_seq_ = 0;  // statuswords received

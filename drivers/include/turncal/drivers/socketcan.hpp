@@ -79,10 +79,22 @@ struct RxBatch {
   std::vector<can::TimedFrame> frames;
   std::vector<can::BusEvent> events;
   std::vector<can::TimedFrame> confirmed;  ///< our own frames, echoed (Options::confirm)
+  /// The frames of both lists in the order the socket held them: true for
+  /// the next of `confirmed`, false for the next of `frames`. A SYNC's echo
+  /// read before the TPDOs that answer it must also be used before them.
+  std::vector<bool> echoed;
   void clear() {
     frames.clear();
     events.clear();
     confirmed.clear();
+    echoed.clear();
+  }
+  /// Calls f(frame, echoed) for every frame, in the order read.
+  template <class F>
+  void in_order(F&& f) const {
+    std::size_t r = 0;
+    std::size_t c = 0;
+    for (const bool e : echoed) f(e ? confirmed.at(c++) : frames.at(r++), e);
   }
 };
 

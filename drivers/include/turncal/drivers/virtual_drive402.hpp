@@ -168,12 +168,17 @@ class VirtualDrive402 {
   [[nodiscard]] const std::vector<std::uint16_t>& emcy_sent() const { return emcy_sent_; }
   [[nodiscard]] const Drive402Counts& counts() const { return counts_; }
   [[nodiscard]] double counts_per_rad() const { return cpr_; }
-  /// A frame of this drive's whose only time is its receipt: TPDO1, or
-  /// TPDO2 which goes with it, sent on its event timer or on change (no
-  /// SYNC). A real drive samples what such a frame carries as it sends it.
-  [[nodiscard]] bool timed_by_receipt(const can::Frame& f) const;
+  /// A frame of this drive's the host dates by the bus: TPDO1, or TPDO2
+  /// which goes with it, by its receipt (sent on its event timer or on
+  /// change) or by the SYNC it answers. A real drive samples what such a
+  /// frame carries as it sends it, within its cycle of the SYNC.
+  [[nodiscard]] bool timed_on_the_bus(const can::Frame& f) const;
+  /// TPDO1 goes on change and on its event timer (transmission type 254,
+  /// 255); else on SYNC.
+  [[nodiscard]] bool event_driven() const;
   /// Such a frame was not sent after all (turncal-sim, late): as if the bus
-  /// had lost it, the change it carried goes with the drive's next TPDO.
+  /// had lost it, the change it carried goes with the drive's next TPDO
+  /// (event-driven: at its next chance; synchronous: on the next SYNC).
   void unsent(const can::Frame& f);
 
  private:
@@ -230,7 +235,6 @@ class VirtualDrive402 {
 
   void refresh(double t);
   [[nodiscard]] bool tpdo_valid() const;
-  [[nodiscard]] bool event_driven() const;
   void send_tpdo(double t, std::vector<DriveFrame>& out);
   void tpdo_on_change(double t, std::vector<DriveFrame>& out);
 
