@@ -1000,7 +1000,13 @@ void Master::on_heartbeat(const can::Frame& f, double t_s, std::vector<can::Fram
   if (phase_ != CommPhase::Running) return;
   if (st == canopen::NmtState::Operational) {
     drive_seen_operational_ = true;
-  } else if (drive_seen_operational_ || t_s - started_at_ > 2 * s_.drive_heartbeat_period_s) {
+  } else if (drive_seen_operational_ ||
+             t_s - started_at_ >
+                 std::max(2 * s_.drive_heartbeat_period_s, s_.drive_heartbeat_timeout_s)) {
+    // before the drive has said operational, a heartbeat of its state
+    // before our NMT start (queued behind the bus, or a drive late to send
+    // it) is no news, as long as a heartbeat may be late at all: the
+    // consumer timeout (at 2 periods, a stand 20 ms late at 10x failed)
     latch(FaultCode::DriveNmtState,
           std::string("drive NMT state ") + canopen::to_string(st) + " while running", true);
   }

@@ -147,8 +147,9 @@ Result<json> calibration_json(const json& report) {
                             : "accelerometer " + std::string(i) +
                                   "'s bias in this mounting (subtract it from f_m_" + i +
                                   "); it does not part df0_" + i + " from G" + i + "3";
+      // both when both are determined (a profile that also parts theta_i3
+      // from them): df_eff is the correction, df_obs what it rests on
       combos.push_back(c);
-      break;  // df_eff where df_obs is not determined
     }
   }
   cal["combinations"] = combos;

@@ -72,6 +72,20 @@ TEST_SUITE("calibration") {
     CHECK((*cal)["covariance"].is_null());
   }
 
+  TEST_CASE("df_obs and df_eff both determined: both exported, each with what it applies as") {
+    json r = golden();
+    r["estimates"]["df_eff_1"]["determined"] = "determined";
+    auto cal = turncal::run::calibration_json(r);
+    REQUIRE(cal.ok());
+    std::vector<std::string> names;
+    for (const json& c : (*cal)["combinations"]) names.push_back(c["name"]);
+    CHECK(names == std::vector<std::string>{"df_obs_1", "df_eff_1", "df_obs_2"});
+    const json& eff = (*cal)["combinations"][1];
+    CHECK(eff["definition"] == "df0_1 + g G13");
+    CHECK(eff["value"].get<double>() == r["estimates"]["df_eff_1"]["value"].get<double>());
+    CHECK(std::string(eff["applies_as"]).find("accelerometer 1's bias in this mounting") == 0);
+  }
+
   TEST_CASE("the covariance of the determined block is the report's, in the file's order") {
     json r = golden();
     json order = json::array();

@@ -1317,6 +1317,32 @@ TEST_SUITE("cia402") {
     CHECK(l.drive.state() == State::OperationEnabled);
   }
 
+  TEST_CASE("a pre-operational heartbeat after our NMT start: late news within the timeout") {
+    // drive heartbeat every 100 ms, lost after 300 ms
+    Loop l;
+    l.start();
+    REQUIRE(l.run_until([&] { return l.master.phase() == cia402::CommPhase::Running; }, 2.0));
+    const double started = l.t;
+    // the drive's own frames held back from here: only what the test sends
+    const can::Frame pre_op = canopen::heartbeat_frame(5, canopen::NmtState::PreOperational);
+    SUBCASE("a late one, before any operational one: no fault") {
+      l.master.on_frame(pre_op, started + 0.25, l.from_master);  // two periods on
+      CHECK(l.master.status().fault == FaultCode::None);
+      l.master.on_frame(pre_op, started + 0.29, l.from_master);
+      CHECK(l.master.status().fault == FaultCode::None);
+      // and it still says pre-operational after the timeout: it never started
+      l.master.on_frame(pre_op, started + 0.35, l.from_master);
+      CHECK(l.master.status().fault == FaultCode::DriveNmtState);
+    }
+    SUBCASE("after an operational one: a fault at once") {
+      l.master.on_frame(canopen::heartbeat_frame(5, canopen::NmtState::Operational), started + 0.05,
+                        l.from_master);
+      l.master.on_frame(pre_op, started + 0.1, l.from_master);
+      CHECK(l.master.status().fault == FaultCode::DriveNmtState);
+      CHECK(l.master.status().fault_name == "drive NMT state pre-operational while running");
+    }
+  }
+
   TEST_CASE("change set immediately: a new target while moving is taken at once") {
     cia402::MasterSettings ms = master_settings();
     ms.change_set_immediately = true;

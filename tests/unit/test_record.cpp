@@ -223,3 +223,64 @@ TEST_SUITE("thinning") {
     for (const double v : y) CHECK(v == 5.0);
   }
 }
+
+TEST_SUITE("record") {
+  /// A 180 deg turn, 30 deg/s^2 up to 30 deg/s and down, sampled every
+  /// 10 ms; each sample dated by `date` from its true time.
+  std::vector<est::AngleSample> turn(double rate_dps, const std::function<double(double)>& date) {
+    constexpr double kDeg = 0.017453292519943295;
+    const double a = 30 * kDeg, angle = 180 * kDeg;
+    const double w = std::min(rate_dps * kDeg, std::sqrt(a * angle));  // a triangle at most
+    const double ramp = w / a, plateau = (angle - w * ramp) / w;
+    auto psi = [&](double t) {
+      if (t <= 0) return 0.0;
+      if (t < ramp) return a * t * t / 2;
+      if (t < ramp + plateau) return a * ramp * ramp / 2 + w * (t - ramp);
+      const double d = std::min(t - ramp - plateau, ramp);
+      return a * ramp * ramp / 2 + w * plateau + w * d - a * d * d / 2;
+    };
+    std::vector<est::AngleSample> enc;
+    for (int k = -20; k <= 800; ++k) {
+      const double t = 0.01 * k;
+      enc.push_back({date(t), psi(t)});
+    }
+    return enc;
+  }
+
+  TEST_CASE(
+      "a turn's peak rate: a fit over 0.2 s, not two samples, so a table timed by its "
+      "receipt reads it right") {
+    constexpr double kDeg = 0.017453292519943295;
+    SUBCASE("samples on their true times: the plateau's rate") {
+      const auto enc = turn(30, [](double t) { return t; });
+      CHECK(peak_rate_rps(enc, 0, enc.size() - 1) == doctest::Approx(30 * kDeg).epsilon(1e-9));
+    }
+    SUBCASE("samples dated by their receipt after 25 ms stalls: within 5% of the plateau") {
+      // every 0.5 s the host reads nothing for 25 ms, then the waiting
+      // samples at once: the last of them and the next read 10 ms apart
+      // span 13.5 ms of the turn. Two-sample slopes over 10 ms read 1.35
+      // times the plateau here; a fit over 0.1 s, 1.11 times
+      const auto enc = turn(30, [](double t) {
+        const double phase = std::fmod(t + 1, 0.5);
+        if (phase < 0.3 - 1e-9 || phase >= 0.325 - 1e-9) return t;
+        return t - phase + 0.325 + 1e-4 * std::round((phase - 0.3) / 0.01);
+      });
+      const double peak = peak_rate_rps(enc, 0, enc.size() - 1);
+      CHECK(peak / (30 * kDeg) - 1 < 0.05);
+      CHECK(peak / (30 * kDeg) - 1 > 0);
+    }
+    SUBCASE("a turn with no plateau (180 deg never reaching 200 deg/s): alpha * 0.2 s / 4 low") {
+      // peak of a triangle: sqrt(alpha * angle) = 73.5 deg/s at 30 deg/s^2
+      const auto enc = turn(200, [](double t) { return t; });
+      const double vertex = std::sqrt(30 * 180.0) * kDeg;
+      const double peak = peak_rate_rps(enc, 0, enc.size() - 1);
+      CHECK(peak < vertex);
+      CHECK(peak > vertex - 30 * kDeg * kPeakWindowS / 4 * 1.01);
+    }
+    SUBCASE("a motion shorter than the window: one fit over all of it") {
+      std::vector<est::AngleSample> enc;
+      for (int k = 0; k <= 5; ++k) enc.push_back({0.01 * k, 0.002 * k});
+      CHECK(peak_rate_rps(enc, 0, enc.size() - 1) == doctest::Approx(0.2).epsilon(1e-9));
+    }
+  }
+}

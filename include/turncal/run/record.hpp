@@ -68,12 +68,26 @@ class Record {
   EncoderSample last_{};
 };
 
+/// The span of encoder samples each rate of TurnAchieved::peak_rate_rps is
+/// fitted over, s.
+inline constexpr double kPeakWindowS = 0.2;
+
+/// The largest |rate| of encoder samples from..to (indices, from < to),
+/// each the least-squares slope over kPeakWindowS of samples (over all of
+/// them when they span less), rad/s. A slope over two samples would read a
+/// table timed by its receipt (a CiA 402 TPDO without SYNC), whose samples
+/// come in bursts, several times too fast; the fit's error is the receipt
+/// jitter over the window. On a ramp it reads the rate at the window's
+/// middle: a turn that never reaches a plateau shows about alpha * window
+/// / 4 below its peak.
+double peak_rate_rps(const std::vector<est::AngleSample>& enc, std::size_t from, std::size_t to);
+
 /// What the encoder says a turn was.
 struct TurnAchieved {
   double t_start_s;  ///< INS clock from t0
   double t_end_s;
   double angle_rad;      ///< net, signed
-  double peak_rate_rps;  ///< largest |rate| between samples 10 ms or more apart
+  double peak_rate_rps;  ///< largest |rate|, each a least-squares fit over kPeakWindowS
   double planned_angle_rad = NAN;
 };
 
