@@ -601,8 +601,7 @@ bool VirtualDrive402::event_driven() const {
 }
 
 void VirtualDrive402::unsent(const can::Frame& f) {
-  // event-driven: its change goes with the next; synchronous: the next SYNC's
-  if (event_driven() && timed_on_the_bus(f)) last_sent_sw_.reset();
+  if (timed_on_the_bus(f)) last_sent_sw_.reset();
 }
 
 bool VirtualDrive402::timed_on_the_bus(const can::Frame& f) const {

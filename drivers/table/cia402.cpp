@@ -828,6 +828,7 @@ void Master::config_done(double now_s, std::vector<can::Frame>& out) {
   out.push_back(canopen::nmt_frame(canopen::NmtCommand::Start, s_.node_id));
   phase_ = CommPhase::Running;
   started_at_ = now_s;
+  next_sync_ = now_s;  // SYNC from the start on, every period (not half one after a stale due)
   tpdo_running_ = 0;
   rest_win_ = {};
   last_drive_hb_ = now_s;
@@ -1078,12 +1079,29 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
   angle_ = sense() * static_cast<double>(pos_counts_) / cpr_;
   EncoderSample smp;
   const bool synced = s_.sync_period_s > 0 && !std::isnan(last_sync_);
-  smp.t_s = synced ? last_sync_ : t_s;
-  // the SYNCs before this TPDO1's that none answered; the first since a
-  // start, or a TPDO1 before any SYNC, says nothing of losses
-  smp.lost_before =
-      synced && syncs_unanswered_ >= 0 ? std::max<std::int64_t>(syncs_unanswered_ - 1, 0) : -1;
-  syncs_unanswered_ = synced ? 0 : -1;
+  if (!synced) {
+    smp.t_s = t_s;  // no SYNC seen yet: its receipt
+    smp.lost_before = -1;
+  } else if (syncs_unanswered_ < 0) {
+    // the first since a start: the SYNCs before it were no losses
+    smp.t_s = last_sync_;
+    smp.lost_before = EncoderSample::kRestarted;
+  } else if (syncs_unanswered_ == 0) {
+    // no SYNC since the last TPDO1 (a second answer to one SYNC, or a
+    // SYNC's echo lost or read after its answer): its SYNC is not known,
+    // and the last one's time is the last sample's; dated by its receipt
+    ++counts_.tpdo_unsynced;
+    notice(
+        "TPDO1s came with no SYNC since the one before (counted: tpdo_unsynced); each is "
+        "dated by its receipt");
+    smp.t_s = t_s;
+    smp.lost_before = 0;
+  } else {
+    // the SYNCs before its own that none answered
+    smp.t_s = last_sync_;
+    smp.lost_before = syncs_unanswered_ - 1;
+  }
+  if (synced) syncs_unanswered_ = 0;
   smp.angle_rad = angle_;
   smp.counts = pos_counts_;
   smp.statusword = word;

@@ -154,7 +154,8 @@ class Cia402Table final : public TableDriver {
     if (!samples_.empty()) {
       const cia402::EncoderSample& e = samples_.back();
       d = Decoded::taken(kEncoder, e.t_s, EncoderSample{e.t_s, v.host_s, e.angle_rad});
-      d.lost_before = e.lost_before;
+      d.lost_before =
+          e.lost_before == cia402::EncoderSample::kRestarted ? kStreamRestarted : e.lost_before;
     }
     // a TPDO1 is the drive's status too; anything else, when it changed it
     queue_status(v.host_s, after.tpdo != before.tpdo);

@@ -125,6 +125,9 @@ struct FrameView {
 };
 
 /// What a driver made of a frame.
+/// Decoded::lost_before of the first sample of a stream that started over.
+inline constexpr std::int64_t kStreamRestarted = -2;
+
 struct Decoded {
   enum class Verdict : std::uint8_t {
     NotMine,      ///< not this device's frame
@@ -139,7 +142,8 @@ struct Decoded {
   Sample sample;
   /// Samples of the stream lost just before this one, as the device's own
   /// sequence tells (a CiA 402 TPDO answers each SYNC); -1: not known, the
-  /// gap in device time since the last sample says.
+  /// gap in device time since the last sample says; kStreamRestarted: the
+  /// first of a stream that started over, no loss and no gap.
   std::int64_t lost_before = -1;
 
   static Decoded malformed() { return of(Verdict::Malformed, kStreams); }

@@ -252,17 +252,22 @@ void Ingest::saw(Stream s, double host_s, double device_s, std::int64_t lost_bef
   ++h.frames;
   h.implausible_run = 0;
   if (std::isnan(h.first_host_s)) h.first_host_s = host_s;
+  const double prev_host_s = h.last_host_s;
   h.last_host_s = host_s;
   double& last = last_device_s_[s];
   // the device's own count when it keeps one: a SYNC sent late and the
   // next on time are no loss, though their gap is 1.5 periods; the rate is
-  // then the mean one, the losses counted in, as the intervals are the
-  // SYNCs' jitter
-  if (lost_before >= 0) {
-    h.dropped += static_cast<std::uint64_t>(lost_before);
-    const double span = h.last_host_s - h.first_host_s;
-    if (h.frames >= 2 && span > 0)
-      h.nominal_hz = static_cast<double>(h.frames - 1 + h.dropped) / span;
+  // then the mean one while the stream runs (not across a restart), the
+  // losses counted in, as the intervals are the SYNCs' jitter
+  if (lost_before >= 0 || lost_before == kStreamRestarted) {
+    if (lost_before > 0) h.dropped += static_cast<std::uint64_t>(lost_before);
+    const bool skip = std::exchange(h.skip_interval, false);
+    if (lost_before != kStreamRestarted && !skip && !std::isnan(prev_host_s) &&
+        host_s > prev_host_s) {
+      h.counted_span_s += host_s - prev_host_s;
+      h.counted_periods += 1 + static_cast<std::uint64_t>(lost_before);
+      h.nominal_hz = static_cast<double>(h.counted_periods) / h.counted_span_s;
+    }
     last = device_s;
     return;
   }
@@ -363,7 +368,14 @@ Sample Ingest::take(Decoded d, double host) {
         // only a reference with almost nothing after it (the stream's first
         // samples) can be the garbled one; later, a run of agreeing samples
         // off it is a fault of the encoder, refused until the run fails
-        if (refused_run_ < kReanchor || accepted_encoder_ > kReanchor) return implausible(kEncoder);
+        if (refused_run_ < kReanchor || accepted_encoder_ > kReanchor) {
+          // the losses the device counted before it are losses all the
+          // same; the interval across it is no period: out of the mean rate
+          if (d.lost_before > 0)
+            health_[kEncoder].dropped += static_cast<std::uint64_t>(d.lost_before);
+          health_[kEncoder].skip_interval = true;
+          return implausible(kEncoder);
+        }
         ++counters_.encoder_reanchored;
         accepted_encoder_ = 0;
       }

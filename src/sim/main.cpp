@@ -15,6 +15,7 @@
 
 #include <poll.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <csignal>
@@ -573,10 +574,12 @@ int live(const Options& o) {
   constexpr double kReceiptSlackS = 0.001;
   // A TPDO answering a SYNC holds what the drive sampled at the SYNC: it
   // may go out later, as a real drive's waits for the bus, but not after
-  // the host's next SYNC, which would date it. A quarter of the shortest
-  // interval between two SYNCs seen (stand s) stays clear of that.
+  // the host's next SYNC, which would date it. A quarter of the SYNC
+  // period, the median of the last intervals between two SYNCs (stand s),
+  // stays clear of that (one pair sent close together changes no median).
   double sync_last_at = NAN;
-  double sync_min_gap = INFINITY;
+  std::deque<double> sync_gaps;
+  double sync_period = INFINITY;
   std::uint64_t late_tpdo_frames = 0;
   stand::VirtualDrive402* receipt_drive = loop.stand().drive();
   // The stand sleeps to the next tick in steps of whole milliseconds, as
@@ -609,8 +612,14 @@ int live(const Options& o) {
         const double at = static_cast<double>(f.time_ns - kernel0_ns) * 1e-9 * o.speed;
         from_bus.emplace_back(at, f.frame);
         if (f.frame.id == 0x080 && !f.frame.extended) {  // CiA 301 SYNC
-          if (!std::isnan(sync_last_at) && at > sync_last_at)
-            sync_min_gap = std::min(sync_min_gap, at - sync_last_at);
+          if (!std::isnan(sync_last_at) && at > sync_last_at) {
+            sync_gaps.push_back(at - sync_last_at);
+            if (sync_gaps.size() > 15) sync_gaps.pop_front();
+            std::vector<double> g(sync_gaps.begin(), sync_gaps.end());
+            std::nth_element(g.begin(), g.begin() + static_cast<std::ptrdiff_t>(g.size() / 2),
+                             g.end());
+            sync_period = g[g.size() / 2];
+          }
           sync_last_at = at;
         }
         if (hb != nullptr && f.frame.id == hb->id && f.frame.extended == hb->extended) {
@@ -646,9 +655,9 @@ int live(const Options& o) {
       for (const stand::StandFrame& f : frames) {
         // how late it goes out: now, against the stand time it is due
         const auto slack = [&] {
-          return receipt_drive->event_driven() || !std::isfinite(sync_min_gap)
+          return receipt_drive->event_driven() || !std::isfinite(sync_period)
                      ? kReceiptSlackS
-                     : std::max(kReceiptSlackS, sync_min_gap / 4 / o.speed);
+                     : std::max(kReceiptSlackS, sync_period / 4 / o.speed);
         };
         if (receipt_drive != nullptr && !f.ins_side && receipt_drive->timed_on_the_bus(f.frame) &&
             real_s - f.t_s / o.speed > slack()) {
@@ -753,7 +762,7 @@ int live(const Options& o) {
                "turncal-sim: stopped at %.3f s simulated; host frames %llu (undecodable %llu, "
                "refused commands %llu); send queue overflow %llu; at most %.0f ms behind real "
                "time; drive TPDO frames not sent as late (over %.0f ms, on SYNC over a quarter of "
-               "its shortest interval) %llu\n",
+               "its period) %llu\n",
                loop.next_time(), static_cast<unsigned long long>(c.host_frames),
                static_cast<unsigned long long>(c.host_undecodable),
                static_cast<unsigned long long>(c.refused),

@@ -1138,7 +1138,7 @@ TEST_SUITE("faults of a CiA 402 drive through the daemon") {
             const json& enc = r["health"]["table_encoder"];
             CAPTURE(enc.dump());
             const double periods = enc["nominal_hz"].get<double>() * k.sync_ms / 1000;
-            CHECK(periods > 0.8);
+            CHECK(periods > 0.8);  // the guest's ticks a quarter late on average, at worst
             CHECK(periods < 1.02);
             sync_dropped = enc["dropped"].get<std::uint64_t>();
           }
@@ -1165,7 +1165,14 @@ TEST_SUITE("faults of a CiA 402 drive through the daemon") {
         // with SYNC, a SYNC the drive did not answer in time (the stand was
         // late, and sent nothing rather than a late TPDO1) is the one drop
         // turncald may count; no TPDO2 here, so frames are TPDO1s
-        if (k.sync_ms > 0) CHECK(sync_dropped <= st["drive"]["tpdo_frames_not_sent_late"]);
+        // (or those turncald's own socket dropped, which the stand never sees)
+        if (k.sync_ms > 0) {
+          std::uint64_t socket_dropped = 0;
+          for (const auto& [iface, c] : r["can"].items())
+            socket_dropped += c.value("rx_dropped", std::uint64_t{0});
+          CHECK(sync_dropped <=
+                st["drive"]["tpdo_frames_not_sent_late"].get<std::uint64_t>() + socket_dropped);
+        }
         if (done) {
           CHECK(st["drive"]["emcy"].empty());
           CHECK(st["drive"]["quick_stops"] == 0);

@@ -574,17 +574,6 @@ TEST_SUITE("cia402") {
       CHECK(*l.drive.value(0x1800, 2) == 1);  // synchronous: dated by its SYNC
       CHECK(l.drive.timed_on_the_bus(tpdo1));
       CHECK_FALSE(l.drive.timed_on_the_bus(heartbeat));
-      // one not sent: the next SYNC's carries its change, nothing before
-      l.drive.unsent(tpdo1);
-      can::Frame other;
-      other.id = 0x7FF;
-      other.len = 0;
-      std::vector<stand::DriveFrame> out;
-      l.drive.receive(l.t, other, out);
-      CHECK(out.empty());
-      l.drive.receive(l.t, canopen::sync_frame(), out);
-      CHECK(std::count_if(out.begin(), out.end(),
-                          [](const stand::DriveFrame& f) { return f.frame.id == 0x185; }) == 1);
     }
   }
 
@@ -690,7 +679,7 @@ TEST_SUITE("cia402") {
     sync(0.11);
     e = tpdo(0.1105);
     CHECK(e.t_s == t0 + 0.11);
-    CHECK(e.lost_before == -1);
+    CHECK(e.lost_before == cia402::EncoderSample::kRestarted);
     sync(0.12);
     CHECK(tpdo(0.1205).lost_before == 0);
     // an NMT command to another node changes nothing
@@ -704,9 +693,19 @@ TEST_SUITE("cia402") {
     const auto malformed = l.master.counts().malformed;
     l.master.on_frame(bad, t0 + 0.15, out);
     CHECK(l.master.counts().malformed == malformed + 1);
+    // so no SYNC since the last TPDO1: this one's SYNC is not known, and
+    // the last SYNC's time is the last sample's; dated by its receipt
     e = tpdo(0.1505);
-    CHECK(e.t_s == t0 + 0.14);
+    CHECK(e.t_s == t0 + 0.1505);
     CHECK(e.lost_before == 0);
+    CHECK(l.master.counts().tpdo_unsynced == 1);
+    CHECK(l.master.notices().back().find("TPDO1s came with no SYNC") == 0);
+    // and the next SYNC dates its answer again
+    sync(0.16);
+    e = tpdo(0.1605);
+    CHECK(e.t_s == t0 + 0.16);
+    CHECK(e.lost_before == 0);
+    CHECK(l.master.counts().tpdo_unsynced == 1);
   }
 
   TEST_CASE("SYNC keeps its schedule after a late tick, and never two within half a period") {

@@ -2,6 +2,7 @@
 #include <doctest/doctest.h>
 
 #include <cmath>
+#include <functional>
 #include <limits>
 #include <numbers>
 #include <random>
@@ -258,6 +259,62 @@ TEST_SUITE("ingest") {
     CHECK(in.health(kEncoder).nominal_hz == doctest::Approx(in.health(kEncoder).rate_hz()));
     CHECK(in.health(kEncoder).nominal_hz > 24);
     CHECK(in.health(kEncoder).nominal_hz < 26);
+  }
+
+  /// The reference table, each encoder sample carrying a loss count of the
+  /// device's own (a fake seam: a CiA 402 TPDO1 answering our SYNC), from
+  /// `lost` by the sample's index.
+  class DeviceCounted : public ReceiveTimed {
+   public:
+    DeviceCounted(std::unique_ptr<TableDriver> t, std::function<std::int64_t(int)> lost)
+        : ReceiveTimed(std::move(t)), lost_(std::move(lost)) {}
+    Decoded decode(const FrameView& v) override {
+      Decoded d = ReceiveTimed::decode(v);
+      if (d.verdict != Decoded::Verdict::Taken || d.stream != kEncoder) return d;
+      d.device_s = std::get<EncoderSample>(d.sample).t_table_s;  // the tag, as a SYNC's time
+      d.lost_before = lost_(k_++);
+      return d;
+    }
+
+   private:
+    std::function<std::int64_t(int)> lost_;
+    int k_ = 0;
+  };
+
+  TEST_CASE("an encoder that counts its own losses: its count, not the gaps; a restart none") {
+    Ref r;
+    Plausibility p;
+    p.max_table_rate_rps = 60 * std::numbers::pi / 180;
+    // 100 Hz; two lost before sample 30 (its gap three periods), a stream
+    // restarted 3 s later at 50 (no loss), one lost before sample 70, which
+    // is itself refused (an angle 90 deg off)
+    auto lost = [](int k) -> std::int64_t {
+      if (k == 0 || k == 50) return kStreamRestarted;
+      if (k == 30) return 2;
+      if (k == 70) return 1;
+      return 0;
+    };
+    Ingest in(r.db, drivers::make_reference_ins(r.roles, {}),
+              std::make_unique<DeviceCounted>(drivers::make_reference_table(r.roles, {}), lost), p);
+    double t = 10;
+    int kept = 0;
+    for (int k = 0; k < 100; ++k) {
+      t += k == 30 || k == 70 ? 0.01 * (1 + static_cast<double>(lost(k))) : k == 50 ? 3.0 : 0.01;
+      const double deg = k == 70 ? 90.0 : 0.0;
+      const Sample s = in.on_frame(r.at(
+          t, r.roles.encode(Role::EncoderAngle,
+                            {{Role::EncoderAngle, deg}, {Role::EncoderTimeTag, (t - 5) * 1e6}})));
+      kept += std::holds_alternative<EncoderSample>(s);
+    }
+    const StreamHealth& h = in.health(kEncoder);
+    CHECK(kept == 99);
+    CHECK(h.implausible == 1);
+    // the device's three, counted also for the refused sample; the 3 s of
+    // the restart none (by the gaps: 2 + 299)
+    CHECK(h.dropped == 3);
+    // the mean rate while it ran, the losses in, the restart out: 100 Hz
+    // (the refused sample's interval and loss count: it was received)
+    CHECK(h.nominal_hz == doctest::Approx(100).epsilon(1e-6));
   }
 
   TEST_CASE("an encoder step faster than the table can turn is skipped, and turns nothing") {

@@ -160,9 +160,18 @@ using turncal::VelocitySample;
 /// What the host hears of one kind of frame.
 struct StreamHealth {
   std::string name;
-  double nominal_hz = 0;      ///< learned from the time tags or the first receive intervals
+  /// Learned from the time tags (the shortest interval), or the mean rate
+  /// (receive times; for a device that counts its own losses, the periods
+  /// over the time it ran, losses in)
+  double nominal_hz = 0;
   std::uint64_t frames = 0;   ///< received
-  std::uint64_t dropped = 0;  ///< gaps in the device's time tags
+  std::uint64_t dropped = 0;  ///< gaps in the device's time tags, or its own count of losses
+  /// A stream that counts its own losses: the receive time and the
+  /// device's periods (samples and losses) between its samples, restarts
+  /// left out; their ratio is its nominal rate
+  double counted_span_s = 0;
+  std::uint64_t counted_periods = 0;
+  bool skip_interval = false;  ///< a sample refused since the last: the next interval left out
   /// Frames whose values cannot be (outside their DBC range, a velocity
   /// beyond the bound, an encoder step beyond the table's rate): counted in
   /// `frames`, skipped, and not seen (a stream of nothing else goes stale).

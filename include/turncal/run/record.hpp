@@ -78,8 +78,9 @@ inline constexpr double kPeakWindowS = 0.2;
 /// table timed by its receipt (a CiA 402 TPDO without SYNC), whose samples
 /// come in bursts, several times too fast; the fit's error is the receipt
 /// jitter over the window. On a ramp it reads the rate at the window's
-/// middle: a turn that never reaches a plateau shows about alpha * window
-/// / 4 below its peak.
+/// middle: a turn that never reaches a plateau shows 3 alpha window / 16
+/// below its peak (the fit weighs the rate by h^2 - t^2 over the window's
+/// half-width h, and the mean |t| so weighted is 3 h / 8).
 double peak_rate_rps(const std::vector<est::AngleSample>& enc, std::size_t from, std::size_t to);
 
 /// What the encoder says a turn was.

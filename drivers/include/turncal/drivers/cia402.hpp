@@ -371,10 +371,16 @@ struct TableView {
 
 /// One position actual from TPDO1, as a table angle.
 struct EncoderSample {
-  double t_s = 0;  ///< its SYNC's echo's time, else the TPDO's receive time
+  /// Its SYNC's time on our bus, the SYNC's echo's receive time (for a CAN
+  /// driver with IFF_ECHO, when it left on the bus; else, as for vcan, when
+  /// the kernel queued it to the device); without a SYNC, or with none
+  /// since the last TPDO1, the TPDO's own receive time.
+  double t_s = 0;
+  /// The first TPDO1 since an NMT command: the SYNCs before it are no losses.
+  static constexpr std::int64_t kRestarted = -2;
   /// With SYNC: the SYNCs since the last TPDO1 that none answered (a TPDO
-  /// lost, or a drive that skipped a cycle); -1 when not known (no SYNC,
-  /// the first TPDO1 since a start).
+  /// lost, or a drive that skipped a cycle), or kRestarted; -1 when not
+  /// known (no SYNC seen).
   std::int64_t lost_before = -1;
   double angle_rad = 0;     ///< multi-turn (the drive's s32 unwrapped)
   std::int64_t counts = 0;  ///< the unwrapped position actual
@@ -387,7 +393,9 @@ struct MasterCounts {
   std::uint64_t velocity_pdo = 0;
   std::uint64_t emcy = 0;
   std::uint64_t heartbeats = 0;
-  std::uint64_t malformed = 0;           ///< a TPDO, EMCY, heartbeat or SYNC of a wrong length
+  std::uint64_t malformed = 0;  ///< a TPDO, EMCY, heartbeat or SYNC of a wrong length
+  /// With SYNC: TPDO1s with no SYNC since the last one (dated by receipt)
+  std::uint64_t tpdo_unsynced = 0;
   std::uint64_t nmt_resets = 0;          ///< reset communication sent
   std::uint64_t configurations = 0;      ///< configurations completed
   std::uint64_t unknown_nmt_states = 0;  ///< drive heartbeats with a state byte CiA 301 lacks

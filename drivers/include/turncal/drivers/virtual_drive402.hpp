@@ -178,7 +178,7 @@ class VirtualDrive402 {
   [[nodiscard]] bool event_driven() const;
   /// Such a frame was not sent after all (turncal-sim, late): as if the bus
   /// had lost it, the change it carried goes with the drive's next TPDO
-  /// (event-driven: at its next chance; synchronous: on the next SYNC).
+  /// (event-driven: at its next chance; synchronous: the next SYNC's).
   void unsent(const can::Frame& f);
 
  private:
