@@ -914,6 +914,18 @@ void Master::held(double from_s, double to_s) {
   sdo_.held(from_s, to_s);
 }
 
+void Master::on_sync(double t_s) {
+  // the last SYNC unanswered by the time the next is on the bus: its
+  // TPDO1 lost (but not while the drive's stream starts: it sends none in
+  // pre-operational)
+  if (!std::isnan(last_sync_) && !last_sync_answered_ && !sync_restarted_) ++syncs_missed_;
+  last_sync_ = t_s;
+  // a TPDO1 read just before it was its answer, the echo read late
+  last_sync_answered_ = !std::isnan(ahead_t_) && s_.sync_period_s > 0 &&
+                        std::abs(t_s - ahead_t_) <= kSyncAnswerWindow * s_.sync_period_s;
+  ahead_t_ = NAN;
+}
+
 void Master::on_frame(const can::Frame& f, double t_s, std::vector<can::Frame>& out) {
   now_ = std::max(now_, t_s);
   if (f.extended || f.error || f.remote || f.fd) return;
@@ -924,14 +936,20 @@ void Master::on_frame(const can::Frame& f, double t_s, std::vector<can::Frame>& 
       ++counts_.malformed;
       return;
     }
-    last_sync_ = t_s;
-    if (syncs_unanswered_ >= 0) ++syncs_unanswered_;
+    on_sync(t_s);
     return;
   }
   if (f.id == 0) {
     // NMT to the drive or to all: its TPDOs start over; SYNCs until the
-    // first TPDO1 after are no losses (a drive in pre-operational sends none)
-    if (f.len == 2 && (f.data[1] == node || f.data[1] == 0)) syncs_unanswered_ = -1;
+    // first TPDO1 after are no losses (a drive in pre-operational sends
+    // none), and a SYNC before the command dates no TPDO1 after it
+    if (f.len == 2 && (f.data[1] == node || f.data[1] == 0)) {
+      last_sync_ = NAN;
+      last_sync_answered_ = false;
+      syncs_missed_ = 0;
+      sync_restarted_ = true;
+      ahead_t_ = NAN;
+    }
     return;
   }
   if (f.id == canopen::kSdoTxBase + node) {
@@ -1078,30 +1096,38 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
   last_raw_ = raw;
   angle_ = sense() * static_cast<double>(pos_counts_) / cpr_;
   EncoderSample smp;
-  const bool synced = s_.sync_period_s > 0 && !std::isnan(last_sync_);
-  if (!synced) {
-    smp.t_s = t_s;  // no SYNC seen yet: its receipt
+  if (s_.sync_period_s <= 0) {
+    smp.t_s = t_s;  // no SYNC: its receipt
     smp.lost_before = -1;
-  } else if (syncs_unanswered_ < 0) {
-    // the first since a start: the SYNCs before it were no losses
+  } else if (!std::isnan(last_sync_) && !last_sync_answered_ &&
+             std::abs(t_s - last_sync_) <= kSyncAnswerWindow * s_.sync_period_s) {
+    // the answer to the last SYNC: dated by it; the SYNCs before it that
+    // none answered are the losses
     smp.t_s = last_sync_;
-    smp.lost_before = EncoderSample::kRestarted;
-  } else if (syncs_unanswered_ == 0) {
-    // no SYNC since the last TPDO1 (a second answer to one SYNC, or a
-    // SYNC's echo lost or read after its answer): its SYNC is not known,
-    // and the last one's time is the last sample's; dated by its receipt
+    smp.lost_before = sync_restarted_ ? EncoderSample::kRestarted : syncs_missed_;
+    last_sync_answered_ = true;
+    syncs_missed_ = 0;
+    sync_restarted_ = false;
+  } else {
+    // no SYNC of its own in sight: none since the last TPDO1 (a second
+    // answer to one SYNC, or none since a start), or the last one too long
+    // before to be answered by it; or its SYNC's echo is read after it.
+    // Dated by its receipt; a last SYNC left unanswered is lost (its answer
+    // would have come by now), and a SYNC read soon after it is taken as
+    // the one it answered (the echo read late), no loss.
     ++counts_.tpdo_unsynced;
     notice(
-        "TPDO1s came with no SYNC since the one before (counted: tpdo_unsynced); each is "
-        "dated by its receipt");
+        "TPDO1s came with no SYNC just before them (counted: tpdo_unsynced; a SYNC's echo read "
+        "after its answer, or none); each is dated by its receipt");
     smp.t_s = t_s;
-    smp.lost_before = 0;
-  } else {
-    // the SYNCs before its own that none answered
-    smp.t_s = last_sync_;
-    smp.lost_before = syncs_unanswered_ - 1;
+    const bool lost_last = !std::isnan(last_sync_) && !last_sync_answered_;
+    smp.lost_before =
+        sync_restarted_ ? EncoderSample::kRestarted : syncs_missed_ + (lost_last ? 1 : 0);
+    last_sync_answered_ = true;
+    syncs_missed_ = 0;
+    sync_restarted_ = false;
+    ahead_t_ = t_s;
   }
-  if (synced) syncs_unanswered_ = 0;
   smp.angle_rad = angle_;
   smp.counts = pos_counts_;
   smp.statusword = word;

@@ -615,21 +615,30 @@ TEST_SUITE("cia402") {
     CHECK(l.drive.state() == State::OperationEnabled);
   }
 
-  TEST_CASE("with SYNC: a sample has its SYNC's echo's time; a SYNC no TPDO1 answered is a loss") {
-    cia402::MasterSettings ms = master_settings();
-    ms.sync_period_s = 0.01;
-    Loop l(ms);
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    l.run_for(0.1);
-    REQUIRE_FALSE(l.samples.empty());
-    // from here the bus is written by hand: the drive's TPDO1 as it stands
-    const double t0 = l.t;
+  // A master running with SYNC every 10 ms; from here the bus is written by
+  // hand: SYNCs, NMT and the drive's TPDO1 as it stands, at t0 + t.
+  struct HandSync {
+    Loop l{[] {
+      cia402::MasterSettings ms = master_settings();
+      ms.sync_period_s = 0.01;
+      return ms;
+    }()};
+    double t0 = 0;
     std::vector<can::Frame> out;
     std::vector<cia402::EncoderSample> got;
-    auto sync = [&](double t) { l.master.on_frame(canopen::sync_frame(), t0 + t, out); };
-    auto tpdo = [&](double t) {
+    HandSync() {
+      l.start();
+      REQUIRE(l.running());
+      REQUIRE(l.enabled(1));
+      l.run_for(0.1);
+      REQUIRE_FALSE(l.samples.empty());
+      t0 = l.t;
+    }
+    void sync(double t) { l.master.on_frame(canopen::sync_frame(), t0 + t, out); }
+    void nmt_start(double t) {
+      l.master.on_frame(canopen::nmt_frame(canopen::NmtCommand::Start, 5), t0 + t, out);
+    }
+    cia402::EncoderSample tpdo(double t) {
       can::Frame f;
       f.id = 0x185;
       f.len = 6;
@@ -643,7 +652,16 @@ TEST_SUITE("cia402") {
       l.master.take_samples(got);
       REQUIRE(got.size() == 1);
       return got.back();
-    };
+    }
+  };
+
+  TEST_CASE("with SYNC: a sample has its SYNC's echo's time; a SYNC no TPDO1 answered is a loss") {
+    HandSync h;
+    auto& l = h.l;
+    const double t0 = h.t0;
+    auto& out = h.out;
+    auto sync = [&](double t) { h.sync(t); };
+    auto tpdo = [&](double t) { return h.tpdo(t); };
     // the SYNC on the bus dates the TPDO1 that answers it
     sync(0.0012);
     cia402::EncoderSample e = tpdo(0.0017);
@@ -674,7 +692,7 @@ TEST_SUITE("cia402") {
     CHECK(tpdo(0.0905).lost_before == 0);
     // an NMT command to the drive starts its stream over: the SYNCs before
     // its first TPDO1 after are no losses
-    l.master.on_frame(canopen::nmt_frame(canopen::NmtCommand::Start, 5), t0 + 0.095, out);
+    h.nmt_start(0.095);
     sync(0.1);
     sync(0.11);
     e = tpdo(0.1105);
@@ -699,13 +717,80 @@ TEST_SUITE("cia402") {
     CHECK(e.t_s == t0 + 0.1505);
     CHECK(e.lost_before == 0);
     CHECK(l.master.counts().tpdo_unsynced == 1);
-    CHECK(l.master.notices().back().find("TPDO1s came with no SYNC") == 0);
+    CHECK(l.master.notices().back().find("TPDO1s came with no SYNC just before them") == 0);
     // and the next SYNC dates its answer again
     sync(0.16);
     e = tpdo(0.1605);
     CHECK(e.t_s == t0 + 0.16);
     CHECK(e.lost_before == 0);
     CHECK(l.master.counts().tpdo_unsynced == 1);
+  }
+
+  TEST_CASE(
+      "with SYNC: a SYNC's echo read after its answer invents no loss, and dates nothing early") {
+    HandSync h;
+    auto& l = h.l;
+    const double t0 = h.t0;
+    h.sync(0.0);
+    REQUIRE(h.tpdo(0.0005).lost_before == 0);
+    // once: TPDO1 n read before the echo of SYNC n; then in order again
+    cia402::EncoderSample e = h.tpdo(0.0105);
+    CHECK(e.t_s == t0 + 0.0105);  // its SYNC not yet seen: its receipt
+    CHECK(e.lost_before == 0);
+    h.sync(0.01);  // the echo, read late: the SYNC that TPDO1 answered
+    h.sync(0.02);
+    e = h.tpdo(0.0205);
+    CHECK(e.t_s == t0 + 0.02);
+    CHECK(e.lost_before == 0);  // was 1: the late echo read as a SYNC unanswered
+    // always so: each dated by its own receipt, never by the SYNC before its own
+    const auto unsynced = l.master.counts().tpdo_unsynced;
+    std::int64_t lost = 0;
+    for (int k = 3; k <= 12; ++k) {
+      const double t = 0.01 * k;
+      if (k == 7) {
+        h.sync(t);  // TPDO1 7 lost: its SYNC's echo alone
+        continue;
+      }
+      const double rx = t + 0.0005;
+      e = h.tpdo(rx);
+      CHECK(e.t_s == t0 + rx);
+      lost += e.lost_before;
+      h.sync(t);
+    }
+    CHECK(lost == 1);  // TPDO1 7, counted once, by the TPDO1 after it
+    CHECK(l.master.counts().tpdo_unsynced == unsynced + 9);
+    // and in order again: dated by the SYNC
+    h.sync(0.13);
+    e = h.tpdo(0.1305);
+    CHECK(e.t_s == t0 + 0.13);
+    CHECK(e.lost_before == 0);
+    // a second answer to one SYNC: dated by its receipt, and the next SYNC
+    // (a period on, not its echo read late) dates the next answer again
+    e = h.tpdo(0.1308);
+    CHECK(e.t_s == t0 + 0.1308);
+    CHECK(e.lost_before == 0);
+    h.sync(0.14);
+    e = h.tpdo(0.1405);
+    CHECK(e.t_s == t0 + 0.14);
+    CHECK(e.lost_before == 0);
+  }
+
+  TEST_CASE(
+      "with SYNC: a TPDO1 after an NMT command and before the next SYNC is dated by its receipt") {
+    HandSync h;
+    const double t0 = h.t0;
+    h.sync(0.0);
+    REQUIRE(h.tpdo(0.0005).t_s == t0);
+    // the drive restarted: the SYNC before the command answers nothing after
+    h.sync(0.01);
+    h.nmt_start(0.012);
+    cia402::EncoderSample e = h.tpdo(0.0125);
+    CHECK(e.t_s == t0 + 0.0125);  // was t0 + 0.01: a SYNC from before the restart
+    CHECK(e.lost_before == cia402::EncoderSample::kRestarted);
+    h.sync(0.02);
+    e = h.tpdo(0.0205);
+    CHECK(e.t_s == t0 + 0.02);
+    CHECK(e.lost_before == 0);
   }
 
   TEST_CASE("SYNC keeps its schedule after a late tick, and never two within half a period") {

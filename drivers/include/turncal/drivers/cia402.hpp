@@ -373,8 +373,10 @@ struct TableView {
 struct EncoderSample {
   /// Its SYNC's time on our bus, the SYNC's echo's receive time (for a CAN
   /// driver with IFF_ECHO, when it left on the bus; else, as for vcan, when
-  /// the kernel queued it to the device); without a SYNC, or with none
-  /// since the last TPDO1, the TPDO's own receive time.
+  /// the kernel queued it to the device); without a SYNC, or with no SYNC
+  /// of its own just before it (none since the last TPDO1 or a start, the
+  /// last one more than half a period away, or its echo read after it),
+  /// the TPDO's own receive time.
   double t_s = 0;
   /// The first TPDO1 since an NMT command: the SYNCs before it are no losses.
   static constexpr std::int64_t kRestarted = -2;
@@ -394,7 +396,7 @@ struct MasterCounts {
   std::uint64_t emcy = 0;
   std::uint64_t heartbeats = 0;
   std::uint64_t malformed = 0;  ///< a TPDO, EMCY, heartbeat or SYNC of a wrong length
-  /// With SYNC: TPDO1s with no SYNC since the last one (dated by receipt)
+  /// With SYNC: TPDO1s with no SYNC of their own just before (dated by receipt)
   std::uint64_t tpdo_unsynced = 0;
   std::uint64_t nmt_resets = 0;          ///< reset communication sent
   std::uint64_t configurations = 0;      ///< configurations completed
@@ -598,8 +600,16 @@ class Master {
   std::uint64_t tpdo_running_ = 0;  // TPDO1s since then
   bool drive_seen_operational_ = false;
   double next_sync_ = 0;
-  double last_sync_ = NAN;              // the last SYNC seen on the bus
-  std::int64_t syncs_unanswered_ = -1;  // SYNCs since the last TPDO1; -1: none since a start
+  // TPDO1 against SYNC (on_sync, on_tpdo): which SYNC a TPDO1 answers
+  double last_sync_ = NAN;           // the last SYNC seen on the bus; NaN: none since a start
+  bool last_sync_answered_ = false;  // a TPDO1 was taken as its answer
+  std::int64_t syncs_missed_ = 0;    // SYNCs before it that none answered
+  bool sync_restarted_ = true;       // no TPDO1 since a start: earlier SYNCs are no losses
+  double ahead_t_ = NAN;             // a TPDO1 read before its SYNC's echo: its receipt
+  void on_sync(double t_s);
+  // a TPDO1 answers a SYNC within this many SYNC periods of it (turncal-sim
+  // answers within a quarter; CiA 301's synchronous window is shorter still)
+  static constexpr double kSyncAnswerWindow = 0.5;
   // the drive
   std::optional<std::uint16_t> sw_;
   std::uint64_t sw_seq_ = 0;  // statuswords received
