@@ -93,7 +93,7 @@ void say(int priority, const std::string& run_id, const char* phase, const std::
                run_id.empty() ? "" : ": ", msg.c_str());
 }
 
-/// The estimate's thread's nice value: below the loop's (0).
+/// The estimate's thread's nice value: below the loop's (0; the unit's -5).
 constexpr int kEstimateNice = 10;
 
 std::uint64_t monotonic_us() {

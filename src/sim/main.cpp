@@ -226,6 +226,17 @@ Status apply_rates(const std::string& spec, stand::StandSetup& s) {
   if (std::abs(div - std::round(div)) > 1e-9) return bad();
   s.ins.sim.output_rate_hz = v[0];
   s.encoder_hz = v[1];
+  if (s.cia402) {
+    // the drive's encoder: TPDO1's event timer after a reset, whole ms
+    // (what the master finds when it does not write the mapping)
+    const double timer_ms = 1000 / v[1];
+    if (std::abs(timer_ms - std::round(timer_ms)) > 1e-9 || timer_ms < 1 || timer_ms > 65535)
+      return make_error(
+          "--rates: on a CiA 402 stand ENC_HZ sets TPDO1's event timer, whole milliseconds "
+          "from 1 to 65535: 1000 / ENC_HZ must be one, not '" +
+          spec + "'");
+    s.drive.tpdo_event_timer_ms = static_cast<std::uint16_t>(std::lround(timer_ms));
+  }
   if (v.size() == 4) {
     s.ins_status_hz = v[2];
     s.table_status_hz = v[3];
@@ -252,7 +263,8 @@ int usage(const char* why) {
                "        [--table-heartbeat-timeout S] (the table stops itself after S stand\n"
                "        seconds without a host heartbeat while it moves; default 0.5)\n"
                "        [--rates VEL_HZ:ENC_HZ[:INS_STATUS_HZ:TABLE_STATUS_HZ]] (frame rates;\n"
-               "        default 100:200:10:20; VEL_HZ must divide the 400 Hz IMU rate)\n"
+               "        default 100:200:10:20; VEL_HZ must divide the 400 Hz IMU rate; on a\n"
+               "        CiA 402 stand ENC_HZ is TPDO1's event timer, 1000/ENC_HZ whole ms)\n"
                "        [--start-time UNIX_S] (offline only)\n%s",
                kFaultHelp);
   return 2;
@@ -574,9 +586,14 @@ int live(const Options& o) {
   constexpr double kReceiptSlackS = 0.001;
   // A TPDO answering a SYNC holds what the drive sampled at the SYNC: it
   // may go out later, as a real drive's waits for the bus, but not after
-  // the host's next SYNC, which would date it. A quarter of the SYNC
-  // period, the median of the last intervals between two SYNCs (stand s),
-  // stays clear of that (one pair sent close together changes no median).
+  // the host's next SYNC, which would date it. turncald sends no two SYNCs
+  // within half a period, and takes a TPDO1 within half a period of a SYNC
+  // as its answer: 0.45 of the SYNC period, the median of the last
+  // intervals between two SYNCs (stand s), stays clear of that (one pair
+  // sent close together changes no median). (A quarter, as before, left a
+  // one-CPU guest 6 ms of real time at 4x, and a stall of the stand
+  // longer than that lost ten answers in a row: the encoder lost.)
+  constexpr double kSyncSlack = 0.45;
   double sync_last_at = NAN;
   std::deque<double> sync_gaps;
   double sync_period = INFINITY;
@@ -657,7 +674,7 @@ int live(const Options& o) {
         const auto slack = [&] {
           return receipt_drive->event_driven() || !std::isfinite(sync_period)
                      ? kReceiptSlackS
-                     : std::max(kReceiptSlackS, sync_period / 4 / o.speed);
+                     : std::max(kReceiptSlackS, sync_period * kSyncSlack / o.speed);
         };
         if (receipt_drive != nullptr && !f.ins_side && receipt_drive->timed_on_the_bus(f.frame) &&
             real_s - f.t_s / o.speed > slack()) {
@@ -761,13 +778,13 @@ int live(const Options& o) {
   std::fprintf(stderr,
                "turncal-sim: stopped at %.3f s simulated; host frames %llu (undecodable %llu, "
                "refused commands %llu); send queue overflow %llu; at most %.0f ms behind real "
-               "time; drive TPDO frames not sent as late (over %.0f ms, on SYNC over a quarter of "
-               "its period) %llu\n",
+               "time; drive TPDO frames not sent as late (over %.0f ms, on SYNC over %.2f of its "
+               "period) %llu\n",
                loop.next_time(), static_cast<unsigned long long>(c.host_frames),
                static_cast<unsigned long long>(c.host_undecodable),
                static_cast<unsigned long long>(c.refused),
                static_cast<unsigned long long>(overflow), max_lag_s * 1e3, kReceiptSlackS * 1e3,
-               static_cast<unsigned long long>(late_tpdo_frames));
+               kSyncSlack, static_cast<unsigned long long>(late_tpdo_frames));
   return 0;
 }
 

@@ -5,6 +5,8 @@
 #include <set>
 #include <sstream>
 #include <thread>
+#include <utility>
+#include <vector>
 
 #include "hil.hpp"
 
@@ -63,6 +65,42 @@ TEST_SUITE("socketcan") {
     // the sender does not see its own frames unless asked to
     auto own = hil::receive(a, 1, 100ms);
     CHECK(own.frames.empty());
+  }
+
+  TEST_CASE("our frames' echoes come in the bus's order among the frames that answer them") {
+    // a master's SYNC and the drive's TPDO1 that answers it, three times:
+    // the master reads each SYNC's echo before its answer (in_order), as
+    // the SYNC's time dates that answer
+    socketcan::Options o;
+    o.interface = hil::if0();
+    o.confirm = true;
+    auto master = hil::open(o);
+    auto drive = hil::open(hil::if0());
+    for (std::uint8_t k = 0; k < 3; ++k) {
+      REQUIRE(master.send(hil::frame(0x080, {k})).ok());
+      REQUIRE(hil::receive(drive, 1).frames.size() == 1);  // the drive hears it
+      REQUIRE(drive.send(hil::frame(0x185, {k})).ok());    // and answers
+    }
+    const socketcan::RxBatch rx = hil::receive(master, 3);
+    REQUIRE(rx.frames.size() == 3);
+    REQUIRE(rx.confirmed.size() == 3);
+    std::vector<std::pair<std::uint32_t, bool>> order;
+    std::vector<std::uint8_t> counters;
+    std::int64_t last_ns = 0;
+    bool monotonic = true;
+    rx.in_order([&](const can::TimedFrame& f, bool echoed) {
+      order.emplace_back(f.frame.id, echoed);
+      counters.push_back(f.frame.data[0]);
+      monotonic = monotonic && f.time_ns >= last_ns;
+      last_ns = f.time_ns;
+    });
+    const std::vector<std::pair<std::uint32_t, bool>> bus = {{0x080, true}, {0x185, false},
+                                                             {0x080, true}, {0x185, false},
+                                                             {0x080, true}, {0x185, false}};
+    CHECK(order == bus);
+    CHECK(counters == std::vector<std::uint8_t>{0, 0, 1, 1, 2, 2});
+    CHECK(monotonic);  // the stamps in the order read
+    CHECK(master.stats().tx_confirmed == 3);
   }
 
   TEST_CASE("the kernel filters by the configured IDs") {

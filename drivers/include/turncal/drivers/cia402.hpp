@@ -608,7 +608,7 @@ class Master {
   double ahead_t_ = NAN;             // a TPDO1 read before its SYNC's echo: its receipt
   void on_sync(double t_s);
   // a TPDO1 answers a SYNC within this many SYNC periods of it (turncal-sim
-  // answers within a quarter; CiA 301's synchronous window is shorter still)
+  // answers within 0.45 of a period; a real drive within its synchronous window)
   static constexpr double kSyncAnswerWindow = 0.5;
   // the drive
   std::optional<std::uint16_t> sw_;
