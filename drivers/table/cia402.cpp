@@ -920,9 +920,11 @@ void Master::on_sync(double t_s) {
   // pre-operational)
   if (!std::isnan(last_sync_) && !last_sync_answered_ && !sync_restarted_) ++syncs_missed_;
   last_sync_ = t_s;
-  // a TPDO1 read just before it was its answer, the echo read late
-  last_sync_answered_ = !std::isnan(ahead_t_) && s_.sync_period_s > 0 &&
-                        std::abs(t_s - ahead_t_) <= kSyncAnswerWindow * s_.sync_period_s;
+  // a TPDO1 read just before it, received after it, was its answer: the
+  // echo read late (a SYNC on the bus after that TPDO1 is a later one:
+  // a second answer, or one late, claims no SYNC after it)
+  last_sync_answered_ = !std::isnan(ahead_t_) && s_.sync_period_s > 0 && t_s <= ahead_t_ &&
+                        ahead_t_ - t_s <= kSyncAnswerWindow * s_.sync_period_s;
   ahead_t_ = NAN;
 }
 
@@ -1099,8 +1101,8 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
   if (s_.sync_period_s <= 0) {
     smp.t_s = t_s;  // no SYNC: its receipt
     smp.lost_before = -1;
-  } else if (!std::isnan(last_sync_) && !last_sync_answered_ &&
-             std::abs(t_s - last_sync_) <= kSyncAnswerWindow * s_.sync_period_s) {
+  } else if (!std::isnan(last_sync_) && !last_sync_answered_ && t_s >= last_sync_ &&
+             t_s - last_sync_ <= kSyncAnswerWindow * s_.sync_period_s) {
     // the answer to the last SYNC: dated by it; the SYNCs before it that
     // none answered are the losses
     smp.t_s = last_sync_;
@@ -1110,15 +1112,15 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
     sync_restarted_ = false;
   } else {
     // no SYNC of its own in sight: none since the last TPDO1 (a second
-    // answer to one SYNC, or none since a start), or the last one too long
-    // before to be answered by it; or its SYNC's echo is read after it.
-    // Dated by its receipt; a last SYNC left unanswered is lost (its answer
-    // would have come by now), and a SYNC read soon after it is taken as
-    // the one it answered (the echo read late), no loss.
+    // answer to one SYNC, or none since a start), or the last one more
+    // than half a period before (no answer comes that late); or its SYNC's
+    // echo is read after it. Dated by its receipt; a last SYNC left
+    // unanswered is lost, and a SYNC on the bus before it, read after it,
+    // is taken as the one it answered (the echo read late), no loss.
     ++counts_.tpdo_unsynced;
     notice(
-        "TPDO1s came with no SYNC just before them (counted: tpdo_unsynced; a SYNC's echo read "
-        "after its answer, or none); each is dated by its receipt");
+        "TPDO1s came with no SYNC within half a period before them (a SYNC's echo read after "
+        "its answer, an answer late or twice, or no SYNC); each is dated by its receipt");
     smp.t_s = t_s;
     const bool lost_last = !std::isnan(last_sync_) && !last_sync_answered_;
     smp.lost_before =

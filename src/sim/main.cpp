@@ -226,17 +226,6 @@ Status apply_rates(const std::string& spec, stand::StandSetup& s) {
   if (std::abs(div - std::round(div)) > 1e-9) return bad();
   s.ins.sim.output_rate_hz = v[0];
   s.encoder_hz = v[1];
-  if (s.cia402) {
-    // the drive's encoder: TPDO1's event timer after a reset, whole ms
-    // (what the master finds when it does not write the mapping)
-    const double timer_ms = 1000 / v[1];
-    if (std::abs(timer_ms - std::round(timer_ms)) > 1e-9 || timer_ms < 1 || timer_ms > 65535)
-      return make_error(
-          "--rates: on a CiA 402 stand ENC_HZ sets TPDO1's event timer, whole milliseconds "
-          "from 1 to 65535: 1000 / ENC_HZ must be one, not '" +
-          spec + "'");
-    s.drive.tpdo_event_timer_ms = static_cast<std::uint16_t>(std::lround(timer_ms));
-  }
   if (v.size() == 4) {
     s.ins_status_hz = v[2];
     s.table_status_hz = v[3];
@@ -263,8 +252,7 @@ int usage(const char* why) {
                "        [--table-heartbeat-timeout S] (the table stops itself after S stand\n"
                "        seconds without a host heartbeat while it moves; default 0.5)\n"
                "        [--rates VEL_HZ:ENC_HZ[:INS_STATUS_HZ:TABLE_STATUS_HZ]] (frame rates;\n"
-               "        default 100:200:10:20; VEL_HZ must divide the 400 Hz IMU rate; on a\n"
-               "        CiA 402 stand ENC_HZ is TPDO1's event timer, 1000/ENC_HZ whole ms)\n"
+               "        default 100:200:10:20; VEL_HZ must divide the 400 Hz IMU rate)\n"
                "        [--start-time UNIX_S] (offline only)\n%s",
                kFaultHelp);
   return 2;
@@ -582,18 +570,22 @@ int live(const Options& o) {
   // time (its host stalled) and sent it late, in a burst, would date the
   // position by the stall (at 10x a guest's 150 ms stall put the turn 1.5 s
   // of the stand's time late, and the lever arm 13 sigma off), or answer a
-  // SYNC after the next one went out. The host sees a TPDO missed instead.
+  // SYNC after the next one went out. The host sees a TPDO missed instead;
+  // but a late event-driven TPDO of a table at rest goes out (what it
+  // says is as true at its receipt), so a stall of the stand in a hold
+  // does not silence the drive as a fault would.
   constexpr double kReceiptSlackS = 0.001;
   // A TPDO answering a SYNC holds what the drive sampled at the SYNC: it
   // may go out later, as a real drive's waits for the bus, but not after
   // the host's next SYNC, which would date it. turncald sends no two SYNCs
-  // within half a period, and takes a TPDO1 within half a period of a SYNC
-  // as its answer: 0.45 of the SYNC period, the median of the last
-  // intervals between two SYNCs (stand s), stays clear of that (one pair
-  // sent close together changes no median). (A quarter, as before, left a
-  // one-CPU guest 6 ms of real time at 4x, and a stall of the stand
-  // longer than that lost ten answers in a row: the encoder lost.)
-  constexpr double kSyncSlack = 0.45;
+  // within half a period, and takes a TPDO1 within half a period after a
+  // SYNC as its answer: 0.4 of the SYNC period, the median of the last
+  // intervals between two SYNCs (stand s), from the SYNC's own time (the
+  // stand takes it up to a tick after), stays clear of that (one pair sent
+  // close together changes no median). (A quarter, as before, left a
+  // one-CPU guest 6 ms of real time at 4x, and a stall of the stand longer
+  // than that lost ten answers in a row: the encoder lost.)
+  constexpr double kSyncSlack = 0.4;
   double sync_last_at = NAN;
   std::deque<double> sync_gaps;
   double sync_period = INFINITY;
@@ -674,10 +666,20 @@ int live(const Options& o) {
         const auto slack = [&] {
           return receipt_drive->event_driven() || !std::isfinite(sync_period)
                      ? kReceiptSlackS
-                     : std::max(kReceiptSlackS, sync_period * kSyncSlack / o.speed);
+                     : std::max(kReceiptSlackS,
+                                (sync_period * kSyncSlack - stand::StandLoop::kTick) / o.speed);
+        };
+        // an event-driven TPDO whose position still holds when it goes out
+        // (the table at rest from its time to now) is as true late: the
+        // host dates it by its receipt, which finds the same position
+        const auto still_true = [&] {
+          return receipt_drive->event_driven() &&
+                 receipt_drive->position_counts(f.t_s) ==
+                     receipt_drive->position_counts(real_s * o.speed) &&
+                 !receipt_drive->moving(f.t_s);
         };
         if (receipt_drive != nullptr && !f.ins_side && receipt_drive->timed_on_the_bus(f.frame) &&
-            real_s - f.t_s / o.speed > slack()) {
+            real_s - f.t_s / o.speed > slack() && !still_true()) {
           ++late_tpdo_frames;
           receipt_drive->unsent(f.frame);
           continue;

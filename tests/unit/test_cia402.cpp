@@ -635,8 +635,8 @@ TEST_SUITE("cia402") {
       t0 = l.t;
     }
     void sync(double t) { l.master.on_frame(canopen::sync_frame(), t0 + t, out); }
-    void nmt_start(double t) {
-      l.master.on_frame(canopen::nmt_frame(canopen::NmtCommand::Start, 5), t0 + t, out);
+    void nmt_start(double t, std::uint8_t node = 5) {
+      l.master.on_frame(canopen::nmt_frame(canopen::NmtCommand::Start, node), t0 + t, out);
     }
     cia402::EncoderSample tpdo(double t) {
       can::Frame f;
@@ -717,7 +717,7 @@ TEST_SUITE("cia402") {
     CHECK(e.t_s == t0 + 0.1505);
     CHECK(e.lost_before == 0);
     CHECK(l.master.counts().tpdo_unsynced == 1);
-    CHECK(l.master.notices().back().find("TPDO1s came with no SYNC just before them") == 0);
+    CHECK(l.master.notices().back().find("TPDO1s came with no SYNC within half a period") == 0);
     // and the next SYNC dates its answer again
     sync(0.16);
     e = tpdo(0.1605);
@@ -744,7 +744,6 @@ TEST_SUITE("cia402") {
     CHECK(e.lost_before == 0);  // was 1: the late echo read as a SYNC unanswered
     // always so: each dated by its own receipt, never by the SYNC before its own
     const auto unsynced = l.master.counts().tpdo_unsynced;
-    std::int64_t lost = 0;
     for (int k = 3; k <= 12; ++k) {
       const double t = 0.01 * k;
       if (k == 7) {
@@ -753,25 +752,41 @@ TEST_SUITE("cia402") {
       }
       const double rx = t + 0.0005;
       e = h.tpdo(rx);
+      CAPTURE(k);
       CHECK(e.t_s == t0 + rx);
-      lost += e.lost_before;
+      CHECK(e.lost_before == (k == 8 ? 1 : 0));  // TPDO1 7, counted once, by the one after
       h.sync(t);
     }
-    CHECK(lost == 1);  // TPDO1 7, counted once, by the TPDO1 after it
     CHECK(l.master.counts().tpdo_unsynced == unsynced + 9);
     // and in order again: dated by the SYNC
     h.sync(0.13);
     e = h.tpdo(0.1305);
     CHECK(e.t_s == t0 + 0.13);
     CHECK(e.lost_before == 0);
-    // a second answer to one SYNC: dated by its receipt, and the next SYNC
-    // (a period on, not its echo read late) dates the next answer again
-    e = h.tpdo(0.1308);
-    CHECK(e.t_s == t0 + 0.1308);
+    // a second answer to one SYNC, 4 ms before the next: dated by its
+    // receipt, and the next SYNC (on the bus after it: no echo read late)
+    // dates the next answer again
+    e = h.tpdo(0.136);
+    CHECK(e.t_s == t0 + 0.136);
     CHECK(e.lost_before == 0);
     h.sync(0.14);
     e = h.tpdo(0.1405);
     CHECK(e.t_s == t0 + 0.14);
+    CHECK(e.lost_before == 0);
+    // an answer more than half a period late is no answer: dated by its
+    // receipt, its SYNC counted unanswered; the next SYNC is not taken
+    h.sync(0.15);
+    e = h.tpdo(0.1556);
+    CHECK(e.t_s == t0 + 0.1556);
+    CHECK(e.lost_before == 1);
+    h.sync(0.16);
+    e = h.tpdo(0.1605);
+    CHECK(e.t_s == t0 + 0.16);
+    CHECK(e.lost_before == 0);
+    // just inside the window, under half a period after: still its answer
+    h.sync(0.17);
+    e = h.tpdo(0.1749);
+    CHECK(e.t_s == t0 + 0.17);
     CHECK(e.lost_before == 0);
   }
 
@@ -787,10 +802,17 @@ TEST_SUITE("cia402") {
     cia402::EncoderSample e = h.tpdo(0.0125);
     CHECK(e.t_s == t0 + 0.0125);  // was t0 + 0.01: a SYNC from before the restart
     CHECK(e.lost_before == cia402::EncoderSample::kRestarted);
-    h.sync(0.02);
-    e = h.tpdo(0.0205);
-    CHECK(e.t_s == t0 + 0.02);
+    // the first SYNC after the command, soon after that TPDO1: its own
+    h.sync(0.015);
+    e = h.tpdo(0.0155);
+    CHECK(e.t_s == t0 + 0.015);
     CHECK(e.lost_before == 0);
+    // NMT to all nodes (0) restarts it as well
+    h.sync(0.025);
+    h.nmt_start(0.027, 0);
+    e = h.tpdo(0.0275);
+    CHECK(e.t_s == t0 + 0.0275);
+    CHECK(e.lost_before == cia402::EncoderSample::kRestarted);
   }
 
   TEST_CASE("SYNC keeps its schedule after a late tick, and never two within half a period") {

@@ -381,8 +381,9 @@ struct EncoderSample {
   /// The first TPDO1 since an NMT command: the SYNCs before it are no losses.
   static constexpr std::int64_t kRestarted = -2;
   /// With SYNC: the SYNCs since the last TPDO1 that none answered (a TPDO
-  /// lost, or a drive that skipped a cycle), or kRestarted; -1 when not
-  /// known (no SYNC seen).
+  /// lost, or a drive that skipped a cycle; an answer more than half a
+  /// period late counts its SYNC so), or kRestarted for the first TPDO1
+  /// since a start; -1 without SYNC (sync_period_s 0): not counted.
   std::int64_t lost_before = -1;
   double angle_rad = 0;     ///< multi-turn (the drive's s32 unwrapped)
   std::int64_t counts = 0;  ///< the unwrapped position actual
@@ -396,7 +397,8 @@ struct MasterCounts {
   std::uint64_t emcy = 0;
   std::uint64_t heartbeats = 0;
   std::uint64_t malformed = 0;  ///< a TPDO, EMCY, heartbeat or SYNC of a wrong length
-  /// With SYNC: TPDO1s with no SYNC of their own just before (dated by receipt)
+  /// With SYNC: TPDO1s with no SYNC of their own within half a period
+  /// before (dated by receipt; said in the notices)
   std::uint64_t tpdo_unsynced = 0;
   std::uint64_t nmt_resets = 0;          ///< reset communication sent
   std::uint64_t configurations = 0;      ///< configurations completed
@@ -607,8 +609,8 @@ class Master {
   bool sync_restarted_ = true;       // no TPDO1 since a start: earlier SYNCs are no losses
   double ahead_t_ = NAN;             // a TPDO1 read before its SYNC's echo: its receipt
   void on_sync(double t_s);
-  // a TPDO1 answers a SYNC within this many SYNC periods of it (turncal-sim
-  // answers within 0.45 of a period; a real drive within its synchronous window)
+  // a TPDO1 answers a SYNC within this many SYNC periods after it
+  // (turncal-sim's within 0.4; a real drive's within its cycle)
   static constexpr double kSyncAnswerWindow = 0.5;
   // the drive
   std::optional<std::uint16_t> sw_;
