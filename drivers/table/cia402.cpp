@@ -921,9 +921,11 @@ void Master::on_sync(double t_s) {
   if (!std::isnan(last_sync_) && !last_sync_answered_ && !sync_restarted_) ++syncs_missed_;
   last_sync_ = t_s;
   // a TPDO1 read just before it, received after it, was its answer: the
-  // echo read late (a SYNC on the bus after that TPDO1 is a later one:
-  // a second answer, or one late, claims no SYNC after it)
-  last_sync_answered_ = !std::isnan(ahead_t_) && s_.sync_period_s > 0 && t_s <= ahead_t_ &&
+  // echo read late. An adapter that hands the echo over late may stamp it
+  // late too, a little after the answer; a SYNC well after that TPDO1 is
+  // a later one (a second answer, or one late, claims no SYNC after it).
+  last_sync_answered_ = !std::isnan(ahead_t_) && s_.sync_period_s > 0 &&
+                        t_s - ahead_t_ <= kEchoLateStamp * s_.sync_period_s &&
                         ahead_t_ - t_s <= kSyncAnswerWindow * s_.sync_period_s;
   ahead_t_ = NAN;
 }
@@ -1122,13 +1124,20 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
         "TPDO1s came with no SYNC within half a period before them (a SYNC's echo read after "
         "its answer, an answer late or twice, or no SYNC); each is dated by its receipt");
     smp.t_s = t_s;
-    const bool lost_last = !std::isnan(last_sync_) && !last_sync_answered_;
-    smp.lost_before =
-        sync_restarted_ ? EncoderSample::kRestarted : syncs_missed_ + (lost_last ? 1 : 0);
-    last_sync_answered_ = true;
-    syncs_missed_ = 0;
+    // received before the last SYNC: no answer to it, which stays open for
+    // the answer still to come (stamps crossed, or a second answer)
+    const bool before_last = !std::isnan(last_sync_) && t_s < last_sync_;
+    const bool lost_last = !std::isnan(last_sync_) && !last_sync_answered_ && !before_last;
+    // (the SYNCs missed before the last one: said by its answer then)
+    smp.lost_before = sync_restarted_ ? EncoderSample::kRestarted
+                      : before_last   ? 0
+                                      : syncs_missed_ + (lost_last ? 1 : 0);
+    if (!before_last) {
+      last_sync_answered_ = true;
+      syncs_missed_ = 0;
+      ahead_t_ = t_s;
+    }
     sync_restarted_ = false;
-    ahead_t_ = t_s;
   }
   smp.angle_rad = angle_;
   smp.counts = pos_counts_;

@@ -23,6 +23,7 @@
 #include <cstring>
 #include <deque>
 #include <fstream>
+#include <numeric>
 #include <random>
 #include <string>
 #include <vector>
@@ -580,9 +581,11 @@ int live(const Options& o) {
   // the host's next SYNC, which would date it. turncald sends no two SYNCs
   // within half a period, and takes a TPDO1 within half a period after a
   // SYNC as its answer: 0.4 of the SYNC period, the median of the last
-  // intervals between two SYNCs (stand s), from the SYNC's own time (the
-  // stand takes it up to a tick after), stays clear of that (one pair sent
-  // close together changes no median). (A quarter, as before, left a
+  // intervals between two SYNCs (stand s) or their mean if less, from the
+  // SYNC's own time (the stand takes it up to a tick after), stays clear
+  // of that (one pair sent close together changes no median). (turncald
+  // queues no two SYNCs within half a period; a full send queue could
+  // still put two closer on the bus.) (A quarter, as before, left a
   // one-CPU guest 6 ms of real time at 4x, and a stall of the stand longer
   // than that lost ten answers in a row: the encoder lost.)
   constexpr double kSyncSlack = 0.4;
@@ -627,7 +630,11 @@ int live(const Options& o) {
             std::vector<double> g(sync_gaps.begin(), sync_gaps.end());
             std::nth_element(g.begin(), g.begin() + static_cast<std::ptrdiff_t>(g.size() / 2),
                              g.end());
-            sync_period = g[g.size() / 2];
+            // nor more than their mean: gaps that alternate (a period no
+            // whole number of the host's ticks) have the long one as median
+            const double mean =
+                std::accumulate(g.begin(), g.end(), 0.0) / static_cast<double>(g.size());
+            sync_period = std::min(g[g.size() / 2], mean);
           }
           sync_last_at = at;
         }
@@ -669,14 +676,18 @@ int live(const Options& o) {
                      : std::max(kReceiptSlackS,
                                 (sync_period * kSyncSlack - stand::StandLoop::kTick) / o.speed);
         };
-        // an event-driven TPDO whose position still holds when it goes out
-        // (the table at rest from its time to now) is as true late: the
-        // host dates it by its receipt, which finds the same position
+        // an event-driven TPDO of a table at rest is as true late (the host
+        // dates it by its receipt, which finds the same position), if
+        // nothing could have changed the drive since its time: no host frame
+        // waiting to be taken up, none unread on the bus, no script
         const auto still_true = [&] {
-          return receipt_drive->event_driven() &&
-                 receipt_drive->position_counts(f.t_s) ==
-                     receipt_drive->position_counts(real_s * o.speed) &&
-                 !receipt_drive->moving(f.t_s);
+          if (!receipt_drive->event_driven() || receipt_drive->moving(f.t_s) || o.scripted_host ||
+              !from_bus.empty())
+            return false;
+          std::vector<pollfd> unread;
+          for (socketcan::Socket& s : sockets)
+            if (s.fd() >= 0) unread.push_back({s.fd(), POLLIN, 0});
+          return ::poll(unread.data(), unread.size(), 0) == 0;
         };
         if (receipt_drive != nullptr && !f.ins_side && receipt_drive->timed_on_the_bus(f.frame) &&
             real_s - f.t_s / o.speed > slack() && !still_true()) {

@@ -612,6 +612,9 @@ class Master {
   // a TPDO1 answers a SYNC within this many SYNC periods after it
   // (turncal-sim's within 0.4; a real drive's within its cycle)
   static constexpr double kSyncAnswerWindow = 0.5;
+  // a SYNC's echo read after its answer may be stamped this many periods
+  // after that answer's receipt and still be its SYNC
+  static constexpr double kEchoLateStamp = 0.1;
   // the drive
   std::optional<std::uint16_t> sw_;
   std::uint64_t sw_seq_ = 0;  // statuswords received
