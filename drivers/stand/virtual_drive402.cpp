@@ -604,6 +604,13 @@ void VirtualDrive402::unsent(const can::Frame& f) {
   if (timed_on_the_bus(f)) last_sent_sw_.reset();
 }
 
+bool VirtualDrive402::commanded_by(const can::Frame& f) const {
+  if (f.extended || f.error || f.remote || f.fd) return false;
+  const std::uint32_t rpdo = u32(obj::kRpdo1Comm, 1);
+  return f.id == canopen::kNmtId || f.id == canopen::kSdoRxBase + setup_.node_id ||
+         ((rpdo & 0x80000000u) == 0 && f.id == (rpdo & 0x7FF));
+}
+
 bool VirtualDrive402::timed_on_the_bus(const can::Frame& f) const {
   if (f.extended) return false;
   for (const std::uint16_t comm : {obj::kTpdo1Comm, obj::kTpdo2Comm}) {

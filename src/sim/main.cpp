@@ -24,6 +24,7 @@
 #include <deque>
 #include <fstream>
 #include <numeric>
+#include <optional>
 #include <random>
 #include <string>
 #include <vector>
@@ -611,7 +612,10 @@ int live(const Options& o) {
   const double flood_to = flood_from + w->setup.faults.flood_s + 5;
   double hb_max_gap_flood = 0;
   std::uint64_t hb_in_flood = 0;  // heartbeats received in that window
-  while (g_stop == 0 && !loop.done()) {
+  // what the bus has for the stand, into from_bus (a host frame waits there
+  // for its tick); false on a socket's error (bus_error)
+  std::optional<Error> bus_error;
+  const auto read_bus = [&]() -> bool {
     for (socketcan::Socket& s : sockets) {
       rx.clear();
       if (s.fd() < 0) {
@@ -619,7 +623,10 @@ int live(const Options& o) {
         continue;
       }
       auto got = s.receive(rx);
-      if (!got) return fail(got.error());
+      if (!got) {
+        bus_error = got.error();
+        return false;
+      }
       for (const can::TimedFrame& f : rx.frames) {
         const double at = static_cast<double>(f.time_ns - kernel0_ns) * 1e-9 * o.speed;
         from_bus.emplace_back(at, f.frame);
@@ -655,6 +662,10 @@ int live(const Options& o) {
         }
       }
     }
+    return true;
+  };
+  while (g_stop == 0 && !loop.done()) {
+    if (!read_bus()) return fail(*bus_error);
     const double target = std::chrono::duration<double>(Clock::now() - wall0).count() * o.speed;
     // how far behind real time the stand fell (its frames then go out late, in a burst)
     max_lag_s = std::max(max_lag_s, (target - loop.next_time()) / o.speed);
@@ -678,16 +689,16 @@ int live(const Options& o) {
         };
         // an event-driven TPDO of a table at rest is as true late (the host
         // dates it by its receipt, which finds the same position), if
-        // nothing could have changed the drive since its time: no host frame
-        // waiting to be taken up, none unread on the bus, no script
+        // nothing could have changed the drive since its time: no frame
+        // that commands it (NMT, SDO, RPDO) on the bus and not yet taken
+        // up, no script
         const auto still_true = [&] {
-          if (!receipt_drive->event_driven() || receipt_drive->moving(f.t_s) || o.scripted_host ||
-              !from_bus.empty())
+          if (!receipt_drive->event_driven() || receipt_drive->moving(f.t_s) || o.scripted_host)
             return false;
-          std::vector<pollfd> unread;
-          for (socketcan::Socket& s : sockets)
-            if (s.fd() >= 0) unread.push_back({s.fd(), POLLIN, 0});
-          return ::poll(unread.data(), unread.size(), 0) == 0;
+          if (!read_bus()) return false;  // the next turn of the loop says it
+          return std::none_of(from_bus.begin(), from_bus.end(), [&](const auto& waiting) {
+            return receipt_drive->commanded_by(waiting.second);
+          });
         };
         if (receipt_drive != nullptr && !f.ins_side && receipt_drive->timed_on_the_bus(f.frame) &&
             real_s - f.t_s / o.speed > slack() && !still_true()) {

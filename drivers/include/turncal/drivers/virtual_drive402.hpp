@@ -180,6 +180,9 @@ class VirtualDrive402 {
   /// had lost it, the change it carried goes with the drive's next TPDO
   /// (event-driven: at its next chance; synchronous: the next SYNC's).
   void unsent(const can::Frame& f);
+  /// A frame that can change what the drive does or says: NMT, its SDO
+  /// requests, its RPDO1 (not SYNC, nor the host's heartbeat it watches).
+  [[nodiscard]] bool commanded_by(const can::Frame& f) const;
 
  private:
   struct Entry {
