@@ -918,16 +918,16 @@ void Master::on_sync(double t_s) {
   // the last SYNC unanswered by the time the next is on the bus: its
   // TPDO1 lost (but not while the drive's stream starts: it sends none in
   // pre-operational)
-  if (!std::isnan(last_sync_) && !last_sync_answered_ && !sync_restarted_) ++syncs_missed_;
-  last_sync_ = t_s;
+  if (!std::isnan(sync_.last) && !sync_.answered && !sync_.restarted) ++sync_.missed;
+  sync_.last = t_s;
   // a TPDO1 read just before it, received after it, was its answer: the
   // echo read late. An adapter that hands the echo over late may stamp it
   // late too, a little after the answer; a SYNC well after that TPDO1 is
   // a later one (a second answer, or one late, claims no SYNC after it).
-  last_sync_answered_ = !std::isnan(ahead_t_) && s_.sync_period_s > 0 &&
-                        t_s - ahead_t_ <= kEchoLateStamp * s_.sync_period_s &&
-                        ahead_t_ - t_s <= kSyncAnswerWindow * s_.sync_period_s;
-  ahead_t_ = NAN;
+  sync_.answered = !std::isnan(sync_.ahead_t) && s_.sync_period_s > 0 &&
+                   t_s - sync_.ahead_t <= kEchoLateStamp * s_.sync_period_s &&
+                   sync_.ahead_t - t_s <= kSyncAnswerWindow * s_.sync_period_s;
+  sync_.ahead_t = NAN;
 }
 
 void Master::on_frame(const can::Frame& f, double t_s, std::vector<can::Frame>& out) {
@@ -948,11 +948,7 @@ void Master::on_frame(const can::Frame& f, double t_s, std::vector<can::Frame>& 
     // first TPDO1 after are no losses (a drive in pre-operational sends
     // none), and a SYNC before the command dates no TPDO1 after it
     if (f.len == 2 && (f.data[1] == node || f.data[1] == 0)) {
-      last_sync_ = NAN;
-      last_sync_answered_ = false;
-      syncs_missed_ = 0;
-      sync_restarted_ = true;
-      ahead_t_ = NAN;
+      sync_ = SyncPairing{};
     }
     return;
   }
@@ -1103,15 +1099,15 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
   if (s_.sync_period_s <= 0) {
     smp.t_s = t_s;  // no SYNC: its receipt
     smp.lost_before = -1;
-  } else if (!std::isnan(last_sync_) && !last_sync_answered_ && t_s >= last_sync_ &&
-             t_s - last_sync_ <= kSyncAnswerWindow * s_.sync_period_s) {
+  } else if (!std::isnan(sync_.last) && !sync_.answered && t_s >= sync_.last &&
+             t_s - sync_.last <= kSyncAnswerWindow * s_.sync_period_s) {
     // the answer to the last SYNC: dated by it; the SYNCs before it that
     // none answered are the losses
-    smp.t_s = last_sync_;
-    smp.lost_before = sync_restarted_ ? EncoderSample::kRestarted : syncs_missed_;
-    last_sync_answered_ = true;
-    syncs_missed_ = 0;
-    sync_restarted_ = false;
+    smp.t_s = sync_.last;
+    smp.lost_before = sync_.restarted ? EncoderSample::kRestarted : sync_.missed;
+    sync_.answered = true;
+    sync_.missed = 0;
+    sync_.restarted = false;
   } else {
     // no SYNC of its own in sight: none since the last TPDO1 (a second
     // answer to one SYNC, or none since a start), or the last one more
@@ -1126,18 +1122,18 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
     smp.t_s = t_s;
     // received before the last SYNC: no answer to it, which stays open for
     // the answer still to come (stamps crossed, or a second answer)
-    const bool before_last = !std::isnan(last_sync_) && t_s < last_sync_;
-    const bool lost_last = !std::isnan(last_sync_) && !last_sync_answered_ && !before_last;
+    const bool before_last = !std::isnan(sync_.last) && t_s < sync_.last;
+    const bool lost_last = !std::isnan(sync_.last) && !sync_.answered && !before_last;
     // (the SYNCs missed before the last one: said by its answer then)
-    smp.lost_before = sync_restarted_ ? EncoderSample::kRestarted
+    smp.lost_before = sync_.restarted ? EncoderSample::kRestarted
                       : before_last   ? 0
-                                      : syncs_missed_ + (lost_last ? 1 : 0);
+                                      : sync_.missed + (lost_last ? 1 : 0);
     if (!before_last) {
-      last_sync_answered_ = true;
-      syncs_missed_ = 0;
-      ahead_t_ = t_s;
+      sync_.answered = true;
+      sync_.missed = 0;
+      sync_.ahead_t = t_s;
     }
-    sync_restarted_ = false;
+    sync_.restarted = false;
   }
   smp.angle_rad = angle_;
   smp.counts = pos_counts_;

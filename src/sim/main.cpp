@@ -31,6 +31,7 @@
 
 #include "turncal/can/candump.hpp"
 #include "turncal/config.hpp"
+#include "turncal/drivers/canopen.hpp"
 #include "turncal/drivers/scripted_host.hpp"
 #include "turncal/drivers/socketcan.hpp"
 #include "turncal/drivers/virtual_stand.hpp"
@@ -573,27 +574,31 @@ int live(const Options& o) {
   // position by the stall (at 10x a guest's 150 ms stall put the turn 1.5 s
   // of the stand's time late, and the lever arm 13 sigma off), or answer a
   // SYNC after the next one went out. The host sees a TPDO missed instead;
-  // but a late event-driven TPDO of a table at rest goes out (what it
-  // says is as true at its receipt), so a stall of the stand in a hold
-  // does not silence the drive as a fault would.
+  // but a late TPDO of a table at rest goes out (what it says is as true
+  // at its receipt; one on SYNC only while the next SYNC has not gone out,
+  // so it answers no other), so a stall of the stand in a hold does not
+  // silence the drive as a fault would. (An answer to a SYNC over half a
+  // period late is dated by its receipt and its SYNC counted unanswered:
+  // such frames are counted too, as the drops the host may count.)
   constexpr double kReceiptSlackS = 0.001;
   // A TPDO answering a SYNC holds what the drive sampled at the SYNC: it
   // may go out later, as a real drive's waits for the bus, but not after
-  // the host's next SYNC, which would date it. turncald sends no two SYNCs
-  // within half a period, and takes a TPDO1 within half a period after a
+  // the host's next SYNC, which would date it. turncald queues no two
+  // SYNCs within half a period (a full send queue could still put two
+  // closer on the bus), and takes a TPDO1 within half a period after a
   // SYNC as its answer: 0.4 of the SYNC period, the median of the last
   // intervals between two SYNCs (stand s) or their mean if less, from the
   // SYNC's own time (the stand takes it up to a tick after), stays clear
-  // of that (one pair sent close together changes no median). (turncald
-  // queues no two SYNCs within half a period; a full send queue could
-  // still put two closer on the bus.) (A quarter, as before, left a
-  // one-CPU guest 6 ms of real time at 4x, and a stall of the stand longer
-  // than that lost ten answers in a row: the encoder lost.)
+  // of that (one pair sent close together changes no median). (A quarter,
+  // as before, left a one-CPU guest 6 ms of real time at 4x, and a stall
+  // of the stand longer than that lost ten answers in a row: the encoder
+  // lost.)
   constexpr double kSyncSlack = 0.4;
   double sync_last_at = NAN;
   std::deque<double> sync_gaps;
   double sync_period = INFINITY;
-  std::uint64_t late_tpdo_frames = 0;
+  std::uint64_t late_tpdo_frames = 0;   // not sent
+  std::uint64_t late_sync_answers = 0;  // answers to a SYNC sent late all the same (at rest)
   stand::VirtualDrive402* receipt_drive = loop.stand().drive();
   // The stand sleeps to the next tick in steps of whole milliseconds, as
   // poll(2) had them, so a fast stand runs its ticks in batches and does
@@ -613,24 +618,25 @@ int live(const Options& o) {
   double hb_max_gap_flood = 0;
   std::uint64_t hb_in_flood = 0;  // heartbeats received in that window
   // what the bus has for the stand, into from_bus (a host frame waits there
-  // for its tick); false on a socket's error (bus_error)
+  // for its tick), the frames read before an error too; false on a socket's
+  // error (kept in bus_error until the loop reports it). With `recover`, a
+  // socket whose interface went away is re-opened when it is back; without
+  // it (a look at what waits) it is left for the loop.
   std::optional<Error> bus_error;
-  const auto read_bus = [&]() -> bool {
+  const auto read_bus = [&](bool recover) -> bool {
+    if (bus_error) return false;
     for (socketcan::Socket& s : sockets) {
       rx.clear();
       if (s.fd() < 0) {
-        s.try_recover(rx);
+        if (recover) s.try_recover(rx);
         continue;
       }
       auto got = s.receive(rx);
-      if (!got) {
-        bus_error = got.error();
-        return false;
-      }
+      if (!got) bus_error = got.error();
       for (const can::TimedFrame& f : rx.frames) {
         const double at = static_cast<double>(f.time_ns - kernel0_ns) * 1e-9 * o.speed;
         from_bus.emplace_back(at, f.frame);
-        if (f.frame.id == 0x080 && !f.frame.extended) {  // CiA 301 SYNC
+        if (f.frame.id == canopen::kSyncId && !f.frame.extended) {
           if (!std::isnan(sync_last_at) && at > sync_last_at) {
             sync_gaps.push_back(at - sync_last_at);
             if (sync_gaps.size() > 15) sync_gaps.pop_front();
@@ -661,11 +667,19 @@ int live(const Options& o) {
           hb_last = at;
         }
       }
+      if (bus_error) return false;
     }
     return true;
   };
+  // whether the last read_bus took all that waits on every socket
+  const auto bus_drained = [&] {
+    return std::all_of(sockets.begin(), sockets.end(),
+                       [](const socketcan::Socket& s) { return s.fd() >= 0 && s.drained(); });
+  };
+  // the tick just run took a frame that commands the drive
+  bool tick_commanded = false;
   while (g_stop == 0 && !loop.done()) {
-    if (!read_bus()) return fail(*bus_error);
+    if (!read_bus(true)) return fail(*bus_error);
     const double target = std::chrono::duration<double>(Clock::now() - wall0).count() * o.speed;
     // how far behind real time the stand fell (its frames then go out late, in a burst)
     max_lag_s = std::max(max_lag_s, (target - loop.next_time()) / o.speed);
@@ -675,6 +689,10 @@ int live(const Options& o) {
         due.push_back(from_bus.front().second);
         from_bus.pop_front();
       }
+      tick_commanded =
+          receipt_drive != nullptr && std::any_of(due.begin(), due.end(), [&](const can::Frame& c) {
+            return receipt_drive->commanded_by(c);
+          });
       loop.tick(due, frames);
       due.clear();
       if (receipt_drive != nullptr)
@@ -687,24 +705,36 @@ int live(const Options& o) {
                      : std::max(kReceiptSlackS,
                                 (sync_period * kSyncSlack - stand::StandLoop::kTick) / o.speed);
         };
-        // an event-driven TPDO of a table at rest is as true late (the host
-        // dates it by its receipt, which finds the same position), if
+        // a TPDO of a table at rest is as true late (the host dates it by
+        // its receipt, or by its SYNC, which find the same position), if
         // nothing could have changed the drive since its time: no frame
-        // that commands it (NMT, SDO, RPDO) on the bus and not yet taken
-        // up, no script
+        // that commands it (NMT, SDO, RPDO) taken up in its tick, or on the
+        // bus and not yet taken up (every socket read to the end: one not
+        // read to the end, or gone, or in error, may hold one), no script;
+        // on SYNC, no later SYNC on the bus (the host would take it as that
+        // one's answer). (The drive's own timed events, a fault injected or
+        // its host heartbeat's timeout, are not looked ahead for: their
+        // frames follow at once, as a real drive's would after a TPDO it
+        // sent just before.)
         const auto still_true = [&] {
-          if (!receipt_drive->event_driven() || receipt_drive->moving(f.t_s) || o.scripted_host)
-            return false;
-          if (!read_bus()) return false;  // the next turn of the loop says it
+          if (receipt_drive->moving(f.t_s) || o.scripted_host || tick_commanded) return false;
+          // an error is the loop's to report, at its next turn
+          if (!read_bus(false) || !bus_drained()) return false;
+          const bool on_sync = !receipt_drive->event_driven();
           return std::none_of(from_bus.begin(), from_bus.end(), [&](const auto& waiting) {
-            return receipt_drive->commanded_by(waiting.second);
+            const can::Frame& host = waiting.second;
+            return receipt_drive->commanded_by(host) ||
+                   (on_sync && host.id == canopen::kSyncId && !host.extended);
           });
         };
         if (receipt_drive != nullptr && !f.ins_side && receipt_drive->timed_on_the_bus(f.frame) &&
-            real_s - f.t_s / o.speed > slack() && !still_true()) {
-          ++late_tpdo_frames;
-          receipt_drive->unsent(f.frame);
-          continue;
+            real_s - f.t_s / o.speed > slack()) {
+          if (!still_true()) {
+            ++late_tpdo_frames;
+            receipt_drive->unsent(f.frame);
+            continue;
+          }
+          if (!receipt_drive->event_driven()) ++late_sync_answers;
         }
         (void)(f.ins_side ? ins_sock : table_sock).send(f.frame);
       }
@@ -761,7 +791,8 @@ int live(const Options& o) {
                {"host_heartbeat_lost", d->counts().host_heartbeat_lost},
                {"set_points", d->counts().set_points},
                {"tpdos", d->counts().tpdo},
-               {"tpdo_frames_not_sent_late", late_tpdo_frames}};
+               {"tpdo_frames_not_sent_late", late_tpdo_frames},
+               {"sync_answer_frames_sent_late", late_sync_answers}};
     }
     const nlohmann::json j = {
         {"drive", drive},
@@ -803,12 +834,13 @@ int live(const Options& o) {
                "turncal-sim: stopped at %.3f s simulated; host frames %llu (undecodable %llu, "
                "refused commands %llu); send queue overflow %llu; at most %.0f ms behind real "
                "time; drive TPDO frames not sent as late (over %.0f ms, on SYNC over %.2f of its "
-               "period) %llu\n",
+               "period) %llu, sent late at rest on SYNC %llu\n",
                loop.next_time(), static_cast<unsigned long long>(c.host_frames),
                static_cast<unsigned long long>(c.host_undecodable),
                static_cast<unsigned long long>(c.refused),
                static_cast<unsigned long long>(overflow), max_lag_s * 1e3, kReceiptSlackS * 1e3,
-               kSyncSlack, static_cast<unsigned long long>(late_tpdo_frames));
+               kSyncSlack, static_cast<unsigned long long>(late_tpdo_frames),
+               static_cast<unsigned long long>(late_sync_answers));
   return 0;
 }
 

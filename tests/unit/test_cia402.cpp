@@ -638,6 +638,13 @@ TEST_SUITE("cia402") {
     void nmt_start(double t, std::uint8_t node = 5) {
       l.master.on_frame(canopen::nmt_frame(canopen::NmtCommand::Start, node), t0 + t, out);
     }
+    // a TPDO1 received at t: dated `dated` (from t0), `lost` lost before it
+    void expect(double t, double dated, std::int64_t lost) {
+      INFO("the TPDO1 received at t0 + " << t);
+      const cia402::EncoderSample e = tpdo(t);
+      CHECK(e.t_s == t0 + dated);
+      CHECK(e.lost_before == lost);
+    }
     cia402::EncoderSample tpdo(double t) {
       can::Frame f;
       f.id = 0x185;
@@ -664,23 +671,17 @@ TEST_SUITE("cia402") {
     auto tpdo = [&](double t) { return h.tpdo(t); };
     // the SYNC on the bus dates the TPDO1 that answers it
     sync(0.0012);
-    cia402::EncoderSample e = tpdo(0.0017);
-    CHECK(e.t_s == t0 + 0.0012);
-    CHECK(e.lost_before == 0);
+    h.expect(0.0017, 0.0012, 0);
     // a SYNC queued by the tick is not yet on the bus: its echo's time counts
     l.master.tick(t0 + 0.01, out);
     REQUIRE(std::count_if(out.begin(), out.end(),
                           [](const can::Frame& f) { return f.id == canopen::kSyncId; }) == 1);
     sync(0.0134);  // the echo, 3.4 ms after the tick queued it
-    e = tpdo(0.0139);
-    CHECK(e.t_s == t0 + 0.0134);
-    CHECK(e.lost_before == 0);
+    h.expect(0.0139, 0.0134, 0);
     // two SYNCs, one TPDO1: the first one's answer was lost
     sync(0.02);
     sync(0.03);
-    e = tpdo(0.0305);
-    CHECK(e.t_s == t0 + 0.03);
-    CHECK(e.lost_before == 1);
+    h.expect(0.0305, 0.03, 1);
     // three unanswered before it: three lost
     for (int k = 4; k <= 7; ++k) sync(0.01 * k);
     CHECK(tpdo(0.0705).lost_before == 3);
@@ -695,9 +696,7 @@ TEST_SUITE("cia402") {
     h.nmt_start(0.095);
     sync(0.1);
     sync(0.11);
-    e = tpdo(0.1105);
-    CHECK(e.t_s == t0 + 0.11);
-    CHECK(e.lost_before == cia402::EncoderSample::kRestarted);
+    h.expect(0.1105, 0.11, cia402::EncoderSample::kRestarted);
     sync(0.12);
     CHECK(tpdo(0.1205).lost_before == 0);
     // an NMT command to another node changes nothing
@@ -713,16 +712,12 @@ TEST_SUITE("cia402") {
     CHECK(l.master.counts().malformed == malformed + 1);
     // so no SYNC since the last TPDO1: this one's SYNC is not known, and
     // the last SYNC's time is the last sample's; dated by its receipt
-    e = tpdo(0.1505);
-    CHECK(e.t_s == t0 + 0.1505);
-    CHECK(e.lost_before == 0);
+    h.expect(0.1505, 0.1505, 0);
     CHECK(l.master.counts().tpdo_unsynced == 1);
     CHECK(l.master.notices().back().find("TPDO1s came with no SYNC within half a period") == 0);
     // and the next SYNC dates its answer again
     sync(0.16);
-    e = tpdo(0.1605);
-    CHECK(e.t_s == t0 + 0.16);
-    CHECK(e.lost_before == 0);
+    h.expect(0.1605, 0.16, 0);
     CHECK(l.master.counts().tpdo_unsynced == 1);
   }
 
@@ -730,18 +725,13 @@ TEST_SUITE("cia402") {
       "with SYNC: a SYNC's echo read after its answer invents no loss, and dates nothing early") {
     HandSync h;
     auto& l = h.l;
-    const double t0 = h.t0;
     h.sync(0.0);
     REQUIRE(h.tpdo(0.0005).lost_before == 0);
     // once: TPDO1 n read before the echo of SYNC n; then in order again
-    cia402::EncoderSample e = h.tpdo(0.0105);
-    CHECK(e.t_s == t0 + 0.0105);  // its SYNC not yet seen: its receipt
-    CHECK(e.lost_before == 0);
-    h.sync(0.01);  // the echo, read late: the SYNC that TPDO1 answered
+    h.expect(0.0105, 0.0105, 0);  // its SYNC not yet seen: its receipt
+    h.sync(0.01);                 // the echo, read late: the SYNC that TPDO1 answered
     h.sync(0.02);
-    e = h.tpdo(0.0205);
-    CHECK(e.t_s == t0 + 0.02);
-    CHECK(e.lost_before == 0);  // was 1: the late echo read as a SYNC unanswered
+    h.expect(0.0205, 0.02, 0);  // was 1: the late echo read as a SYNC unanswered
     // always so: each dated by its own receipt, never by the SYNC before its own
     const auto unsynced = l.master.counts().tpdo_unsynced;
     for (int k = 3; k <= 12; ++k) {
@@ -751,10 +741,8 @@ TEST_SUITE("cia402") {
         continue;
       }
       const double rx = t + 0.0005;
-      e = h.tpdo(rx);
       CAPTURE(k);
-      CHECK(e.t_s == t0 + rx);
-      CHECK(e.lost_before == (k == 8 ? 1 : 0));  // TPDO1 7, counted once, by the one after
+      h.expect(rx, rx, k == 8 ? 1 : 0);  // TPDO1 7, counted once, by the one after
       // the echo stamped when it was on the bus, or (an adapter that hands
       // it over late) a little after the answer it is read after
       h.sync(k % 2 == 0 ? t : rx + 0.0001);
@@ -762,44 +750,28 @@ TEST_SUITE("cia402") {
     CHECK(l.master.counts().tpdo_unsynced == unsynced + 9);
     // and in order again: dated by the SYNC
     h.sync(0.13);
-    e = h.tpdo(0.1305);
-    CHECK(e.t_s == t0 + 0.13);
-    CHECK(e.lost_before == 0);
+    h.expect(0.1305, 0.13, 0);
     // a second answer to one SYNC, 4 ms before the next: dated by its
     // receipt, and the next SYNC (on the bus after it: no echo read late)
     // dates the next answer again
-    e = h.tpdo(0.136);
-    CHECK(e.t_s == t0 + 0.136);
-    CHECK(e.lost_before == 0);
+    h.expect(0.136, 0.136, 0);
     h.sync(0.14);
-    e = h.tpdo(0.1405);
-    CHECK(e.t_s == t0 + 0.14);
-    CHECK(e.lost_before == 0);
+    h.expect(0.1405, 0.14, 0);
     // an answer more than half a period late is no answer: dated by its
     // receipt, its SYNC counted unanswered; the next SYNC is not taken
     h.sync(0.15);
-    e = h.tpdo(0.1556);
-    CHECK(e.t_s == t0 + 0.1556);
-    CHECK(e.lost_before == 1);
+    h.expect(0.1556, 0.1556, 1);
     h.sync(0.16);
-    e = h.tpdo(0.1605);
-    CHECK(e.t_s == t0 + 0.16);
-    CHECK(e.lost_before == 0);
+    h.expect(0.1605, 0.16, 0);
     // just inside the window, under half a period after: still its answer
     h.sync(0.17);
-    e = h.tpdo(0.1749);
-    CHECK(e.t_s == t0 + 0.17);
-    CHECK(e.lost_before == 0);
+    h.expect(0.1749, 0.17, 0);
     // a TPDO1 stamped before the last SYNC (stamps crossed, or a second
     // answer to the one before) is no answer to it: that SYNC stays open
     // for its own, and nothing is lost
     h.sync(0.18);
-    e = h.tpdo(0.1799);
-    CHECK(e.t_s == t0 + 0.1799);
-    CHECK(e.lost_before == 0);
-    e = h.tpdo(0.1805);
-    CHECK(e.t_s == t0 + 0.18);
-    CHECK(e.lost_before == 0);
+    h.expect(0.1799, 0.1799, 0);
+    h.expect(0.1805, 0.18, 0);
   }
 
   TEST_CASE(
@@ -811,20 +783,15 @@ TEST_SUITE("cia402") {
     // the drive restarted: the SYNC before the command answers nothing after
     h.sync(0.01);
     h.nmt_start(0.012);
-    cia402::EncoderSample e = h.tpdo(0.0125);
-    CHECK(e.t_s == t0 + 0.0125);  // was t0 + 0.01: a SYNC from before the restart
-    CHECK(e.lost_before == cia402::EncoderSample::kRestarted);
+    // dated by its receipt (was t0 + 0.01: a SYNC from before the restart)
+    h.expect(0.0125, 0.0125, cia402::EncoderSample::kRestarted);
     // the first SYNC after the command, soon after that TPDO1: its own
     h.sync(0.015);
-    e = h.tpdo(0.0155);
-    CHECK(e.t_s == t0 + 0.015);
-    CHECK(e.lost_before == 0);
+    h.expect(0.0155, 0.015, 0);
     // NMT to all nodes (0) restarts it as well
     h.sync(0.025);
     h.nmt_start(0.027, 0);
-    e = h.tpdo(0.0275);
-    CHECK(e.t_s == t0 + 0.0275);
-    CHECK(e.lost_before == cia402::EncoderSample::kRestarted);
+    h.expect(0.0275, 0.0275, cia402::EncoderSample::kRestarted);
   }
 
   TEST_CASE("SYNC keeps its schedule after a late tick, and never two within half a period") {

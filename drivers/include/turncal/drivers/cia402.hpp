@@ -602,12 +602,16 @@ class Master {
   std::uint64_t tpdo_running_ = 0;  // TPDO1s since then
   bool drive_seen_operational_ = false;
   double next_sync_ = 0;
-  // TPDO1 against SYNC (on_sync, on_tpdo): which SYNC a TPDO1 answers
-  double last_sync_ = NAN;           // the last SYNC seen on the bus; NaN: none since a start
-  bool last_sync_answered_ = false;  // a TPDO1 was taken as its answer
-  std::int64_t syncs_missed_ = 0;    // SYNCs before it that none answered
-  bool sync_restarted_ = true;       // no TPDO1 since a start: earlier SYNCs are no losses
-  double ahead_t_ = NAN;             // a TPDO1 read before its SYNC's echo: its receipt
+  // TPDO1 against SYNC (on_sync, on_tpdo): which SYNC a TPDO1 answers;
+  // forgotten (a new one) when the drive's stream starts over
+  struct SyncPairing {
+    double last = NAN;        // the last SYNC seen on the bus; NaN: none since a start
+    bool answered = false;    // a TPDO1 was taken as its answer
+    std::int64_t missed = 0;  // SYNCs before it that none answered
+    bool restarted = true;    // no TPDO1 since a start: earlier SYNCs are no losses
+    double ahead_t = NAN;     // a TPDO1 read before its SYNC's echo: its receipt
+  };
+  SyncPairing sync_;
   void on_sync(double t_s);
   // a TPDO1 answers a SYNC within this many SYNC periods after it
   // (turncal-sim's within 0.4; a real drive's within its cycle)
