@@ -77,8 +77,9 @@ struct SecondPassSettings {
   double nominal_imu_rate_hz = 100;
   /// After the iterations, the estimates' sensitivity to how df_obs_i
   /// splits into df_z_i and g Theta_i3 (which no vertical turn determines,
-  /// yet the nominal's azimuth error turns the two apart) is added to the
-  /// covariance (model.md, 8); off only to compare.
+  /// yet the nominal's azimuth error turns the two apart: model.md, 8) is
+  /// added to the covariance, a consider term model.md does not have (the
+  /// README says why); off only to compare.
   bool consider_split = true;
 };
 
