@@ -611,6 +611,14 @@ bool VirtualDrive402::commanded_by(const can::Frame& f) const {
          ((rpdo & 0x80000000u) == 0 && f.id == (rpdo & 0x7FF));
 }
 
+bool still_true_late(const LateTpdo& l) {
+  if (!l.at_rest || l.scripted_host || l.command_taken_t >= l.t_s) return false;
+  if (l.on_sync && (l.sync_taken_t > l.t_s || (l.sync_taken_t == l.t_s && l.syncs_taken_then > 1) ||
+                    l.stand_tx_waiting))
+    return false;
+  return l.bus_read && !l.command_waiting && !(l.on_sync && l.sync_waiting);
+}
+
 bool VirtualDrive402::timed_on_the_bus(const can::Frame& f) const {
   if (f.extended) return false;
   for (const std::uint16_t comm : {obj::kTpdo1Comm, obj::kTpdo2Comm}) {

@@ -597,8 +597,10 @@ int live(const Options& o) {
   double sync_last_at = NAN;
   std::deque<double> sync_gaps;
   double sync_period = INFINITY;
-  std::uint64_t late_tpdo_frames = 0;   // not sent
-  std::uint64_t late_sync_answers = 0;  // answers to a SYNC sent late all the same (at rest)
+  std::uint64_t late_tpdo_frames = 0;  // not sent
+  // answers to a SYNC sent late all the same (at rest), past the half
+  // period the host dates an answer by its SYNC in
+  std::uint64_t late_sync_answers = 0;
   stand::VirtualDrive402* receipt_drive = loop.stand().drive();
   // The stand sleeps to the next tick in steps of whole milliseconds, as
   // poll(2) had them, so a fast stand runs its ticks in batches and does
@@ -623,6 +625,9 @@ int live(const Options& o) {
   // socket whose interface went away is re-opened when it is back; without
   // it (a look at what waits) it is left for the loop.
   std::optional<Error> bus_error;
+  const auto is_sync = [](const can::Frame& c) {  // CiA 301 SYNC
+    return c.id == canopen::kSyncId && !c.extended && !c.fd && !c.remote;
+  };
   const auto read_bus = [&](bool recover) -> bool {
     if (bus_error) return false;
     for (socketcan::Socket& s : sockets) {
@@ -636,7 +641,7 @@ int live(const Options& o) {
       for (const can::TimedFrame& f : rx.frames) {
         const double at = static_cast<double>(f.time_ns - kernel0_ns) * 1e-9 * o.speed;
         from_bus.emplace_back(at, f.frame);
-        if (f.frame.id == canopen::kSyncId && !f.frame.extended) {
+        if (is_sync(f.frame)) {
           if (!std::isnan(sync_last_at) && at > sync_last_at) {
             sync_gaps.push_back(at - sync_last_at);
             if (sync_gaps.size() > 15) sync_gaps.pop_front();
@@ -676,8 +681,11 @@ int live(const Options& o) {
     return std::all_of(sockets.begin(), sockets.end(),
                        [](const socketcan::Socket& s) { return s.fd() >= 0 && s.drained(); });
   };
-  // the tick just run took a frame that commands the drive
-  bool tick_commanded = false;
+  // the stand times of the last tick that took a frame commanding the
+  // drive, and of the last that took a SYNC (and how many it took)
+  double command_taken_t = -INFINITY;
+  double sync_taken_t = -INFINITY;
+  int syncs_taken_then = 0;
   while (g_stop == 0 && !loop.done()) {
     if (!read_bus(true)) return fail(*bus_error);
     const double target = std::chrono::duration<double>(Clock::now() - wall0).count() * o.speed;
@@ -689,10 +697,16 @@ int live(const Options& o) {
         due.push_back(from_bus.front().second);
         from_bus.pop_front();
       }
-      tick_commanded =
-          receipt_drive != nullptr && std::any_of(due.begin(), due.end(), [&](const can::Frame& c) {
-            return receipt_drive->commanded_by(c);
-          });
+      if (receipt_drive != nullptr) {
+        const double t = loop.next_time();
+        for (const can::Frame& c : due) {
+          if (receipt_drive->commanded_by(c)) command_taken_t = t;
+          if (is_sync(c)) {
+            syncs_taken_then = sync_taken_t == t ? syncs_taken_then + 1 : 1;
+            sync_taken_t = t;
+          }
+        }
+      }
       loop.tick(due, frames);
       due.clear();
       if (receipt_drive != nullptr)
@@ -705,27 +719,26 @@ int live(const Options& o) {
                      : std::max(kReceiptSlackS,
                                 (sync_period * kSyncSlack - stand::StandLoop::kTick) / o.speed);
         };
-        // a TPDO of a table at rest is as true late (the host dates it by
-        // its receipt, or by its SYNC, which find the same position), if
-        // nothing could have changed the drive since its time: no frame
-        // that commands it (NMT, SDO, RPDO) taken up in its tick, or on the
-        // bus and not yet taken up (every socket read to the end: one not
-        // read to the end, or gone, or in error, may hold one), no script;
-        // on SYNC, no later SYNC on the bus (the host would take it as that
-        // one's answer). (The drive's own timed events, a fault injected or
-        // its host heartbeat's timeout, are not looked ahead for: their
-        // frames follow at once, as a real drive's would after a TPDO it
-        // sent just before.)
+        // a TPDO of a table at rest goes out late if what it says is as
+        // true at its receipt (stand::still_true_late)
+        const bool on_sync = receipt_drive != nullptr && !receipt_drive->event_driven();
         const auto still_true = [&] {
-          if (receipt_drive->moving(f.t_s) || o.scripted_host || tick_commanded) return false;
+          stand::LateTpdo l;
+          l.t_s = f.t_s;
+          l.at_rest = !receipt_drive->moving(f.t_s);
+          l.on_sync = on_sync;
+          l.scripted_host = o.scripted_host;
+          l.command_taken_t = command_taken_t;
+          l.sync_taken_t = sync_taken_t;
+          l.syncs_taken_then = syncs_taken_then;
+          l.stand_tx_waiting = table_sock.tx_pending();
           // an error is the loop's to report, at its next turn
-          if (!read_bus(false) || !bus_drained()) return false;
-          const bool on_sync = !receipt_drive->event_driven();
-          return std::none_of(from_bus.begin(), from_bus.end(), [&](const auto& waiting) {
-            const can::Frame& host = waiting.second;
-            return receipt_drive->commanded_by(host) ||
-                   (on_sync && host.id == canopen::kSyncId && !host.extended);
-          });
+          l.bus_read = read_bus(false) && bus_drained();
+          for (const auto& waiting : from_bus) {
+            l.command_waiting = l.command_waiting || receipt_drive->commanded_by(waiting.second);
+            l.sync_waiting = l.sync_waiting || is_sync(waiting.second);
+          }
+          return stand::still_true_late(l);
         };
         if (receipt_drive != nullptr && !f.ins_side && receipt_drive->timed_on_the_bus(f.frame) &&
             real_s - f.t_s / o.speed > slack()) {
@@ -734,9 +747,15 @@ int live(const Options& o) {
             receipt_drive->unsent(f.frame);
             continue;
           }
-          if (!receipt_drive->event_driven()) ++late_sync_answers;
+          // past the host's half period (less the tick the SYNC may have
+          // come before its own): dated by its receipt, its SYNC counted
+          // unanswered
+          if (on_sync && !(real_s - f.t_s / o.speed <=
+                           (0.5 * sync_period - stand::StandLoop::kTick) / o.speed))
+            ++late_sync_answers;
         }
-        (void)(f.ins_side ? ins_sock : table_sock).send(f.frame);
+        auto sent = (f.ins_side ? ins_sock : table_sock).send(f.frame);
+        if (!sent) return fail(sent.error());  // a frame the socket cannot carry
       }
       frames.clear();
     }
@@ -757,6 +776,8 @@ int live(const Options& o) {
     ::ppoll(fds.data(), fds.size(), &wait_ts, nullptr);
   }
   if (const Error* e = loop.error()) return fail(*e);
+  // an error met while looking at the bus in the last turn, then stopped
+  if (bus_error) return fail(*bus_error);
   const auto& c = loop.stand().counts();
   if (!o.state_out.empty()) {
     // what the stand itself says at the end: what a test of the host's
@@ -794,6 +815,11 @@ int live(const Options& o) {
                {"tpdo_frames_not_sent_late", late_tpdo_frames},
                {"sync_answer_frames_sent_late", late_sync_answers}};
     }
+    const auto bus_stat = [&](std::uint64_t socketcan::Stats::*field) {
+      std::uint64_t n = 0;
+      for (const socketcan::Socket& sock : sockets) n += sock.stats().*field;
+      return n;
+    };
     const nlohmann::json j = {
         {"drive", drive},
         {"stand_time_s", now},
@@ -802,6 +828,12 @@ int live(const Options& o) {
           {"fault", static_cast<int>(st.fault)},
           {"rate_dps", st.rate_rps / kDeg},
           {"angle_deg", loop.stand().table().angle(now) / kDeg}}},
+        // what the stand's own sockets lost (a host frame it never read,
+        // a frame of its it never sent)
+        {"bus",
+         {{"rx_dropped", bus_stat(&socketcan::Stats::rx_dropped)},
+          {"tx_overflow", bus_stat(&socketcan::Stats::tx_overflow)},
+          {"tx_failed", bus_stat(&socketcan::Stats::tx_failed)}}},
         {"counts",
          {{"host_frames", c.host_frames},
           {"host_undecodable", c.host_undecodable},

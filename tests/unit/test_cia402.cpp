@@ -2475,3 +2475,64 @@ TEST_SUITE("cia402") {
     CHECK(pdo_quick_stop);
   }
 }
+
+TEST_SUITE("turncal-sim's late TPDOs") {
+  // a TPDO made at 10 s, of a table at rest, with nothing since: it goes
+  // out late; each thing that could have changed the drive keeps it back
+  stand::LateTpdo quiet(bool on_sync) {
+    stand::LateTpdo l;
+    l.t_s = 10.0;
+    l.at_rest = true;
+    l.on_sync = on_sync;
+    l.command_taken_t = 9.5;
+    l.sync_taken_t = on_sync ? 10.0 : 9.9;
+    l.syncs_taken_then = 1;
+    l.bus_read = true;
+    return l;
+  }
+
+  TEST_CASE("a late TPDO goes out only if what it says is as true at its receipt") {
+    for (const bool on_sync : {false, true}) {
+      CAPTURE(on_sync);
+      CHECK(stand::still_true_late(quiet(on_sync)));
+      stand::LateTpdo l = quiet(on_sync);
+      l.at_rest = false;  // the table turning: its angle is the frame's time's
+      CHECK_FALSE(stand::still_true_late(l));
+      l = quiet(on_sync);
+      l.scripted_host = true;
+      CHECK_FALSE(stand::still_true_late(l));
+      l = quiet(on_sync);
+      l.command_taken_t = 10.0;  // in the tick that made it, so after it
+      CHECK_FALSE(stand::still_true_late(l));
+      l.command_taken_t = 10.002;  // since
+      CHECK_FALSE(stand::still_true_late(l));
+      l = quiet(on_sync);
+      l.command_waiting = true;
+      CHECK_FALSE(stand::still_true_late(l));
+      l = quiet(on_sync);
+      l.bus_read = false;  // a socket not read to the end, gone or in error
+      CHECK_FALSE(stand::still_true_late(l));
+    }
+  }
+
+  TEST_CASE("a late answer to a SYNC goes out only while no later SYNC is taken or waiting") {
+    stand::LateTpdo l = quiet(true);
+    l.sync_taken_t = 10.001;  // the next SYNC already taken
+    CHECK_FALSE(stand::still_true_late(l));
+    l = quiet(true);
+    l.syncs_taken_then = 2;  // two in its tick: which it answers is not known
+    CHECK_FALSE(stand::still_true_late(l));
+    l = quiet(true);
+    l.sync_waiting = true;
+    CHECK_FALSE(stand::still_true_late(l));
+    l = quiet(true);
+    l.stand_tx_waiting = true;  // it would go after frames a later SYNC may overtake
+    CHECK_FALSE(stand::still_true_late(l));
+    // none of these matter to an event-driven TPDO, dated by its receipt
+    l = quiet(false);
+    l.sync_taken_t = 10.001;
+    l.sync_waiting = true;
+    l.stand_tx_waiting = true;
+    CHECK(stand::still_true_late(l));
+  }
+}

@@ -296,4 +296,39 @@ class VirtualDrive402 {
   Drive402Counts counts_;
 };
 
+/// What turncal-sim knows of one of the drive's TPDOs that would go out
+/// late, its host having fallen behind real time. Such a frame is dated by
+/// its receipt (event-driven) or by the SYNC it answers, within half a
+/// period; a real drive samples what it carries as it sends it, so a late
+/// one would date the position by the stall.
+struct LateTpdo {
+  double t_s = 0;              ///< the frame's stand time: the tick that made it
+  bool at_rest = false;        ///< the table not moving at t_s
+  bool on_sync = false;        ///< an answer to a SYNC (else event-driven)
+  bool scripted_host = false;  ///< a script commands the drive, not a host on the bus
+  /// The stand times of the last tick that took a frame commanding the
+  /// drive (VirtualDrive402::commanded_by), and of the last that took a
+  /// SYNC, with how many it took: a frame is answered at the tick after the
+  /// one that took it, dated by that one, and a frame taken in the tick a
+  /// TPDO was made was taken after it was made.
+  double command_taken_t = -std::numeric_limits<double>::infinity();
+  double sync_taken_t = -std::numeric_limits<double>::infinity();
+  int syncs_taken_then = 0;
+  bool stand_tx_waiting = false;  ///< the stand's frames wait in its send queue, to go before it
+  bool bus_read = false;          ///< every socket read to the end, none gone or in error
+  bool command_waiting = false;   ///< a frame commanding the drive on the bus, not yet taken
+  bool sync_waiting = false;      ///< a SYNC on the bus, not yet taken
+};
+
+/// Whether what a late TPDO says is as true at its receipt, so it may go
+/// out late rather than not at all: the table at rest, and nothing could
+/// have changed the drive since its time (no command taken since, none
+/// waiting on a bus read to the end, no script); on SYNC besides, no later
+/// SYNC taken or waiting and nothing of the stand's queued before it, or
+/// the host would take it as a later SYNC's answer. (The drive's own timed
+/// events, a fault injected or its host heartbeat's timeout, are not
+/// looked ahead for: their frames follow at once, as a real drive's would
+/// after a TPDO it sent just before.)
+[[nodiscard]] bool still_true_late(const LateTpdo& l);
+
 }  // namespace turncal::stand
