@@ -39,7 +39,9 @@ TEST_SUITE("calibration") {
     REQUIRE_MESSAGE(cal.ok(), (cal.ok() ? "" : cal.error().describe()));
     const json terms = terms_of(*cal);
     int determined = 0;
-    for (const auto& [name, e] : r["estimates"].items()) {
+    for (const auto& item : r["estimates"].items()) {
+      const std::string& name = item.key();
+      const json& e = item.value();
       if (name.rfind("df_", 0) == 0) continue;  // df_eff, df_obs: combinations
       CAPTURE(name);
       if (e["determined"] == "determined") {
