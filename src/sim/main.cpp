@@ -598,8 +598,9 @@ int live(const Options& o) {
   std::deque<double> sync_gaps;
   double sync_period = INFINITY;
   std::uint64_t late_tpdo_frames = 0;  // not sent
-  // answers to a SYNC sent late all the same (at rest), past the half
-  // period the host dates an answer by its SYNC in
+  // answers to a SYNC that may reach the host past the half period it
+  // dates an answer by its SYNC in (then by its receipt, the SYNC counted
+  // unanswered): sent late all the same (at rest), or queued by the socket
   std::uint64_t late_sync_answers = 0;
   stand::VirtualDrive402* receipt_drive = loop.stand().drive();
   // The stand sleeps to the next tick in steps of whole milliseconds, as
@@ -740,22 +741,24 @@ int live(const Options& o) {
           }
           return stand::still_true_late(l);
         };
-        if (receipt_drive != nullptr && !f.ins_side && receipt_drive->timed_on_the_bus(f.frame) &&
-            real_s - f.t_s / o.speed > slack()) {
+        const bool timed =
+            receipt_drive != nullptr && !f.ins_side && receipt_drive->timed_on_the_bus(f.frame);
+        bool late = false;
+        if (timed && real_s - f.t_s / o.speed > slack()) {
           if (!still_true()) {
             ++late_tpdo_frames;
             receipt_drive->unsent(f.frame);
             continue;
           }
-          // past the host's half period (less the tick the SYNC may have
-          // come before its own): dated by its receipt, its SYNC counted
-          // unanswered
-          if (on_sync && !(real_s - f.t_s / o.speed <=
-                           (0.5 * sync_period - stand::StandLoop::kTick) / o.speed))
-            ++late_sync_answers;
+          late = true;
         }
         auto sent = (f.ins_side ? ins_sock : table_sock).send(f.frame);
         if (!sent) return fail(sent.error());  // a frame the socket cannot carry
+        // every such answer counted, not only those the stand's clock puts
+        // past half its own estimate of the period: the host's period and
+        // clock are its own
+        if (on_sync && timed && (late || *sent == socketcan::TxOutcome::Queued))
+          ++late_sync_answers;
       }
       frames.clear();
     }
@@ -776,8 +779,6 @@ int live(const Options& o) {
     ::ppoll(fds.data(), fds.size(), &wait_ts, nullptr);
   }
   if (const Error* e = loop.error()) return fail(*e);
-  // an error met while looking at the bus in the last turn, then stopped
-  if (bus_error) return fail(*bus_error);
   const auto& c = loop.stand().counts();
   if (!o.state_out.empty()) {
     // what the stand itself says at the end: what a test of the host's
@@ -813,7 +814,7 @@ int live(const Options& o) {
                {"set_points", d->counts().set_points},
                {"tpdos", d->counts().tpdo},
                {"tpdo_frames_not_sent_late", late_tpdo_frames},
-               {"sync_answer_frames_sent_late", late_sync_answers}};
+               {"sync_answer_frames_late_or_queued", late_sync_answers}};
     }
     const auto bus_stat = [&](std::uint64_t socketcan::Stats::*field) {
       std::uint64_t n = 0;
@@ -860,13 +861,16 @@ int live(const Options& o) {
     f.close();
     if (!f) return fail(make_error("cannot write " + o.state_out));
   }
+  // an error met while looking at the bus in the last turn, then stopped
+  // (the state file written first: what a test reads, beside this error)
+  if (bus_error) return fail(*bus_error);
   std::uint64_t overflow = 0;
   for (const socketcan::Socket& s : sockets) overflow += s.stats().tx_overflow;
   std::fprintf(stderr,
                "turncal-sim: stopped at %.3f s simulated; host frames %llu (undecodable %llu, "
                "refused commands %llu); send queue overflow %llu; at most %.0f ms behind real "
                "time; drive TPDO frames not sent as late (over %.0f ms, on SYNC over %.2f of its "
-               "period) %llu, sent late at rest on SYNC %llu\n",
+               "period) %llu; answers on SYNC sent late at rest or queued %llu\n",
                loop.next_time(), static_cast<unsigned long long>(c.host_frames),
                static_cast<unsigned long long>(c.host_undecodable),
                static_cast<unsigned long long>(c.refused),

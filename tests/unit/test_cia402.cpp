@@ -2530,6 +2530,9 @@ TEST_SUITE("turncal-sim's late TPDOs") {
     CHECK_FALSE(stand::still_true_late(l));
     // none of these matter to an event-driven TPDO, dated by its receipt
     l = quiet(false);
+    l.sync_taken_t = 10.0;
+    l.syncs_taken_then = 2;
+    CHECK(stand::still_true_late(l));
     l.sync_taken_t = 10.001;
     l.sync_waiting = true;
     l.stand_tx_waiting = true;

@@ -309,8 +309,11 @@ struct LateTpdo {
   /// The stand times of the last tick that took a frame commanding the
   /// drive (VirtualDrive402::commanded_by), and of the last that took a
   /// SYNC, with how many it took: a frame is answered at the tick after the
-  /// one that took it, dated by that one, and a frame taken in the tick a
-  /// TPDO was made was taken after it was made.
+  /// one that took it, dated by that one. A frame taken in the tick a TPDO
+  /// is dated by counts too: a TPDO made as the tick begins (its timer, a
+  /// change) was made before it; one made in answer to a frame of that
+  /// tick may have been made after, but the order is not kept, and such a
+  /// TPDO refused goes with the drive's next.
   double command_taken_t = -std::numeric_limits<double>::infinity();
   double sync_taken_t = -std::numeric_limits<double>::infinity();
   int syncs_taken_then = 0;
