@@ -318,7 +318,7 @@ void VirtualDrive402::receive(double t, const can::Frame& f, std::vector<DriveFr
   const std::uint32_t rpdo = u32(obj::kRpdo1Comm, 1);
   if (f.id == canopen::kNmtId) {
     on_nmt(t, f, out);
-  } else if (f.id == canopen::kSyncId) {
+  } else if (canopen::is_sync(f)) {
     on_sync(t, out);
   } else if (f.id == canopen::kSdoRxBase + node) {
     on_sdo(t, f, out);

@@ -934,9 +934,8 @@ void Master::on_frame(const can::Frame& f, double t_s, std::vector<can::Frame>& 
   now_ = std::max(now_, t_s);
   if (f.extended || f.error || f.remote || f.fd) return;
   const std::uint32_t node = s_.node_id;
-  if (f.id == canopen::kSyncId) {
-    // CiA 301's SYNC: no data, or one byte of counter
-    if (f.len > 1) {
+  if (canopen::on_sync_id(f)) {
+    if (!canopen::is_sync(f)) {
       ++counts_.malformed;
       return;
     }

@@ -626,9 +626,6 @@ int live(const Options& o) {
   // socket whose interface went away is re-opened when it is back; without
   // it (a look at what waits) it is left for the loop.
   std::optional<Error> bus_error;
-  const auto is_sync = [](const can::Frame& c) {  // CiA 301 SYNC
-    return c.id == canopen::kSyncId && !c.extended && !c.fd && !c.remote;
-  };
   const auto read_bus = [&](bool recover) -> bool {
     if (bus_error) return false;
     for (socketcan::Socket& s : sockets) {
@@ -642,7 +639,7 @@ int live(const Options& o) {
       for (const can::TimedFrame& f : rx.frames) {
         const double at = static_cast<double>(f.time_ns - kernel0_ns) * 1e-9 * o.speed;
         from_bus.emplace_back(at, f.frame);
-        if (is_sync(f.frame)) {
+        if (canopen::is_sync(f.frame)) {
           if (!std::isnan(sync_last_at) && at > sync_last_at) {
             sync_gaps.push_back(at - sync_last_at);
             if (sync_gaps.size() > 15) sync_gaps.pop_front();
@@ -702,7 +699,7 @@ int live(const Options& o) {
         const double t = loop.next_time();
         for (const can::Frame& c : due) {
           if (receipt_drive->commanded_by(c)) command_taken_t = t;
-          if (is_sync(c)) {
+          if (canopen::is_sync(c)) {
             syncs_taken_then = sync_taken_t == t ? syncs_taken_then + 1 : 1;
             sync_taken_t = t;
           }
@@ -737,7 +734,7 @@ int live(const Options& o) {
           l.bus_read = read_bus(false) && bus_drained();
           for (const auto& waiting : from_bus) {
             l.command_waiting = l.command_waiting || receipt_drive->commanded_by(waiting.second);
-            l.sync_waiting = l.sync_waiting || is_sync(waiting.second);
+            l.sync_waiting = l.sync_waiting || canopen::is_sync(waiting.second);
           }
           return stand::still_true_late(l);
         };
@@ -780,6 +777,12 @@ int live(const Options& o) {
   }
   if (const Error* e = loop.error()) return fail(*e);
   const auto& c = loop.stand().counts();
+  // what the stand's sockets counted, summed over them
+  const auto bus_stat = [&](std::uint64_t socketcan::Stats::*field) {
+    std::uint64_t n = 0;
+    for (const socketcan::Socket& sock : sockets) n += sock.stats().*field;
+    return n;
+  };
   if (!o.state_out.empty()) {
     // what the stand itself says at the end: what a test of the host's
     // faults checks (did the table stop, did our quick stop reach it)
@@ -816,11 +819,6 @@ int live(const Options& o) {
                {"tpdo_frames_not_sent_late", late_tpdo_frames},
                {"sync_answer_frames_late_or_queued", late_sync_answers}};
     }
-    const auto bus_stat = [&](std::uint64_t socketcan::Stats::*field) {
-      std::uint64_t n = 0;
-      for (const socketcan::Socket& sock : sockets) n += sock.stats().*field;
-      return n;
-    };
     const nlohmann::json j = {
         {"drive", drive},
         {"stand_time_s", now},
@@ -864,8 +862,7 @@ int live(const Options& o) {
   // an error met while looking at the bus in the last turn, then stopped
   // (the state file written first: what a test reads, beside this error)
   if (bus_error) return fail(*bus_error);
-  std::uint64_t overflow = 0;
-  for (const socketcan::Socket& s : sockets) overflow += s.stats().tx_overflow;
+  const std::uint64_t overflow = bus_stat(&socketcan::Stats::tx_overflow);
   std::fprintf(stderr,
                "turncal-sim: stopped at %.3f s simulated; host frames %llu (undecodable %llu, "
                "refused commands %llu); send queue overflow %llu; at most %.0f ms behind real "

@@ -56,6 +56,15 @@ const char* to_string(NmtState s);
 [[nodiscard]] can::Frame nmt_frame(NmtCommand cmd, std::uint8_t node);
 [[nodiscard]] can::Frame heartbeat_frame(std::uint8_t node, NmtState state);
 [[nodiscard]] can::Frame sync_frame();
+/// A frame on SYNC's identifier: a classic data frame, base format, id 0x080.
+/// Its length is the receiver's to judge (is_sync).
+[[nodiscard]] constexpr bool on_sync_id(const can::Frame& f) {
+  return f.id == kSyncId && !f.extended && !f.remote && !f.fd && !f.error;
+}
+/// A SYNC as CiA 301 defines it: no data, or one byte of counter.
+[[nodiscard]] constexpr bool is_sync(const can::Frame& f) {
+  return on_sync_id(f) && f.len <= 1;
+}
 
 // ---- little-endian helpers ----
 [[nodiscard]] std::uint32_t get_le(std::span<const std::uint8_t> b, std::size_t off,
