@@ -659,6 +659,41 @@ TEST_CASE("sha256: fed in pieces, and of a file read in pieces, with its line co
   CHECK_FALSE(sha256_file(path).ok());
 }
 
+TEST_CASE("sha256: the SHA extensions' compression and the portable one agree") {
+  using turncal::run::detail::sha256_blocks_hardware;
+  using turncal::run::detail::sha256_blocks_portable;
+  // the portable one alone, on FIPS 180-4's one-block example ("abc", padded)
+  std::array<unsigned char, 64> abc{'a', 'b', 'c', 0x80};
+  abc[63] = 24;  // its length in bits
+  std::array<std::uint32_t, 8> h = {0x6a09e667, 0xbb67ae85, 0x3c6ef372, 0xa54ff53a,
+                                    0x510e527f, 0x9b05688c, 0x1f83d9ab, 0x5be0cd19};
+  const std::array<std::uint32_t, 8> h0 = h;
+  sha256_blocks_portable(h, abc.data(), 1);
+  CHECK(h == std::array<std::uint32_t, 8>{0xba7816bf, 0x8f01cfea, 0x414140de, 0x5dae2223,
+                                          0xb00361a3, 0x96177a9c, 0xb410ff61, 0xf20015ad});
+  const auto hw = sha256_blocks_hardware();
+  if (hw == nullptr) {
+    MESSAGE("this CPU has no SHA extensions: the portable compression only");
+    return;
+  }
+  // both over the same bytes, 1 to 40 blocks at a time from any start state
+  std::mt19937 rng(7);
+  std::vector<unsigned char> bytes(64 * 40);
+  for (unsigned char& b : bytes) b = static_cast<unsigned char>(rng());
+  for (std::size_t blocks = 1; blocks <= 40; blocks += 3) {
+    CAPTURE(blocks);
+    std::array<std::uint32_t, 8> a = h0;
+    a[blocks % 8] ^= static_cast<std::uint32_t>(rng());
+    std::array<std::uint32_t, 8> b = a;
+    sha256_blocks_portable(a, bytes.data(), blocks);
+    hw(b, bytes.data(), blocks);
+    CHECK(a == b);
+  }
+  std::array<std::uint32_t, 8> g = h0;
+  hw(g, abc.data(), 1);
+  CHECK(g == h);
+}
+
 TEST_CASE("report text with the truth: the injected value and the error in sigmas") {
   // 1e-6 rad/s = 0.2063 deg/h; df_eff_1 = df0_1 + g g13 at the equator, g = 9.7803 m/s^2
   const nlohmann::json r = {

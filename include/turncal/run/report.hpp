@@ -14,6 +14,7 @@
 #include "turncal/estimation/estimator.hpp"
 #include "turncal/result.hpp"
 #include "turncal/run/engine.hpp"
+#include "turncal/run/sha256.hpp"
 
 namespace turncal::run {
 
@@ -83,31 +84,5 @@ struct Determination {
   std::string why;  ///< empty when determined
 };
 Determination determination(std::string_view name, double sigma, double prior_sigma);
-
-/// SHA-256 (FIPS 180-4), fed in pieces of any size.
-class Sha256 {
- public:
-  Sha256();
-  void update(std::string_view data);
-  /// The digest of everything so far, lower-case hex.
-  [[nodiscard]] std::string hex() const;
-
- private:
-  std::array<std::uint32_t, 8> h_;
-  std::array<unsigned char, 64> buf_{};
-  std::size_t fill_ = 0;
-  std::uint64_t bytes_ = 0;
-};
-
-/// SHA-256 of a byte string, lower-case hex.
-std::string sha256_hex(std::string_view data);
-
-struct FileDigest {
-  std::string sha256;
-  std::uint64_t lines = 0;  ///< newlines: the frames of a candump log
-};
-/// SHA-256 and line count of a file, read in 64 KiB pieces (a run's log
-/// can be far larger than the daemon's memory budget).
-Result<FileDigest> sha256_file(const std::string& path);
 
 }  // namespace turncal::run
