@@ -12,6 +12,7 @@
 #include "turncal/plan.hpp"
 #include "turncal/run/engine.hpp"
 #include "turncal/run/html.hpp"
+#include "turncal/run/read_ahead.hpp"
 #include "turncal/run/report.hpp"
 
 namespace turncal::run {
@@ -133,7 +134,8 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
                                  const std::string& log_path, const json* live,
                                  const ReplayOptions& options) {
   TURNCAL_ASSIGN(plan, replay_plan(cfg, live, options));
-  TURNCAL_ASSIGN(reader, can::LogReader::open(log_path));
+  TURNCAL_ASSIGN(file, can::LogReader::open(log_path));
+  ReadAheadLogReader reader(std::move(file));  // parsed on a core of its own
   // the log's digest for the report, on a second core while the log replays
   // (hashing a two-hour log takes as long as replaying it)
   auto log_digest = std::async(std::launch::async, [&log_path] { return sha256_file(log_path); });
@@ -156,17 +158,18 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   if (options.second_pass) b.second_pass = *options.second_pass;
 
   // the next record; a line that does not parse ends the log there
-  can::LogRecord rec;
+  const can::LogRecord* rec = nullptr;
   std::optional<LogDamage> damage;
   auto next = [&] {
-    auto r = reader.next(rec);
+    auto r = reader.next();
     if (!r) damage = LogDamage{reader.line_number(), r.error().describe()};
-    return r && *r;
+    rec = r ? *r : nullptr;
+    return rec != nullptr;
   };
   // the first record: the time base of a log without a live report
   bool have = next();
   if (!have && !damage) return make_error(log_path + ": the log is empty");
-  TimeBase tb{have ? rec.time_ns / 1000 : 0, cfg.stand.time_scale};
+  TimeBase tb{have ? rec->time_ns / 1000 : 0, cfg.stand.time_scale};
   if (const auto e = live_number(live, "time_base", "epoch_us")) tb.epoch_us = std::llround(*e);
   if (const auto s = live_number(live, "time_base", "scale")) tb.scale = *s;
   // the live run's floor (none before reports carried it), else the config's
@@ -206,14 +209,14 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   engine.replay_holds(holds.at);
   // the log's times are to the microsecond, the live loop's to the nanosecond
   const double stamp_slack_s = 2e-6 * tb.scale;
-  std::int64_t first_ns = have ? rec.time_ns : 0, last_ns = first_ns;
+  std::int64_t first_ns = have ? rec->time_ns : 0, last_ns = first_ns;
   std::int64_t next_tick_ns = first_ns;
   std::int64_t last_t = first_ns, burst_start = first_ns;
   const auto tick_ns = static_cast<std::int64_t>(kTickS / tb.scale * 1e9);
   while (have) {
     // a hold is a stretch no frame was stamped in: one in it says the
     // report is not this log's
-    const double at = engine.stand_s(rec.time_ns);
+    const double at = engine.stand_s(rec->time_ns);
     // the log takes each port's frames in turn: its times may step back
     const auto after = std::ranges::upper_bound(holds.at, at, {}, &Engine::Hold::from_s);
     if (after != holds.at.begin() && at > std::prev(after)->from_s + stamp_slack_s &&
@@ -223,8 +226,8 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
                         "] is a stretch no frame was stamped in, and line " +
                         std::to_string(reader.line_number()) +
                         " of the log is in it: the report is not this log's; replay without it");
-    engine.on_frame({rec.time_ns, rec.frame}, sent);
-    const std::int64_t t = rec.time_ns;
+    engine.on_frame({rec->time_ns, rec->frame}, sent);
+    const std::int64_t t = rec->time_ns;
     last_ns = std::max(last_ns, t);
     if (engine.estimation_due()) break;
     have = next();
@@ -234,7 +237,7 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
     // bus that busy is no burst).
     if (t - last_t > kBurstNs) burst_start = t;
     last_t = t;
-    const bool burst = have && rec.time_ns - t < kBurstNs && t - burst_start < kBurstMaxNs;
+    const bool burst = have && rec->time_ns - t < kBurstNs && t - burst_start < kBurstMaxNs;
     if (!burst && t >= next_tick_ns) {
       engine.tick(t, sent);
       next_tick_ns = t + tick_ns;

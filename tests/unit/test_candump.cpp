@@ -266,3 +266,119 @@ TEST_SUITE("candump") {
     ::close(fds[0]);
   }
 }
+
+#include "turncal/run/read_ahead.hpp"
+
+TEST_SUITE("a log read ahead on a thread of its own") {
+  // a log of `n` records, a blank line every 1000th line, and (bad_at > 0)
+  // the line bad_at malformed; its path
+  std::filesystem::path write_log(const char* name, int n, int bad_at) {
+    const auto path = std::filesystem::temp_directory_path() /
+                      (std::string("turncal-") + name + "-" + std::to_string(::getpid()));
+    FILE* f = std::fopen(path.c_str(), "w");
+    REQUIRE(f != nullptr);
+    for (int line = 1, i = 0; i < n; ++line) {
+      if (line == bad_at) {
+        std::fputs("(1.000000) vcan0 12X#00\n", f);
+      } else if (line % 1000 == 0) {
+        std::fputs("\n", f);
+      } else {
+        std::fprintf(f, "(%d.%06d) vcan0 %03X#%02X\n", 1000 + i / 1000, i % 1000 * 1000,
+                     0x100 + i % 7, i % 256);
+        ++i;
+      }
+    }
+    REQUIRE(std::fclose(f) == 0);
+    return path;
+  }
+
+  // what each reader gives, record by record: time, id, first byte, line;
+  // then how it ends (the error's text, or "end") and its last line
+  std::string trace_line(const LogRecord& rec, std::uint64_t line) {
+    return std::to_string(rec.time_ns) + " " + std::to_string(rec.frame.id) + " " +
+           std::to_string(rec.frame.data[0]) + " @" + std::to_string(line);
+  }
+  std::vector<std::string> trace(LogReader & rd) {
+    std::vector<std::string> out;
+    LogRecord rec;
+    for (;;) {
+      auto got = rd.next(rec);
+      if (!got) {
+        out.push_back(got.error().describe() + " @" + std::to_string(rd.line_number()));
+        return out;
+      }
+      if (!*got) {
+        out.push_back("end @" + std::to_string(rd.line_number()));
+        return out;
+      }
+      out.push_back(trace_line(rec, rd.line_number()));
+    }
+  }
+  std::vector<std::string> trace(turncal::run::ReadAheadLogReader & rd) {
+    std::vector<std::string> out;
+    for (;;) {
+      auto got = rd.next();
+      if (!got) {
+        out.push_back(got.error().describe() + " @" + std::to_string(rd.line_number()));
+        return out;
+      }
+      if (*got == nullptr) {
+        out.push_back("end @" + std::to_string(rd.line_number()));
+        return out;
+      }
+      out.push_back(trace_line(**got, rd.line_number()));
+    }
+  }
+
+  TEST_CASE("it gives what the reader gives: every record, the line numbers, the end") {
+    // more than the batches it parses ahead, and not a whole number of them
+    const auto path = write_log("ahead", 4096 * 7 + 123, 0);
+    auto plain = LogReader::open(path.string());
+    auto file = LogReader::open(path.string());
+    REQUIRE(plain.ok());
+    REQUIRE(file.ok());
+    const std::vector<std::string> want = trace(*plain);
+    turncal::run::ReadAheadLogReader ahead(std::move(*file));
+    const std::vector<std::string> got = trace(ahead);
+    REQUIRE(want.size() == 4096 * 7 + 123 + 1);
+    CHECK(want.back() == "end @" + std::to_string(4096 * 7 + 123 + (4096 * 7 + 123) / 999));
+    CHECK(got == want);
+    std::filesystem::remove(path);
+  }
+
+  TEST_CASE("its error is the reader's, at the same record and line") {
+    const auto path = write_log("ahead-bad", 20000, 9001);
+    auto plain = LogReader::open(path.string());
+    auto file = LogReader::open(path.string());
+    REQUIRE(plain.ok());
+    REQUIRE(file.ok());
+    const std::vector<std::string> want = trace(*plain);
+    turncal::run::ReadAheadLogReader ahead(std::move(*file));
+    const std::vector<std::string> got = trace(ahead);
+    REQUIRE(want.size() == 9001 - 9001 / 1000);  // the records before it, and it
+    CHECK(want.back().find(":9001:") != std::string::npos);
+    CHECK(want.back().find("@9001") != std::string::npos);
+    CHECK(got == want);
+    // where the plain reader would go on to the next line, this one ends
+    auto again = ahead.next();
+    REQUIRE_FALSE(again.ok());
+    CHECK(again.error().describe() == want.back().substr(0, want.back().rfind(" @")));
+    std::filesystem::remove(path);
+  }
+
+  TEST_CASE("left early, it stops its thread") {
+    const auto path = write_log("ahead-early", 4096 * 20, 0);
+    auto file = LogReader::open(path.string());
+    REQUIRE(file.ok());
+    {
+      turncal::run::ReadAheadLogReader ahead(std::move(*file));
+      for (int i = 0; i < 10; ++i) {
+        auto got = ahead.next();
+        REQUIRE(got.ok());
+        REQUIRE(*got != nullptr);
+      }
+      CHECK(ahead.line_number() == 10);
+    }  // joins here: a thread left waiting would hang the test
+    std::filesystem::remove(path);
+  }
+}
