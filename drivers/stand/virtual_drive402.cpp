@@ -318,8 +318,13 @@ void VirtualDrive402::receive(double t, const can::Frame& f, std::vector<DriveFr
   const std::uint32_t rpdo = u32(obj::kRpdo1Comm, 1);
   if (f.id == canopen::kNmtId) {
     on_nmt(t, f, out);
-  } else if (canopen::is_sync(f)) {
-    on_sync(t, out);
+  } else if (canopen::on_sync_id(f)) {
+    // CiA 301: no data, or one byte of counter; other lengths are no SYNC
+    if (canopen::is_sync(f)) {
+      on_sync(t, out);
+    } else {
+      ++counts_.malformed;
+    }
   } else if (f.id == canopen::kSdoRxBase + node) {
     on_sdo(t, f, out);
   } else if ((rpdo & 0x80000000u) == 0 && f.id == (rpdo & 0x7FF)) {

@@ -22,23 +22,24 @@ ReadAheadLogReader::~ReadAheadLogReader() {
 }
 
 void ReadAheadLogReader::produce() {
-  for (;;) {
-    Batch b;
-    {
-      std::unique_lock lock(m_);
-      cv_.wait(lock, [&] { return stop_ || full_.size() < kAhead; });
-      if (stop_) return;
-      if (!free_.empty()) {
-        b = std::move(free_.back());
-        free_.pop_back();
+  // an exception (out of memory) ends the reading, and next() throws it
+  // where the plain reader would have: never taken for a damaged log
+  try {
+    for (;;) {
+      Batch b;
+      {
+        std::unique_lock lock(m_);
+        cv_.wait(lock, [&] { return stop_ || full_.size() < kAhead; });
+        if (stop_) return;
+        if (!free_.empty()) {
+          b = std::move(free_.back());
+          free_.pop_back();
+        }
       }
-    }
-    b.records.resize(kBatch);
-    b.lines.clear();
-    b.error.reset();
-    b.end = false;
-    std::size_t n = 0;
-    try {
+      b.records.resize(kBatch);
+      b.lines.clear();
+      b.error.reset();
+      std::size_t n = 0;
       while (n < kBatch) {
         auto got = reader_.next(b.records[n]);
         if (!got) {
@@ -49,19 +50,23 @@ void ReadAheadLogReader::produce() {
         b.lines.push_back(reader_.line_number());
         ++n;
       }
-    } catch (const std::exception& e) {  // out of memory: the log ends here, said
-      b.error = make_error(std::string("reading the log: ") + e.what());
+      b.end = n < kBatch;
+      b.records.resize(n);
+      b.last_line = reader_.line_number();
+      const bool end = b.end;
+      {
+        const std::lock_guard lock(m_);
+        full_.push_back(std::move(b));
+      }
+      cv_.notify_all();
+      if (end) return;
     }
-    b.end = n < kBatch;
-    b.records.resize(n);
-    b.last_line = reader_.line_number();
-    const bool end = b.end;
+  } catch (...) {
     {
       const std::lock_guard lock(m_);
-      full_.push_back(std::move(b));
+      thrown_ = std::current_exception();
     }
     cv_.notify_all();
-    if (end) return;
   }
 }
 
@@ -75,7 +80,8 @@ Result<const can::LogRecord*> ReadAheadLogReader::next() {
     std::unique_lock lock(m_);
     if (have_cur_) free_.push_back(std::move(cur_));
     cv_.notify_all();
-    cv_.wait(lock, [&] { return !full_.empty(); });
+    cv_.wait(lock, [&] { return !full_.empty() || thrown_ != nullptr; });
+    if (full_.empty()) std::rethrow_exception(thrown_);
     cur_ = std::move(full_.front());
     full_.pop_front();
     have_cur_ = true;

@@ -346,6 +346,25 @@ TEST_SUITE("a log read ahead on a thread of its own") {
     std::filesystem::remove(path);
   }
 
+  TEST_CASE("a log of whole batches, and an error at a batch's first line, read alike") {
+    // 4096 records a batch: three whole ones (the last batch then empty),
+    // and the line after the first batch's last record malformed
+    for (const auto& [name, records, bad_at] :
+         {std::tuple{"ahead-whole", 4096 * 3, 0}, std::tuple{"ahead-edge", 9000, 4096 + 4 + 1}}) {
+      CAPTURE(name);
+      const auto path = write_log(name, records, bad_at);
+      auto plain = LogReader::open(path.string());
+      auto file = LogReader::open(path.string());
+      REQUIRE(plain.ok());
+      REQUIRE(file.ok());
+      const std::vector<std::string> want = trace(*plain);
+      turncal::run::ReadAheadLogReader ahead(std::move(*file));
+      CHECK(trace(ahead) == want);
+      CHECK(want.size() == (bad_at > 0 ? 4097U : 4096U * 3 + 1));
+      std::filesystem::remove(path);
+    }
+  }
+
   TEST_CASE("its error is the reader's, at the same record and line") {
     const auto path = write_log("ahead-bad", 20000, 9001);
     auto plain = LogReader::open(path.string());

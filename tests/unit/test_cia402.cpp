@@ -577,6 +577,33 @@ TEST_SUITE("cia402") {
     }
   }
 
+  TEST_CASE("the virtual drive answers a SYNC of no data or a counter; other lengths are counted") {
+    cia402::MasterSettings ms = master_settings();
+    ms.configure_mapping = true;
+    ms.sync_period_s = 0.02;
+    Loop l(ms);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(*l.drive.value(0x1800, 2) == 1);  // TPDO1 on every SYNC
+    // the frames the drive sends on a frame on 0x080 of `len` bytes, and
+    // how many it counted malformed
+    auto on_sync_id = [&](std::uint8_t len) {
+      can::Frame f;
+      f.id = canopen::kSyncId;
+      f.len = len;
+      const std::uint64_t malformed = l.drive.counts().malformed;
+      std::vector<stand::DriveFrame> out;
+      l.drive.receive(l.t, f, out);
+      const auto tpdo1 = std::count_if(
+          out.begin(), out.end(), [](const stand::DriveFrame& d) { return d.frame.id == 0x185; });
+      return std::pair{tpdo1, l.drive.counts().malformed - malformed};
+    };
+    CHECK(on_sync_id(0) == std::pair{std::ptrdiff_t{1}, std::uint64_t{0}});
+    CHECK(on_sync_id(1) == std::pair{std::ptrdiff_t{1}, std::uint64_t{0}});
+    CHECK(on_sync_id(2) == std::pair{std::ptrdiff_t{0}, std::uint64_t{1}});
+    CHECK(on_sync_id(8) == std::pair{std::ptrdiff_t{0}, std::uint64_t{1}});
+  }
+
   TEST_CASE("the PDO mappings written when asked, with SYNC: samples carry the SYNC's time") {
     cia402::MasterSettings ms = master_settings();
     ms.configure_mapping = true;

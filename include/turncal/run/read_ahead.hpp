@@ -8,6 +8,7 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
+#include <exception>
 #include <mutex>
 #include <optional>
 #include <thread>
@@ -21,7 +22,8 @@ namespace turncal::run {
 class ReadAheadLogReader {
  public:
   explicit ReadAheadLogReader(can::LogReader reader);
-  /// Stops the reading thread wherever it is and waits for it.
+  /// Stops the reading thread and waits for it: for the batch it is
+  /// parsing, or for a read that blocks (a pipe whose writer is still open).
   ~ReadAheadLogReader();
   ReadAheadLogReader(const ReadAheadLogReader&) = delete;
   ReadAheadLogReader& operator=(const ReadAheadLogReader&) = delete;
@@ -29,7 +31,9 @@ class ReadAheadLogReader {
   /// The next record, nullptr at the end (valid until the next call), as
   /// can::LogReader::next gives it; the reader's error where a line does
   /// not parse or the file cannot be read, and on every call after: the log
-  /// ends there, where can::LogReader goes on to the next line.
+  /// ends there, where can::LogReader goes on to the next line. What the
+  /// reading thread threw (out of memory) is thrown here, after the
+  /// records it read.
   Result<const can::LogRecord*> next();
   /// The line of the record last given; after the end or an error, the
   /// reader's last line, as can::LogReader::line_number.
@@ -51,6 +55,7 @@ class ReadAheadLogReader {
   std::deque<Batch> full_;   ///< parsed, in order
   std::vector<Batch> free_;  ///< taken, for the thread to fill again
   bool stop_ = false;
+  std::exception_ptr thrown_;  ///< what ended the reading thread, if it threw
   Batch cur_;
   std::size_t at_ = 0;
   bool have_cur_ = false;
