@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <optional>
 
 namespace turncal::est {
 namespace {
@@ -468,6 +469,15 @@ std::string fixed(double v, int digits) {
   return buf;
 }
 
+/// The largest angle the table turned from its start orientation, rad.
+double largest_turn_rad(const TimelineInput& tl) {
+  double turned = 0;
+  for (const AngleSample& a : tl.encoder)
+    if (a.t_s >= 0 && a.t_s <= tl.duration_s)
+      turned = std::max(turned, std::abs(a.psi_rad - tl.psi_start_rad));
+  return turned;
+}
+
 /// What the data cannot fix still moves the linearisation: a turn about
 /// the vertical determines df_obs_i = df_z_i - g Theta_i3, not how it
 /// splits, yet the nominal rotates df_z_i by its azimuth error (degrees at
@@ -475,15 +485,69 @@ std::string fixed(double v, int digits) {
 /// sensitivity to that split, over its posterior sigma, is an error the
 /// linear covariance of `r` (a converged or stopped second pass) does not
 /// hold: returned as a covariance to add (a consider term), with what was
-/// done appended to `told`. At three times the tactical prior it takes the
-/// recommended plan's RMS error/sigma of df_obs from 1.31 to 1.20; the
-/// other directions the run does not determine, considered the same way,
-/// took it to 1.17 only, at seven times the cost.
+/// done appended to `told`.
+///
+/// The rotation is a product, azimuth error times df_z_i, and the azimuth
+/// error is itself uncertain: the vertical gyro's bias nu0_3 (its sigma
+/// over an hour is a degree at three times the tactical prior) and, where
+/// no whole revolution determines it, Theta_33 (its sigma times the turned
+/// angle). About the estimate a product has no first derivative in either
+/// factor alone; its mixed one, times both sigmas, is the error it leaves:
+/// added the same way, from two more passes (+-split, the partner moved
+/// by its sigma), where the product's predicted size, the partner's sigma of
+/// azimuth (over the run, or the largest angle turned) times the split's
+/// sigma, is over kMixedSigma of df_obs_i's sigma. At three times the
+/// tactical prior the first-order term alone left df_obs's RMS error/sigma
+/// at 1.19 and 1.13 on the single turn over 200 simulated runs (other
+/// undetermined directions, first-order, took it to 1.17 only); with the
+/// product, 1.01 and 0.96.
+/// A product the split's consider term leaves out under this prediction,
+/// in sigmas of df_obs. The prediction takes the partner's sigma over the
+/// whole run, about twice the term found (0.27 to 0.31 predicted on the
+/// single turn at the full tactical prior, where the term widened df_obs's
+/// sigma by 0.8%,
+/// about 0.13 sigma in quadrature); a term of a quarter sigma adds 3% to
+/// the RMS error/sigma.
+constexpr double kMixedSigma = 0.5;
+
 ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, std::string& told) {
   const EarthAt e = EarthAt::at(in.timeline.site);
   const ParamArray at = params_of(r.x);
   const ParamMat pp = r.p.block<sx::kParams, sx::kParams>(sx::kNu0, sx::kNu0);
   const ParamVec prior = prior_params(in.priors);
+  // the estimate of a pass about `at` moved by `shift`
+  std::string failed;
+  auto moved = [&](const ParamVec& shift) -> std::optional<ParamVec> {
+    ParamArray shifted = at;
+    for (int j = 0; j < sx::kParams; ++j) shifted[static_cast<std::size_t>(j)] += shift(j);
+    auto m = pass_about(in, shifted);
+    if (!m) {
+      failed = m.error().describe();
+      return std::nullopt;
+    }
+    ParamVec x = m->x.segment<sx::kParams>(sx::kNu0);
+    if (!x.allFinite()) {  // a covariance term of NaN would void every sigma
+      failed = "the estimate moved by the split is not finite";
+      return std::nullopt;
+    }
+    return x;
+  };
+  // the partners of the product: what the azimuth error's spread comes
+  // from, each with its posterior sigma and the azimuth that spreads by
+  struct Partner {
+    int k;
+    double sigma, azimuth_rad;
+  };
+  std::vector<Partner> partners;
+  const double turned = largest_turn_rad(in.timeline);
+  if (in.second_pass.consider_split_mixed)
+    for (const auto& [j, lever] :
+         {std::pair{sx::kNu0 + 2, in.timeline.duration_s}, std::pair{sx::theta(3, 3), turned}}) {
+      const int k = j - sx::kNu0;
+      const double sigma = std::sqrt(std::max(0.0, pp(k, k)));
+      if (sigma > 0 && prior(k) > 0) partners.push_back({k, sigma, sigma * lever});
+    }
+  std::vector<std::string> mixed_with;
   ParamMat consider = ParamMat::Zero();
   int considered = 0;
   std::string which;
@@ -495,40 +559,62 @@ ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, st
     const double sigma = std::sqrt(std::max(0.0, dfz.dot(pp * dfz)));
     // a Theta_i3 the prior fixes fixes the split too
     if (!(sigma > 0) || !(prior(sx::theta(i + 1, 3) - sx::kNu0) > 0)) continue;
+    const ParamVec a = sigma * dir;
     // central: the same one step of the iteration about either side of
     // the estimate, so neither the iteration's last step (a pass that
     // stopped unconverged) nor the curvature counts as sensitivity
-    std::array<ParamVec, 2> x{};
-    std::string failed;
-    for (std::size_t side = 0; side < 2; ++side) {
-      ParamArray shifted = at;
-      const double step = side == 0 ? sigma : -sigma;
-      for (int j = 0; j < sx::kParams; ++j) shifted[static_cast<std::size_t>(j)] += step * dir(j);
-      auto moved = pass_about(in, shifted);
-      if (!moved) {
-        failed = moved.error().describe();
-        break;
-      }
-      x[side] = moved->x.segment<sx::kParams>(sx::kNu0);
-      if (!x[side].allFinite()) {  // a covariance term of NaN would void every sigma
-        failed = "the estimate moved by the split is not finite";
-        break;
-      }
-    }
-    if (!failed.empty()) {
+    failed.clear();
+    const auto plus = moved(a);
+    const auto minus = plus ? moved(-a) : std::nullopt;
+    if (!minus) {
       told += "; the split of df_obs_" + std::to_string(i + 1) + " not considered: " + failed;
       continue;
     }
-    ++considered;
-    which += (which.empty() ? "" : ", ") + std::string("df_obs_") + std::to_string(i + 1);
     // the same data and prior: a linear model would give the same
     // estimates about either point
-    const ParamVec d = 0.5 * (x[0] - x[1]);
-    consider += d * d.transpose();
+    const ParamVec d = 0.5 * (*plus - *minus);
+    ParamMat add = d * d.transpose();
+    ParamVec obs = dfz;
+    obs(sx::theta(i + 1, 3) - sx::kNu0) = -e.g;
+    const double sigma_obs = std::sqrt(std::max(0.0, obs.dot(pp * obs)));
+    const std::size_t mixed_before = mixed_with.size();
+    for (const Partner& pb : partners) {
+      const double predicted = pb.azimuth_rad * sigma / sigma_obs;
+      if (!(predicted > kMixedSigma)) continue;
+      ParamVec b = ParamVec::Zero();
+      b(pb.k) = pb.sigma;
+      // the split's sensitivity, central as above, with the partner moved
+      // by its sigma: what it gains there is the mixed derivative times
+      // both sigmas (one side in the partner: two passes, not four; the
+      // curvature in the partner is a term of the third order)
+      const auto plus_b = moved(a + b);
+      const auto minus_b = plus_b ? moved(-a + b) : std::nullopt;
+      if (!minus_b) break;
+      const ParamVec mixed = 0.5 * (*plus_b - *minus_b) - d;
+      add += mixed * mixed.transpose();
+      mixed_with.push_back("df_obs_" + std::to_string(i + 1) + " x " +
+                           std::string(kParamNames[static_cast<std::size_t>(pb.k)]) +
+                           " (predicted " + fixed(predicted, 2) + " sigma)");
+    }
+    if (!failed.empty()) {
+      told += "; the split of df_obs_" + std::to_string(i + 1) + " not considered: " + failed;
+      mixed_with.resize(mixed_before);
+      continue;
+    }
+    consider += add;
+    ++considered;
+    which += (which.empty() ? "" : ", ") + std::string("df_obs_") + std::to_string(i + 1);
   }
-  if (considered > 0)
+  if (considered > 0) {
     told += "; its sensitivity to how df_obs splits (" + which + ": " + std::to_string(considered) +
-            " of 2 axes) added to the covariance";
+            " of 2 axes)";
+    if (!mixed_with.empty()) {
+      told += ", and to the split times an azimuth error from";
+      for (std::size_t q = 0; q < mixed_with.size(); ++q)
+        told += (q == 0 ? " " : ", ") + mixed_with[q];
+    }
+    told += ", added to the covariance";
+  }
   return consider;
 }
 
@@ -541,12 +627,8 @@ double linearisation_error_sigma(const EstimationInput& in, const EstimationResu
     const auto j = static_cast<std::size_t>(state - sx::kNu0);
     return std::abs(first.parameters[j].value) + first.parameters[j].sigma;
   };
-  double turned = 0;  // the largest angle from the start orientation, rad
-  for (const AngleSample& s : tl.encoder)
-    if (s.t_s >= 0 && s.t_s <= tl.duration_s)
-      turned = std::max(turned, std::abs(s.psi_rad - tl.psi_start_rad));
-  const double b3 =
-      in.priors.heading_rad + est(sx::kNu0 + 2) * tl.duration_s + est(sx::theta(3, 3)) * turned;
+  const double b3 = in.priors.heading_rad + est(sx::kNu0 + 2) * tl.duration_s +
+                    est(sx::theta(3, 3)) * largest_turn_rad(tl);
   double v_max = 0;
   for (const VelocityObs& v : in.velocity) v_max = std::max(v_max, std::hypot(v.ve, v.vn));
   const double rho = b3 + v_max / std::sqrt(e.g * std::sqrt(e.rm * e.rn));

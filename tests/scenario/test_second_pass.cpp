@@ -252,13 +252,63 @@ TEST_SUITE("second pass") {
       CHECK(ratio < 1.5);  // a term of a fraction of a sigma, not a new error
       widest = std::max(widest, ratio);
     }
-    // at this seed df_obs_1 by some 7%: wider by more than rounding, as
-    // the Monte Carlo's 1.31 to 1.19 says it should be
+    // at this seed df_obs_1 by 35% (7% by the first-order term alone, the
+    // rest by the split times the azimuth error): wider by more than
+    // rounding, as the Monte Carlo says it should be
     CHECK(widest > 1.03);
     // the parameters the run determines well and the split does not
     // reach (the horizontal gyro biases) keep their sigma within 1%
     for (std::size_t j = 0; j < 2; ++j)
       CHECK(with->parameters[j].sigma < 1.01 * without->parameters[j].sigma);
+  }
+
+  TEST_CASE(
+      "the split times the azimuth error from nu0_3 and Theta_33: considered at three times the "
+      "prior, left out at a tenth of it, where it is predicted small") {
+    // The nominal turns df_z by its azimuth error, and that error is
+    // uncertain by nu0_3's sigma over the run: a product, with no first
+    // derivative in either factor about the estimate. Its mixed one, from
+    // two more passes, is added where predicted over half a sigma of df_obs.
+    // Ten revolutions determine Theta_33, yet its sigma times 3600 deg is
+    // an azimuth error too.
+    const auto pair = [](double scale) {
+      Simulated run = recommended_run(scale, 2000);
+      run.in.second_pass.mode = est::SecondPassSettings::Mode::Always;
+      est::EstimationInput without = run.in;
+      without.second_pass.consider_split_mixed = false;
+      auto a = est::estimate(run.in);
+      auto b = est::estimate(without);
+      REQUIRE(a.ok());
+      REQUIRE(b.ok());
+      MESSAGE("prior x " << scale << ": " << a->second_pass.reason);
+      return std::pair{std::move(*a), std::move(*b)};
+    };
+    {
+      const auto [with, without] = pair(3.0);
+      for (const char* axis : {"df_obs_1 x nu0_3 (predicted", "df_obs_2 x nu0_3 (predicted",
+                               "df_obs_1 x theta_33 (predicted"})
+        CHECK(with.second_pass.reason.find(axis) != std::string::npos);
+      CHECK(without.second_pass.reason.find(" x nu0_3") == std::string::npos);
+      CHECK(with.x == without.x);  // the covariance only
+      double widest = 0;
+      for (std::size_t i = 0; i < 2; ++i) {
+        const double ratio = with.df_obs[i].sigma / without.df_obs[i].sigma;
+        MESSAGE("df_obs_" << i + 1 << " sigma widened by " << ratio << " by the product");
+        CHECK(ratio >= 1);
+        CHECK(ratio < 1.5);
+        widest = std::max(widest, ratio);
+      }
+      // df_obs_1 by 30% at this seed: more than rounding by far
+      CHECK(widest > 1.15);
+      for (std::size_t j = 0; j < 2; ++j)  // the horizontal gyro biases: within 1%
+        CHECK(with.parameters[j].sigma < 1.01 * without.parameters[j].sigma);
+    }
+    {
+      const auto [with, without] = pair(0.1);
+      CHECK(with.second_pass.ran);
+      CHECK(with.second_pass.reason.find("azimuth error") == std::string::npos);
+      CHECK(with.p == without.p);
+    }
   }
 
   TEST_CASE(

@@ -81,6 +81,10 @@ struct SecondPassSettings {
   /// added to the covariance, a consider term model.md does not have (the
   /// README says why); off only to compare.
   bool consider_split = true;
+  /// With it, the split times the azimuth error's sources (nu0_3,
+  /// Theta_33), where that product is predicted to matter (estimator.cpp,
+  /// split_consider); off only to compare.
+  bool consider_split_mixed = true;
 };
 
 struct EstimationInput {
