@@ -349,10 +349,15 @@ TEST_SUITE("a log read ahead on a thread of its own") {
   TEST_CASE("a log of whole batches, and an error at a batch's first line, read alike") {
     // 4096 records a batch: three whole ones (the last batch then empty),
     // and the line after the first batch's last record malformed
-    for (const auto& [name, records, bad_at] :
-         {std::tuple{"ahead-whole", 4096 * 3, 0}, std::tuple{"ahead-edge", 9000, 4096 + 4 + 1}}) {
-      CAPTURE(name);
-      const auto path = write_log(name, records, bad_at);
+    struct Log {
+      const char* name;
+      int records, bad_at;
+    };
+    for (const Log& log :
+         {Log{"ahead-whole", 4096 * 3, 0}, Log{"ahead-edge", 9000, 4096 + 4 + 1}}) {
+      CAPTURE(log.name);  // (clang 14 cannot capture a structured binding)
+      const int records = log.records, bad_at = log.bad_at;
+      const auto path = write_log(log.name, records, bad_at);
       auto plain = LogReader::open(path.string());
       auto file = LogReader::open(path.string());
       REQUIRE(plain.ok());
