@@ -260,6 +260,12 @@ ParamVec df_eff_direction(int i, double g) {
   c(sx::kG - sx::kNu0 + i) = g;
   return c;
 }
+/// df_obs_i = df0_i + g G_i3 - g Theta_i3, what a vertical turn determines.
+ParamVec df_obs_direction(int i, double g) {
+  ParamVec c = df_eff_direction(i, g);
+  c(sx::theta(i + 1, 3) - sx::kNu0) = -g;
+  return c;
+}
 
 void interpret(const EstimationInput& in, EstimationResult& r) {
   const EarthAt e = EarthAt::at(in.timeline.site);
@@ -274,13 +280,13 @@ void interpret(const EstimationInput& in, EstimationResult& r) {
   // the model's named combinations (model.md, 8)
   std::array<ParamVec, 2> obs_dir{};
   for (int i = 0; i < 2; ++i) {
-    ParamVec c = df_eff_direction(i, e.g);
     auto named = [&](std::string_view name, const ParamVec& v) {
       return ParameterEstimate{name, "m/s^2", v.dot(x), std::sqrt(std::max(0.0, v.dot(p * v))),
                                v.cwiseProduct(prior).norm()};
     };
-    r.df_eff[static_cast<std::size_t>(i)] = named(i == 0 ? "df_eff_1" : "df_eff_2", c);
-    c(sx::theta(i + 1, 3) - sx::kNu0) = -e.g;
+    r.df_eff[static_cast<std::size_t>(i)] =
+        named(i == 0 ? "df_eff_1" : "df_eff_2", df_eff_direction(i, e.g));
+    const ParamVec c = df_obs_direction(i, e.g);
     r.df_obs[static_cast<std::size_t>(i)] = named(i == 0 ? "df_obs_1" : "df_obs_2", c);
     obs_dir[static_cast<std::size_t>(i)] = c;
   }
@@ -478,6 +484,14 @@ double largest_turn_rad(const TimelineInput& tl) {
   return turned;
 }
 
+/// A product the split's consider term leaves out under this prediction,
+/// in sigmas of df_obs. The prediction takes the partner's sigma over the
+/// whole run, about twice the term found (0.27 to 0.31 predicted on the
+/// single turn at the full tactical prior, where the term widened df_obs's
+/// sigma by 0.8%, about 0.13 sigma in quadrature); a term of a quarter sigma adds 3% to
+/// the RMS error/sigma.
+constexpr double kMixedSigma = 0.5;
+
 /// What the data cannot fix still moves the linearisation: a turn about
 /// the vertical determines df_obs_i = df_z_i - g Theta_i3, not how it
 /// splits, yet the nominal rotates df_z_i by its azimuth error (degrees at
@@ -489,10 +503,12 @@ double largest_turn_rad(const TimelineInput& tl) {
 ///
 /// The rotation is a product, azimuth error times df_z_i, and the azimuth
 /// error is itself uncertain: the vertical gyro's bias nu0_3 (its sigma
-/// over an hour is a degree at three times the tactical prior) and, where
-/// no whole revolution determines it, Theta_33 (its sigma times the turned
-/// angle). About the estimate a product has no first derivative in either
-/// factor alone; its mixed one, times both sigmas, is the error it leaves:
+/// over an hour is nearly two degrees at three times the tactical prior)
+/// and Theta_33 (its sigma times the angle turned). The linearisation
+/// about the estimate keeps the product's first-order terms and leaves
+/// out the remainder, azimuth error's error times the split's, which has
+/// no first derivative in either factor alone; its mixed one, times both
+/// sigmas, is the error it leaves:
 /// added the same way, from two more passes (+-split, the partner moved
 /// by its sigma), where the product's predicted size, the partner's sigma of
 /// azimuth (over the run, or the largest angle turned) times the split's
@@ -501,15 +517,6 @@ double largest_turn_rad(const TimelineInput& tl) {
 /// at 1.19 and 1.13 on the single turn over 200 simulated runs (other
 /// undetermined directions, first-order, took it to 1.17 only); with the
 /// product, 1.01 and 0.96.
-/// A product the split's consider term leaves out under this prediction,
-/// in sigmas of df_obs. The prediction takes the partner's sigma over the
-/// whole run, about twice the term found (0.27 to 0.31 predicted on the
-/// single turn at the full tactical prior, where the term widened df_obs's
-/// sigma by 0.8%,
-/// about 0.13 sigma in quadrature); a term of a quarter sigma adds 3% to
-/// the RMS error/sigma.
-constexpr double kMixedSigma = 0.5;
-
 ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, std::string& told) {
   const EarthAt e = EarthAt::at(in.timeline.site);
   const ParamArray at = params_of(r.x);
@@ -574,8 +581,7 @@ ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, st
     // estimates about either point
     const ParamVec d = 0.5 * (*plus - *minus);
     ParamMat add = d * d.transpose();
-    ParamVec obs = dfz;
-    obs(sx::theta(i + 1, 3) - sx::kNu0) = -e.g;
+    const ParamVec obs = df_obs_direction(i, e.g);
     const double sigma_obs = std::sqrt(std::max(0.0, obs.dot(pp * obs)));
     const std::size_t mixed_before = mixed_with.size();
     for (const Partner& pb : partners) {
