@@ -6,6 +6,8 @@
 
 #include <cstdio>
 #include <filesystem>
+#include <functional>
+#include <optional>
 #include <random>
 #include <string>
 
@@ -330,19 +332,33 @@ TEST_SUITE("a log read ahead on a thread of its own") {
     }
   }
 
-  TEST_CASE("it gives what the reader gives: every record, the line numbers, the end") {
-    // more than the batches it parses ahead, and not a whole number of them
-    const auto path = write_log("ahead", 4096 * 7 + 123, 0);
+  // the log at `path` traced by the plain reader and by the read-ahead one
+  // (then given to `after`, if any)
+  struct Traces {
+    std::vector<std::string> plain, ahead;
+  };
+  Traces traces(const std::filesystem::path& path,
+                const std::function<void(turncal::run::ReadAheadLogReader&)>& after = {}) {
     auto plain = LogReader::open(path.string());
     auto file = LogReader::open(path.string());
     REQUIRE(plain.ok());
     REQUIRE(file.ok());
-    const std::vector<std::string> want = trace(*plain);
+    Traces t;
+    t.plain = trace(*plain);
     turncal::run::ReadAheadLogReader ahead(std::move(*file));
-    const std::vector<std::string> got = trace(ahead);
+    t.ahead = trace(ahead);
+    if (after) after(ahead);
+    return t;
+  }
+
+  TEST_CASE("it gives what the reader gives: every record, the line numbers, the end") {
+    // more than the batches it parses ahead, and not a whole number of them
+    const auto path = write_log("ahead", 4096 * 7 + 123, 0);
+    const Traces t = traces(path);  // (no structured binding: clang 14's CHECK)
+    const std::vector<std::string>& want = t.plain;
     REQUIRE(want.size() == 4096 * 7 + 123 + 1);
     CHECK(want.back() == "end @" + std::to_string(4096 * 7 + 123 + (4096 * 7 + 123) / 999));
-    CHECK(got == want);
+    CHECK(t.ahead == want);
     std::filesystem::remove(path);
   }
 
@@ -358,13 +374,9 @@ TEST_SUITE("a log read ahead on a thread of its own") {
       CAPTURE(log.name);  // (clang 14 cannot capture a structured binding)
       const int records = log.records, bad_at = log.bad_at;
       const auto path = write_log(log.name, records, bad_at);
-      auto plain = LogReader::open(path.string());
-      auto file = LogReader::open(path.string());
-      REQUIRE(plain.ok());
-      REQUIRE(file.ok());
-      const std::vector<std::string> want = trace(*plain);
-      turncal::run::ReadAheadLogReader ahead(std::move(*file));
-      CHECK(trace(ahead) == want);
+      const Traces t = traces(path);
+      const std::vector<std::string>& want = t.plain;
+      CHECK(t.ahead == want);
       CHECK(want.size() == (bad_at > 0 ? 4097U : 4096U * 3 + 1));
       std::filesystem::remove(path);
     }
@@ -372,21 +384,18 @@ TEST_SUITE("a log read ahead on a thread of its own") {
 
   TEST_CASE("its error is the reader's, at the same record and line") {
     const auto path = write_log("ahead-bad", 20000, 9001);
-    auto plain = LogReader::open(path.string());
-    auto file = LogReader::open(path.string());
-    REQUIRE(plain.ok());
-    REQUIRE(file.ok());
-    const std::vector<std::string> want = trace(*plain);
-    turncal::run::ReadAheadLogReader ahead(std::move(*file));
-    const std::vector<std::string> got = trace(ahead);
+    // where the plain reader would go on to the next line, this one ends
+    std::optional<turncal::Result<const LogRecord*>> again;
+    const Traces t =
+        traces(path, [&](turncal::run::ReadAheadLogReader& ahead) { again.emplace(ahead.next()); });
+    const std::vector<std::string>& want = t.plain;
     REQUIRE(want.size() == 9001 - 9001 / 1000);  // the records before it, and it
     CHECK(want.back().find(":9001:") != std::string::npos);
     CHECK(want.back().find("@9001") != std::string::npos);
-    CHECK(got == want);
-    // where the plain reader would go on to the next line, this one ends
-    auto again = ahead.next();
-    REQUIRE_FALSE(again.ok());
-    CHECK(again.error().describe() == want.back().substr(0, want.back().rfind(" @")));
+    CHECK(t.ahead == want);
+    REQUIRE(again.has_value());
+    REQUIRE_FALSE(again->ok());
+    CHECK(again->error().describe() == want.back().substr(0, want.back().rfind(" @")));
     std::filesystem::remove(path);
   }
 
