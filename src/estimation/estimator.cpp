@@ -3,9 +3,12 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <optional>
+#include <system_error>
+#include <thread>
 
 namespace turncal::est {
 namespace {
@@ -485,12 +488,61 @@ double largest_turn_rad(const TimelineInput& tl) {
 }
 
 /// A product the split's consider term leaves out under this prediction,
-/// in sigmas of df_obs. The prediction takes the partner's sigma over the
-/// whole run, about twice the term found (0.27 to 0.31 predicted on the
+/// in sigmas of df_obs. The prediction takes the partners' step over the
+/// whole run, about twice the term found (about 0.3 predicted on the
 /// single turn at the full tactical prior, where the term widened df_obs's
-/// sigma by 0.8%, about 0.13 sigma in quadrature); a term of a quarter sigma adds 3% to
-/// the RMS error/sigma.
+/// sigma by 0.8%, about 0.13 sigma in quadrature); a term of a quarter
+/// sigma adds 3% to the RMS error/sigma.
 constexpr double kMixedSigma = 0.5;
+
+/// What one pass about the estimate moved by a shift gave: its parameter
+/// estimates, or why there are none.
+struct Moved {
+  std::optional<ParamVec> x;
+  std::string error;
+};
+
+/// Passes about `at` moved by each of `shifts`, on up to `threads` threads
+/// (0: one per hardware thread) and this one. They are independent, so the
+/// order they run in changes nothing; each result is in its shift's place.
+std::vector<Moved> passes_moved(const EstimationInput& in, const ParamArray& at,
+                                const std::vector<ParamVec>& shifts, unsigned threads) {
+  std::vector<Moved> out(shifts.size());
+  std::atomic<std::size_t> next{0};
+  const auto work = [&] {
+    for (std::size_t q = next++; q < shifts.size(); q = next++) {
+      Moved& m = out[q];
+      try {
+        ParamArray shifted = at;
+        for (int j = 0; j < sx::kParams; ++j) shifted[static_cast<std::size_t>(j)] += shifts[q](j);
+        auto r = pass_about(in, shifted);
+        if (!r) {
+          m.error = r.error().describe();
+          continue;
+        }
+        const ParamVec x = r->x.segment<sx::kParams>(sx::kNu0);
+        if (x.allFinite())
+          m.x = x;
+        else  // a covariance term of NaN would void every sigma
+          m.error = "the estimate moved by the split is not finite";
+      } catch (const std::exception& e) {  // memory: that pass only
+        m.error = std::string("internal error: ") + e.what();
+      }
+    }
+  };
+  if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
+  std::vector<std::thread> pool;
+  for (unsigned t = 1; t < threads && t < shifts.size(); ++t) {
+    try {
+      pool.emplace_back(work);
+    } catch (const std::system_error&) {  // no more threads: fewer do it all
+      break;
+    }
+  }
+  work();
+  for (std::thread& t : pool) t.join();
+  return out;
+}
 
 /// What the data cannot fix still moves the linearisation: a turn about
 /// the vertical determines df_obs_i = df_z_i - g Theta_i3, not how it
@@ -506,58 +558,84 @@ constexpr double kMixedSigma = 0.5;
 /// over an hour is nearly two degrees at three times the tactical prior)
 /// and Theta_33 (its sigma times the angle turned). The linearisation
 /// about the estimate keeps the product's first-order terms and leaves
-/// out the remainder, azimuth error's error times the split's, which has
-/// no first derivative in either factor alone; its mixed one, times both
-/// sigmas, is the error it leaves:
-/// added the same way, from two more passes (+-split, the partner moved
-/// by its sigma), where the product's predicted size, the partner's sigma of
-/// azimuth (over the run, or the largest angle turned) times the split's
-/// sigma, is over kMixedSigma of df_obs_i's sigma. At three times the
-/// tactical prior the first-order term alone left df_obs's RMS error/sigma
-/// at 1.19 and 1.13 on the single turn over 200 simulated runs (other
-/// undetermined directions, first-order, took it to 1.17 only); with the
-/// product, 1.01 and 0.96.
+/// out the remainder, the azimuth's error times the split's, which has no
+/// first derivative in either factor alone; its mixed one, times both
+/// sigmas, is the error it leaves. It is added the same way, from two more
+/// passes (+-split, the partners moved by a step), where the product's
+/// predicted size, the step's azimuth (nu0_3's over the run, Theta_33's
+/// over the largest angle turned) times the split's sigma, is over
+/// kMixedSigma of df_obs_i's sigma. The steps are the columns of the
+/// Cholesky factor of the partners' posterior covariance, whose terms sum
+/// to the whole however the fit correlates them (-0.2 on the single turn,
+/// -0.5 to -0.7 on the recommended plan). A failed pass leaves its product
+/// out and keeps the rest. All the passes are planned first and run on
+/// SecondPassSettings::threads.
+///
+/// At three times the tactical prior, over 200 simulated runs, df_obs's
+/// RMS error/sigma on the single turn was 1.19 and 1.13 with the
+/// first-order term alone (other undetermined directions, first-order,
+/// took it to 1.17 only), 1.01 and 0.96 with the product and the partners
+/// taken as independent, and is 1.09 and 1.02 with them correlated; on the
+/// recommended plan, 0.92 and 1.00.
 ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, std::string& told) {
   const EarthAt e = EarthAt::at(in.timeline.site);
-  const ParamArray at = params_of(r.x);
   const ParamMat pp = r.p.block<sx::kParams, sx::kParams>(sx::kNu0, sx::kNu0);
   const ParamVec prior = prior_params(in.priors);
-  // the estimate of a pass about `at` moved by `shift`
-  std::string failed;
-  auto moved = [&](const ParamVec& shift) -> std::optional<ParamVec> {
-    ParamArray shifted = at;
-    for (int j = 0; j < sx::kParams; ++j) shifted[static_cast<std::size_t>(j)] += shift(j);
-    auto m = pass_about(in, shifted);
-    if (!m) {
-      failed = m.error().describe();
-      return std::nullopt;
-    }
-    ParamVec x = m->x.segment<sx::kParams>(sx::kNu0);
-    if (!x.allFinite()) {  // a covariance term of NaN would void every sigma
-      failed = "the estimate moved by the split is not finite";
-      return std::nullopt;
-    }
-    return x;
-  };
+  const double step_sigmas = in.second_pass.mixed_step_sigmas;
   // the partners of the product: what the azimuth error's spread comes
-  // from, each with its posterior sigma and the azimuth that spreads by
+  // from, each with the azimuth its unit spreads it by (rad per unit)
   struct Partner {
     int k;
-    double sigma, azimuth_rad;
+    double lever;
   };
   std::vector<Partner> partners;
   const double turned = largest_turn_rad(in.timeline);
-  if (in.second_pass.consider_split_mixed)
+  const bool with_product = in.second_pass.consider_split_mixed;
+  if (with_product && !(std::isfinite(step_sigmas) && step_sigmas != 0))
+    told += "; the split times an azimuth error not considered: a partner step of " +
+            std::to_string(step_sigmas) + " sigma";
+  else if (with_product)
     for (const auto& [j, lever] :
          {std::pair{sx::kNu0 + 2, in.timeline.duration_s}, std::pair{sx::theta(3, 3), turned}}) {
       const int k = j - sx::kNu0;
-      const double sigma = std::sqrt(std::max(0.0, pp(k, k)));
-      if (sigma > 0 && prior(k) > 0) partners.push_back({k, sigma, sigma * lever});
+      if (pp(k, k) > 0 && prior(k) > 0) partners.push_back({k, lever});
     }
-  std::vector<std::string> mixed_with;
-  ParamMat consider = ParamMat::Zero();
-  int considered = 0;
-  std::string which;
+  // The partners' steps: the columns of the Cholesky factor of their joint
+  // posterior covariance, so that the terms of the steps sum to the whole
+  // (the fit correlates nu0_3 with Theta_33 where both move the azimuth).
+  // The first moves nu0_3 by its sigma and Theta_33 with it as they
+  // correlate; the second Theta_33 by what nu0_3 leaves of its sigma.
+  const auto np = static_cast<Eigen::Index>(partners.size());
+  Eigen::MatrixXd steps = Eigen::MatrixXd::Zero(np, np);
+  {
+    Eigen::MatrixXd cov(np, np);
+    for (Eigen::Index q = 0; q < np; ++q)
+      for (Eigen::Index c = 0; c < np; ++c)
+        cov(q, c) =
+            pp(partners[static_cast<std::size_t>(q)].k, partners[static_cast<std::size_t>(c)].k);
+    const Eigen::LLT<Eigen::MatrixXd> llt(cov);
+    if (llt.info() == Eigen::Success) {
+      steps = llt.matrixL();
+    } else {  // not positive definite: each by its own sigma, as if apart
+      for (Eigen::Index q = 0; q < np; ++q) steps(q, q) = std::sqrt(cov(q, q));
+      if (np > 1) told += "; nu0_3 and theta_33 moved apart (their covariance is singular)";
+    }
+  }
+  // What to move, planned before any pass (which needs only the
+  // covariance), so that the passes can run at once: per axis the split
+  // by +-its sigma (a), then per partner's step b whose product is
+  // predicted to matter, +-a + b.
+  struct Product {
+    std::string pair;
+    double predicted;
+  };
+  struct Axis {
+    int i;
+    std::size_t first;  // its +a's index in `shifts`; -a next, then +-a + b per product
+    std::vector<Product> products;
+  };
+  std::vector<Axis> axes;
+  std::vector<ParamVec> shifts;
   for (int i = 0; i < 2; ++i) {
     ParamVec dir = ParamVec::Zero();  // df_z_i and g Theta_i3 by the same: df_obs kept
     dir(sx::kDf0 - sx::kNu0 + i) = 1;
@@ -567,49 +645,65 @@ ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, st
     // a Theta_i3 the prior fixes fixes the split too
     if (!(sigma > 0) || !(prior(sx::theta(i + 1, 3) - sx::kNu0) > 0)) continue;
     const ParamVec a = sigma * dir;
+    Axis axis{i, shifts.size(), {}};
+    shifts.push_back(a);
+    shifts.push_back(-a);
+    const ParamVec obs = df_obs_direction(i, e.g);
+    const double sigma_obs = std::sqrt(std::max(0.0, obs.dot(pp * obs)));
+    for (Eigen::Index c = 0; c < np && sigma_obs > 0; ++c) {
+      ParamVec b = ParamVec::Zero();
+      double azimuth_rad = 0;  // the step's azimuth, its terms' signs aside
+      for (Eigen::Index q = c; q < np; ++q) {
+        const Partner& pq = partners[static_cast<std::size_t>(q)];
+        b(pq.k) = steps(q, c) * step_sigmas;
+        azimuth_rad += std::abs(steps(q, c)) * pq.lever;
+      }
+      const double predicted = azimuth_rad * sigma / sigma_obs;
+      if (!(predicted > kMixedSigma)) continue;
+      const auto k = static_cast<std::size_t>(partners[static_cast<std::size_t>(c)].k);
+      axis.products.push_back(
+          {"df_obs_" + std::to_string(i + 1) + " x " + std::string(kParamNames[k]), predicted});
+      shifts.push_back(a + b);
+      shifts.push_back(-a + b);
+    }
+    axes.push_back(std::move(axis));
+  }
+  const std::vector<Moved> m = passes_moved(in, params_of(r.x), shifts, in.second_pass.threads);
+  const auto failed = [&](std::size_t q) { return !m[q].x ? m[q].error : m[q + 1].error; };
+  std::vector<std::string> mixed_with;
+  ParamMat consider = ParamMat::Zero();
+  int considered = 0;
+  std::string which;
+  for (const Axis& axis : axes) {
+    const std::string name = "df_obs_" + std::to_string(axis.i + 1);
     // central: the same one step of the iteration about either side of
     // the estimate, so neither the iteration's last step (a pass that
     // stopped unconverged) nor the curvature counts as sensitivity
-    failed.clear();
-    const auto plus = moved(a);
-    const auto minus = plus ? moved(-a) : std::nullopt;
-    if (!minus) {
-      told += "; the split of df_obs_" + std::to_string(i + 1) + " not considered: " + failed;
+    if (!m[axis.first].x || !m[axis.first + 1].x) {
+      told += "; the split of " + name + " not considered: " + failed(axis.first);
       continue;
     }
     // the same data and prior: a linear model would give the same
     // estimates about either point
-    const ParamVec d = 0.5 * (*plus - *minus);
-    ParamMat add = d * d.transpose();
-    const ParamVec obs = df_obs_direction(i, e.g);
-    const double sigma_obs = std::sqrt(std::max(0.0, obs.dot(pp * obs)));
-    const std::size_t mixed_before = mixed_with.size();
-    for (const Partner& pb : partners) {
-      const double predicted = pb.azimuth_rad * sigma / sigma_obs;
-      if (!(predicted > kMixedSigma)) continue;
-      ParamVec b = ParamVec::Zero();
-      b(pb.k) = pb.sigma;
-      // the split's sensitivity, central as above, with the partner moved
-      // by its sigma: what it gains there is the mixed derivative times
-      // both sigmas (one side in the partner: two passes, not four; the
-      // curvature in the partner is a term of the third order)
-      const auto plus_b = moved(a + b);
-      const auto minus_b = plus_b ? moved(-a + b) : std::nullopt;
-      if (!minus_b) break;
-      const ParamVec mixed = 0.5 * (*plus_b - *minus_b) - d;
-      add += mixed * mixed.transpose();
-      mixed_with.push_back("df_obs_" + std::to_string(i + 1) + " x " +
-                           std::string(kParamNames[static_cast<std::size_t>(pb.k)]) +
-                           " (predicted " + fixed(predicted, 2) + " sigma)");
-    }
-    if (!failed.empty()) {
-      told += "; the split of df_obs_" + std::to_string(i + 1) + " not considered: " + failed;
-      mixed_with.resize(mixed_before);
-      continue;
-    }
-    consider += add;
+    const ParamVec d = 0.5 * (*m[axis.first].x - *m[axis.first + 1].x);
+    consider += d * d.transpose();
     ++considered;
-    which += (which.empty() ? "" : ", ") + std::string("df_obs_") + std::to_string(i + 1);
+    which += (which.empty() ? "" : ", ") + name;
+    for (std::size_t c = 0; c < axis.products.size(); ++c) {
+      const Product& pr = axis.products[c];
+      const std::size_t q = axis.first + 2 + 2 * c;
+      if (!m[q].x || !m[q + 1].x) {  // the first-order term stands; this product is not in
+        told += "; " + pr.pair + " not considered: " + failed(q);
+        continue;
+      }
+      // the split's sensitivity, central as above, with the partner moved
+      // by its step: what it gains there is the mixed derivative times
+      // both steps (one side in the partner: two passes, not four; the
+      // curvature in the partner is a term of the third order)
+      const ParamVec mixed = (0.5 * (*m[q].x - *m[q + 1].x) - d) / step_sigmas;
+      consider += mixed * mixed.transpose();
+      mixed_with.push_back(pr.pair + " (predicted " + fixed(pr.predicted, 2) + " sigma)");
+    }
   }
   if (considered > 0) {
     told += "; its sensitivity to how df_obs splits (" + which + ": " + std::to_string(considered) +

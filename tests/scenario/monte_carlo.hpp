@@ -77,6 +77,7 @@ inline RunZ one_run(const Scenario& s, std::uint64_t seed,
   for (const auto& v : run.velocity) in.velocity.push_back({v.t_s, v.ve, v.vn});
   in.second_pass.mode = mode;
   in.second_pass.nominal = &est::strapdown_nominal;
+  in.second_pass.threads = 1;  // the runs are the Monte Carlo's threads
   RunZ out;
   const auto r = est::estimate(in);
   if (!r) {

@@ -85,6 +85,14 @@ struct SecondPassSettings {
   /// Theta_33), where that product is predicted to matter (estimator.cpp,
   /// split_consider); off only to compare.
   bool consider_split_mixed = true;
+  /// The partners' step for that product, in their posterior sigmas: the
+  /// term found is divided by it, so a product of the two factors alone
+  /// gives the same term at any step and either sign (tests use that).
+  double mixed_step_sigmas = 1;
+  /// The consider term's passes, independent of each other, run on this
+  /// many threads (0: one per hardware thread); the result does not
+  /// depend on it.
+  unsigned threads = 0;
 };
 
 struct EstimationInput {
