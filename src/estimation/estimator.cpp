@@ -524,22 +524,20 @@ std::vector<Moved> passes_moved(const EstimationInput& in, const ParamArray& at,
         if (x.allFinite())
           m.x = x;
         else  // a covariance term of NaN would void every sigma
-          m.error = "the estimate moved by the split is not finite";
-      } catch (const std::exception& e) {  // memory: that pass only
-        m.error = std::string("internal error: ") + e.what();
+          m.error = "the moved pass's estimate is not finite";
+      } catch (...) {  // memory, or a nominal's own: that pass only, never the thread
+        m.error = "internal error in the moved pass";
       }
     }
   };
   if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
   std::vector<std::thread> pool;
-  for (unsigned t = 1; t < threads && t < shifts.size(); ++t) {
-    try {
-      pool.emplace_back(work);
-    } catch (const std::system_error&) {  // no more threads: fewer do it all
-      break;
-    }
+  try {
+    pool.reserve(std::min<std::size_t>(threads, shifts.size()));
+    for (unsigned t = 1; t < threads && t < shifts.size(); ++t) pool.emplace_back(work);
+  } catch (...) {  // no more threads (or memory for them): those started and this one do it all
   }
-  work();
+  work();  // throws nothing
   for (std::thread& t : pool) t.join();
   return out;
 }
@@ -591,21 +589,26 @@ ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, st
   std::vector<Partner> partners;
   const double turned = largest_turn_rad(in.timeline);
   const bool with_product = in.second_pass.consider_split_mixed;
-  if (with_product && !(std::isfinite(step_sigmas) && step_sigmas != 0))
+  // a step of a twentieth of a sigma divides the passes' own noise by it;
+  // one of ten linearises far from anything the run supports
+  if (with_product && !(std::abs(step_sigmas) >= 0.05 && std::abs(step_sigmas) <= 10))
     told += "; the split times an azimuth error not considered: a partner step of " +
-            std::to_string(step_sigmas) + " sigma";
+            fixed(step_sigmas, 3) + " sigma (between 0.05 and 10 either way)";
   else if (with_product)
     for (const auto& [j, lever] :
          {std::pair{sx::kNu0 + 2, in.timeline.duration_s}, std::pair{sx::theta(3, 3), turned}}) {
       const int k = j - sx::kNu0;
       if (pp(k, k) > 0 && prior(k) > 0) partners.push_back({k, lever});
     }
-  // The partners' steps: the columns of the Cholesky factor of their joint
-  // posterior covariance, so that the terms of the steps sum to the whole
-  // (the fit correlates nu0_3 with Theta_33 where both move the azimuth).
-  // The first moves nu0_3 by its sigma and Theta_33 with it as they
-  // correlate; the second Theta_33 by what nu0_3 leaves of its sigma.
-  const auto np = static_cast<Eigen::Index>(partners.size());
+  // The partners' steps: the columns of a factor L of their joint
+  // posterior covariance (L L^T), so that the terms of the steps sum to the
+  // whole (the fit correlates nu0_3 with Theta_33 where both move the
+  // azimuth). Cholesky's: the first column moves nu0_3 by its sigma and
+  // Theta_33 with it as they correlate, the second Theta_33 by what nu0_3
+  // leaves of its sigma; each is named by the partner on its diagonal.
+  // Where the covariance is only semi-definite (a correlation of +-1), the
+  // eigenvectors scaled by their sigmas.
+  auto np = static_cast<Eigen::Index>(partners.size());
   Eigen::MatrixXd steps = Eigen::MatrixXd::Zero(np, np);
   {
     Eigen::MatrixXd cov(np, np);
@@ -614,11 +617,18 @@ ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, st
         cov(q, c) =
             pp(partners[static_cast<std::size_t>(q)].k, partners[static_cast<std::size_t>(c)].k);
     const Eigen::LLT<Eigen::MatrixXd> llt(cov);
-    if (llt.info() == Eigen::Success) {
+    if (!cov.allFinite()) {
+      told +=
+          "; the split times an azimuth error not considered: nu0_3's and theta_33's "
+          "covariance is not finite";
+      np = 0;
+    } else if (llt.info() == Eigen::Success) {
       steps = llt.matrixL();
-    } else {  // not positive definite: each by its own sigma, as if apart
-      for (Eigen::Index q = 0; q < np; ++q) steps(q, q) = std::sqrt(cov(q, q));
-      if (np > 1) told += "; nu0_3 and theta_33 moved apart (their covariance is singular)";
+    } else {
+      const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(cov);
+      for (Eigen::Index c = 0; c < np; ++c)
+        steps.col(c) = eig.eigenvectors().col(c) * std::sqrt(std::max(0.0, eig.eigenvalues()(c)));
+      told += "; nu0_3 and theta_33 correlate fully: moved along their covariance's eigenvectors";
     }
   }
   // What to move, planned before any pass (which needs only the
@@ -652,8 +662,8 @@ ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, st
     const double sigma_obs = std::sqrt(std::max(0.0, obs.dot(pp * obs)));
     for (Eigen::Index c = 0; c < np && sigma_obs > 0; ++c) {
       ParamVec b = ParamVec::Zero();
-      double azimuth_rad = 0;  // the step's azimuth, its terms' signs aside
-      for (Eigen::Index q = c; q < np; ++q) {
+      double azimuth_rad = 0;                  // the step's azimuth, its terms' signs aside
+      for (Eigen::Index q = 0; q < np; ++q) {  // Cholesky's: zero above the diagonal
         const Partner& pq = partners[static_cast<std::size_t>(q)];
         b(pq.k) = steps(q, c) * step_sigmas;
         azimuth_rad += std::abs(steps(q, c)) * pq.lever;
@@ -709,7 +719,9 @@ ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, st
     told += "; its sensitivity to how df_obs splits (" + which + ": " + std::to_string(considered) +
             " of 2 axes)";
     if (!mixed_with.empty()) {
-      told += ", and to the split times an azimuth error from";
+      told +=
+          ", and to the split times an azimuth error (nu0_3 and theta_33 moved together as "
+          "the fit correlates them) from";
       for (std::size_t q = 0; q < mixed_with.size(); ++q)
         told += (q == 0 ? " " : ", ") + mixed_with[q];
     }

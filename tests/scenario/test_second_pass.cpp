@@ -367,6 +367,15 @@ TEST_SUITE("second pass") {
       CHECK(serial->p == parallel->p);
       CHECK(var_obs(*serial, 0) - var_obs(*base, 0) == one[0]);
     }
+    {  // a step too small to rise above the passes' own noise: refused, and said
+      est::EstimationInput in = run.in;
+      in.second_pass.mixed_step_sigmas = 0.01;
+      const auto r = est::estimate(in);
+      REQUIRE(r.ok());
+      CHECK(r->second_pass.reason.find("not considered: a partner step of 0.010 sigma") !=
+            std::string::npos);
+      CHECK(r->p == base->p);
+    }
     for (std::size_t i = 0; i < 2; ++i) {
       CAPTURE(i);
       REQUIRE(one[i] > 0);

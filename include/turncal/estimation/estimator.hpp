@@ -90,8 +90,9 @@ struct SecondPassSettings {
   /// gives the same term at any step and either sign (tests use that).
   double mixed_step_sigmas = 1;
   /// The consider term's passes, independent of each other, run on this
-  /// many threads (0: one per hardware thread); the result does not
-  /// depend on it.
+  /// many threads (0: one per hardware thread), the caller's among them;
+  /// the result does not depend on it. On Linux they start at the
+  /// caller's nice value (turncald's estimation runs below its loop).
   unsigned threads = 0;
 };
 
