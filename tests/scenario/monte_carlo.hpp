@@ -116,9 +116,8 @@ inline RunZ one_run(const Scenario& s, std::uint64_t seed,
   return out;
 }
 
-/// The Monte Carlo's threads: TURNCAL_THREADS when set (scripts/test runs
-/// the scenario tier beside the hil tier on one thread fewer than the
-/// machine has), else one per hardware thread.
+/// The Monte Carlo's threads: TURNCAL_THREADS when set (to leave cores to
+/// something run beside it), else one per hardware thread.
 inline unsigned default_threads() {
   if (const char* e = std::getenv("TURNCAL_THREADS"); e != nullptr && std::atoi(e) > 0)
     return static_cast<unsigned>(std::atoi(e));
