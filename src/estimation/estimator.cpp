@@ -500,6 +500,8 @@ constexpr double kMixedSigma = 0.5;
 struct Moved {
   std::optional<ParamVec> x;
   std::string error;
+  bool internal = false;  ///< failed by an exception whose text could not be kept
+  std::string why() const { return internal ? "internal error in the moved pass" : error; }
 };
 
 /// Passes about `at` moved by each of `shifts`, on up to `threads` threads
@@ -525,8 +527,14 @@ std::vector<Moved> passes_moved(const EstimationInput& in, const ParamArray& at,
           m.x = x;
         else  // a covariance term of NaN would void every sigma
           m.error = "the moved pass's estimate is not finite";
-      } catch (...) {  // memory, or a nominal's own: that pass only, never the thread
-        m.error = "internal error in the moved pass";
+      } catch (const std::exception& e) {  // memory, or a nominal's own: that pass only
+        try {
+          m.error = std::string("internal error in the moved pass: ") + e.what();
+        } catch (...) {  // no memory for the text: nothing leaves the thread
+          m.internal = true;
+        }
+      } catch (...) {
+        m.internal = true;
       }
     }
   };
@@ -610,6 +618,8 @@ ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, st
   // eigenvectors scaled by their sigmas.
   auto np = static_cast<Eigen::Index>(partners.size());
   Eigen::MatrixXd steps = Eigen::MatrixXd::Zero(np, np);
+  std::vector<std::size_t> named(partners.size());  // the partner that names each step
+  for (std::size_t c = 0; c < named.size(); ++c) named[c] = c;
   {
     Eigen::MatrixXd cov(np, np);
     for (Eigen::Index q = 0; q < np; ++q)
@@ -619,15 +629,23 @@ ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, st
     const Eigen::LLT<Eigen::MatrixXd> llt(cov);
     if (!cov.allFinite()) {
       told +=
-          "; the split times an azimuth error not considered: nu0_3's and theta_33's "
-          "covariance is not finite";
+          "; the split times an azimuth error not considered: the partners' covariance is "
+          "not finite";
       np = 0;
     } else if (llt.info() == Eigen::Success) {
       steps = llt.matrixL();
     } else {
       const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(cov);
-      for (Eigen::Index c = 0; c < np; ++c)
+      for (Eigen::Index c = 0; c < np; ++c) {
         steps.col(c) = eig.eigenvectors().col(c) * std::sqrt(std::max(0.0, eig.eigenvalues()(c)));
+        // an eigenvector moves both: named by the larger share of its azimuth
+        for (Eigen::Index q = 0; q < np; ++q) {
+          const auto n = named[static_cast<std::size_t>(c)];
+          if (std::abs(steps(q, c)) * partners[static_cast<std::size_t>(q)].lever >
+              std::abs(steps(static_cast<Eigen::Index>(n), c)) * partners[n].lever)
+            named[static_cast<std::size_t>(c)] = static_cast<std::size_t>(q);
+        }
+      }
       told += "; nu0_3 and theta_33 correlate fully: moved along their covariance's eigenvectors";
     }
   }
@@ -670,7 +688,7 @@ ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, st
       }
       const double predicted = azimuth_rad * sigma / sigma_obs;
       if (!(predicted > kMixedSigma)) continue;
-      const auto k = static_cast<std::size_t>(partners[static_cast<std::size_t>(c)].k);
+      const auto k = static_cast<std::size_t>(partners[named[static_cast<std::size_t>(c)]].k);
       axis.products.push_back(
           {"df_obs_" + std::to_string(i + 1) + " x " + std::string(kParamNames[k]), predicted});
       shifts.push_back(a + b);
@@ -679,7 +697,7 @@ ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, st
     axes.push_back(std::move(axis));
   }
   const std::vector<Moved> m = passes_moved(in, params_of(r.x), shifts, in.second_pass.threads);
-  const auto failed = [&](std::size_t q) { return !m[q].x ? m[q].error : m[q + 1].error; };
+  const auto failed = [&](std::size_t q) { return !m[q].x ? m[q].why() : m[q + 1].why(); };
   std::vector<std::string> mixed_with;
   ParamMat consider = ParamMat::Zero();
   int considered = 0;

@@ -88,6 +88,7 @@ struct SecondPassSettings {
   /// The partners' step for that product, in their posterior sigmas: the
   /// term found is divided by it, so a product of the two factors alone
   /// gives the same term at any step and either sign (tests use that).
+  /// Refused, with the reason, outside 0.05 to 10 either way.
   double mixed_step_sigmas = 1;
   /// The consider term's passes, independent of each other, run on this
   /// many threads (0: one per hardware thread), the caller's among them;
