@@ -1359,26 +1359,40 @@ Status Daemon::setup() {
     if (fl < 0 || ::fcntl(listen_fd, F_SETFL, fl | O_NONBLOCK) != 0)
       return make_error(std::string("the socket from systemd: fcntl: ") + std::strerror(errno));
   } else {
+    // bound and made ready under a name of its own, then renamed into
+    // place: a client that finds the socket finds it listening, with its
+    // final mode and group (between bind and listen a connect is refused,
+    // and before chmod the file has the umask's mode)
     const std::string path = cfg.daemon.socket.string();
+    const std::string temp = path + ".new";
     sockaddr_un a{};
-    if (path.size() >= sizeof a.sun_path) return make_error("socket path too long: " + path);
+    if (temp.size() >= sizeof a.sun_path) return make_error("socket path too long: " + path);
     fs::create_directories(cfg.daemon.socket.parent_path(), ec);
     listen_fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
     if (listen_fd < 0) return make_error(std::string("socket(AF_UNIX): ") + std::strerror(errno));
     a.sun_family = AF_UNIX;
-    std::memcpy(a.sun_path, path.c_str(), path.size());
-    ::unlink(path.c_str());
-    if (::bind(listen_fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0 ||
-        ::listen(listen_fd, 16) != 0)
-      return make_error("cannot listen on " + path + ": " + std::strerror(errno));
-    if (::chmod(path.c_str(), 0660) != 0)
-      return make_error("cannot chmod " + path + ": " + std::strerror(errno));
+    std::memcpy(a.sun_path, temp.c_str(), temp.size());
+    ::unlink(temp.c_str());
+    const auto failed = [&](const std::string& what) {
+      const std::string why = std::strerror(errno);
+      ::unlink(temp.c_str());
+      return make_error(what + ": " + why);
+    };
+    if (::bind(listen_fd, reinterpret_cast<sockaddr*>(&a), sizeof a) != 0)
+      return make_error("cannot bind " + temp + ": " + std::strerror(errno));
+    if (::listen(listen_fd, 16) != 0) return failed("cannot listen on " + temp);
+    if (::chmod(temp.c_str(), 0660) != 0) return failed("cannot chmod " + temp);
     if (!cfg.daemon.socket_group.empty()) {
       const group* g = ::getgrnam(cfg.daemon.socket_group.c_str());
-      if (g == nullptr) return make_error("no group '" + cfg.daemon.socket_group + "'");
-      if (::chown(path.c_str(), static_cast<uid_t>(-1), g->gr_gid) != 0)
-        return make_error("cannot give " + path + " to group " + cfg.daemon.socket_group);
+      if (g == nullptr) {
+        ::unlink(temp.c_str());
+        return make_error("no group '" + cfg.daemon.socket_group + "'");
+      }
+      if (::chown(temp.c_str(), static_cast<uid_t>(-1), g->gr_gid) != 0)
+        return failed("cannot give " + temp + " to group " + cfg.daemon.socket_group);
     }
+    if (::rename(temp.c_str(), path.c_str()) != 0)
+      return failed("cannot move " + temp + " to " + path);
   }
   if (::pipe2(done_pipe, O_CLOEXEC | O_NONBLOCK) != 0) return make_error("pipe failed");
 
