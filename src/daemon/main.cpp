@@ -1366,7 +1366,9 @@ Status Daemon::setup() {
     const std::string path = cfg.daemon.socket.string();
     const std::string temp = path + ".new";
     sockaddr_un a{};
-    if (temp.size() >= sizeof a.sun_path) return make_error("socket path too long: " + path);
+    if (temp.size() >= sizeof a.sun_path)
+      return make_error("socket path too long: " + path + " (bound first as " + temp +
+                        ", at most " + std::to_string(sizeof a.sun_path - 1) + " characters)");
     fs::create_directories(cfg.daemon.socket.parent_path(), ec);
     listen_fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
     if (listen_fd < 0) return make_error(std::string("socket(AF_UNIX): ") + std::strerror(errno));
