@@ -17,26 +17,38 @@ inline constexpr double kOmegaA2B = 0.00344978650684;  ///< m = w^2 a^2 b / GM
 inline constexpr double kPi = 3.14159265358979323846;
 inline constexpr double kDeg = kPi / 180.0;
 
-/// Meridian radius of curvature R_M at latitude, m.
-inline double meridian_radius(double lat) {
-  const double s = std::sin(lat);
+/// Meridian radius of curvature R_M from the sine of the latitude, m.
+inline double meridian_radius_at_sin(double s) {
   const double w = 1.0 - kE2 * s * s;
   return kA * (1.0 - kE2) / (w * std::sqrt(w));
 }
-
-/// Normal (prime vertical) radius of curvature R_N at latitude, m.
-inline double normal_radius(double lat) {
-  const double s = std::sin(lat);
-  return kA / std::sqrt(1.0 - kE2 * s * s);
+/// Meridian radius of curvature R_M at latitude, m.
+inline double meridian_radius(double lat) {
+  return meridian_radius_at_sin(std::sin(lat));
 }
 
-/// Normal gravity at latitude and height: Somigliana on the ellipsoid with
-/// the second-order free-air correction (NIMA TR8350.2, 4-3), m/s^2.
-inline double normal_gravity(double lat, double h) {
-  const double s2 = std::sin(lat) * std::sin(lat);
+/// Normal (prime vertical) radius of curvature R_N from the sine of the
+/// latitude, m.
+inline double normal_radius_at_sin(double s) {
+  return kA / std::sqrt(1.0 - kE2 * s * s);
+}
+/// Normal (prime vertical) radius of curvature R_N at latitude, m.
+inline double normal_radius(double lat) {
+  return normal_radius_at_sin(std::sin(lat));
+}
+
+/// Normal gravity from the sine of the latitude and the height: Somigliana
+/// on the ellipsoid with the second-order free-air correction (NIMA
+/// TR8350.2, 4-3), m/s^2.
+inline double normal_gravity_at_sin(double s, double h) {
+  const double s2 = s * s;
   const double g0 = kGammaE * (1.0 + kSomiK * s2) / std::sqrt(1.0 - kE2 * s2);
   return g0 *
          (1.0 - 2.0 / kA * (1.0 + kF + kOmegaA2B - 2.0 * kF * s2) * h + 3.0 / (kA * kA) * h * h);
+}
+/// Normal gravity at latitude and height, m/s^2.
+inline double normal_gravity(double lat, double h) {
+  return normal_gravity_at_sin(std::sin(lat), h);
 }
 
 }  // namespace turncal::earth

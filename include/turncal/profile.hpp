@@ -4,6 +4,7 @@
 // model, which sees only encoder samples.
 #pragma once
 
+#include <cassert>
 #include <cstddef>
 #include <vector>
 
@@ -47,6 +48,12 @@ class TableMotion {
   };
   explicit TableMotion(double angle0 = 0) : angle0_(angle0) {}
   [[nodiscard]] State at(double t) const;
+  /// The same, for a caller stepping through time: `hint` is where the last
+  /// query left off (start it at 0) and is updated, so that a query at a
+  /// time at or a little after the last one finds its piece without a
+  /// search. Any hint gives the same state; a stale one (the plan changed,
+  /// or t went back) only costs the search.
+  [[nodiscard]] State at(double t, std::size_t& hint) const;
   /// A move from rest at t by `delta` rad: trapezoidal rate within the
   /// limits, triangular when the rate limit is not reached. If the table is
   /// not at rest at t, the move starts when the current plan comes to rest.
@@ -56,12 +63,13 @@ class TableMotion {
   double stop(double t, double decel);
   /// Times where the acceleration may jump, ascending.
   [[nodiscard]] std::vector<double> breakpoints() const;
-  /// Appends those strictly inside (ta, tb).
-  void breakpoints_in(double ta, double tb, std::vector<double>& out) const;
+  /// Appends those strictly inside (ta, tb); `hint` as for at().
+  void breakpoints_in(double ta, double tb, std::vector<double>& out, std::size_t& hint) const;
   /// Appends a piece from t0 (after every piece so far): angle, rate and
   /// acceleration at t0. A motion known by samples (an encoder's, linear
   /// between them) rather than planned.
   void append(double t0, double angle, double rate, double accel) {
+    assert(pieces_.empty() || t0 >= pieces_.back().t0);  // at() searches them by t0
     pieces_.push_back({t0, angle, rate, accel});
   }
   /// The first time at or after t from which the plan stays at rest.
@@ -72,6 +80,10 @@ class TableMotion {
     double t0, angle0, rate0, accel;  // valid from t0 to the next piece
   };
   void truncate(double t);  // drops the plan after t and starts a piece at t
+  /// The number of pieces starting at or before t (the index of the first
+  /// after it), searched from `hint` on.
+  [[nodiscard]] std::size_t count_until(double t, std::size_t hint) const;
+  [[nodiscard]] State state_in(std::size_t count, double t) const;
   void push(double t0, double accel);
   double angle0_;
   std::vector<Piece> pieces_;

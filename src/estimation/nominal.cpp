@@ -43,6 +43,7 @@ Result<std::vector<VelocityObs>> strapdown_nominal(const EstimationInput& in,
   if (!(in.second_pass.nominal_imu_rate_hz >= c.output_rate_hz))
     return make_error("the nominal's IMU rate must be at least its output rate");
   c.imu_rate_hz = in.second_pass.nominal_imu_rate_hz;
+  c.encoder_rate_hz = 0;  // the motion is the encoder's already
   c.errors.nu0 = Eigen::Vector3d(params[0], params[1], params[2]);
   for (int i = 0; i < 3; ++i)
     for (int j = 0; j < 3; ++j)

@@ -13,13 +13,36 @@ Profile classic_profile(double duration_s, double turn_start_s, double angle_rad
   return p;
 }
 
-TableMotion::State TableMotion::at(double t) const {
-  auto it = std::upper_bound(pieces_.begin(), pieces_.end(), t,
-                             [](double v, const Piece& p) { return v < p.t0; });
-  if (it == pieces_.begin()) return {angle0_, 0, 0};
-  const Piece& p = *(it - 1);
+std::size_t TableMotion::count_until(double t, std::size_t hint) const {
+  const std::size_t n = pieces_.size();
+  // a hint past a piece that starts after t (t went back, or the plan was
+  // cut short) says nothing: search from the start
+  if (hint > n || (hint > 0 && t < pieces_[hint - 1].t0)) hint = 0;
+  // stepping through time, the piece is this one or one of the next few
+  for (int step = 0; step < 4; ++step, ++hint)
+    if (hint == n || t < pieces_[hint].t0) return hint;
+  const auto it =
+      std::upper_bound(pieces_.begin() + static_cast<std::ptrdiff_t>(hint), pieces_.end(), t,
+                       [](double v, const Piece& p) { return v < p.t0; });
+  return static_cast<std::size_t>(it - pieces_.begin());
+}
+
+TableMotion::State TableMotion::state_in(std::size_t count, double t) const {
+  if (count == 0) return {angle0_, 0, 0};
+  const Piece& p = pieces_[count - 1];
   const double dt = t - p.t0;
   return {p.angle0 + p.rate0 * dt + 0.5 * p.accel * dt * dt, p.rate0 + p.accel * dt, p.accel};
+}
+
+TableMotion::State TableMotion::at(double t) const {
+  const auto it = std::upper_bound(pieces_.begin(), pieces_.end(), t,
+                                   [](double v, const Piece& p) { return v < p.t0; });
+  return state_in(static_cast<std::size_t>(it - pieces_.begin()), t);
+}
+
+TableMotion::State TableMotion::at(double t, std::size_t& hint) const {
+  hint = count_until(t, hint);
+  return state_in(hint, t);
 }
 
 void TableMotion::truncate(double t) {
@@ -65,10 +88,11 @@ double TableMotion::stop(double t, double decel) {
   return t_rest;
 }
 
-void TableMotion::breakpoints_in(double ta, double tb, std::vector<double>& out) const {
-  auto it = std::upper_bound(pieces_.begin(), pieces_.end(), ta,
-                             [](double v, const Piece& p) { return v < p.t0; });
-  for (; it != pieces_.end() && it->t0 < tb; ++it) out.push_back(it->t0);
+void TableMotion::breakpoints_in(double ta, double tb, std::vector<double>& out,
+                                 std::size_t& hint) const {
+  hint = count_until(ta, hint);
+  for (std::size_t i = hint; i < pieces_.size() && pieces_[i].t0 < tb; ++i)
+    out.push_back(pieces_[i].t0);
 }
 
 std::vector<double> TableMotion::breakpoints() const {

@@ -19,11 +19,25 @@ Mat3 rot_z(double a) {
   return m;
 }
 
-/// exp([v x]): the rotation by the rotation vector v.
+/// exp([v x]): the rotation by the rotation vector v, I + (sin a / a) K +
+/// ((1 - cos a) / a^2) K^2 with K = [v x] and a = |v|. Below 0.02 rad (an
+/// IMU step's attitude change, short of a table at 2 rad/s and 100 Hz) the
+/// two factors by their series to a^6, whose first term left out is under
+/// 1e-19: no sine or cosine, and none of 1 - cos a's cancellation.
 Mat3 rodrigues(const Vec3& v) {
-  const double angle = v.norm();
-  if (angle < 1e-300) return Mat3::Identity();
-  return Eigen::AngleAxisd(angle, v / angle).toRotationMatrix();
+  const double a2 = v.squaredNorm();
+  double f1 = 0, f2 = 0;  // sin a / a, (1 - cos a) / a^2
+  if (a2 < 4e-4) {
+    f1 = 1 - a2 / 6 * (1 - a2 / 20 * (1 - a2 / 42));
+    f2 = 0.5 * (1 - a2 / 12 * (1 - a2 / 30 * (1 - a2 / 56)));
+  } else {
+    const double a = std::sqrt(a2);
+    f1 = std::sin(a) / a;
+    f2 = (1 - std::cos(a)) / a2;
+  }
+  Mat3 k;
+  k << 0, -v.z(), v.y(), v.z(), 0, -v.x(), -v.y(), v.x(), 0;
+  return Mat3::Identity() + f1 * k + f2 * (k * k);
 }
 
 // 3-point Gauss-Legendre on [-1, 1]
@@ -39,12 +53,15 @@ Strapdown::Strapdown(const Config& config)
       motion_t0_(config.motion != nullptr ? config.motion_t0_s : 0.0),
       angle_t0_(motion_->at(motion_t0_).angle),
       rng_(config.seed),
-      dt_(1.0 / config.imu_rate_hz) {
+      dt_(1.0 / config.imu_rate_hz),
+      u2_(earth::kRate * std::cos(config.latitude_rad)),
+      u3_(earth::kRate * std::sin(config.latitude_rad)),
+      g_(earth::normal_gravity(config.latitude_rad, config.height_m)) {
   align();
 }
 
 TableMotion::State Strapdown::table_at(double t) const {
-  TableMotion::State s = motion_->at(motion_t0_ + t);
+  TableMotion::State s = motion_->at(motion_t0_ + t, motion_hint_);
   s.angle -= angle_t0_;
   return s;
 }
@@ -52,28 +69,41 @@ TableMotion::State Strapdown::table_at(double t) const {
 Strapdown::Increments Strapdown::imu(double ta, double tb) {
   // True motion: body z3 vertical, psi(t) = psi_s + table angle; the INS
   // reference point M (accelerometer 1) on the table axis, at rest.
-  const double lat = cfg_.latitude_rad;
-  const double u2 = earth::kRate * std::cos(lat), u3 = earth::kRate * std::sin(lat);
-  const double g = earth::normal_gravity(lat, cfg_.height_m);
-  // Integrate over [ta, tb], split where the table's acceleration jumps.
-  std::vector<double> cuts{ta};
-  const std::size_t first_cut = cuts.size();
-  motion_->breakpoints_in(motion_t0_ + ta, motion_t0_ + tb, cuts);
-  for (std::size_t i = first_cut; i < cuts.size(); ++i) cuts[i] -= motion_t0_;
-  cuts.push_back(tb);
+  const double u2 = u2_, u3 = u3_, g = g_;
+  // Integrate over [ta, tb], split where the table's acceleration jumps;
+  // the table's state read in ascending time, so that the motion's hint
+  // finds each piece without a search.
+  cuts_.assign(1, ta);
+  motion_->breakpoints_in(motion_t0_ + ta, motion_t0_ + tb, cuts_, motion_hint_);
+  for (std::size_t i = 1; i < cuts_.size(); ++i) cuts_[i] -= motion_t0_;
+  cuts_.push_back(tb);
+  const auto sa = table_at(ta);
   Vec3 earth_rate_int = Vec3::Zero();  // int A(psi)^T u_x dt
   double omega2_int = 0;               // int Omega^2 dt
-  for (std::size_t i = 0; i + 1 < cuts.size(); ++i) {
-    const double mid = 0.5 * (cuts[i] + cuts[i + 1]), half = 0.5 * (cuts[i + 1] - cuts[i]);
-    for (int k = 0; k < 3; ++k) {
-      const auto st = table_at(mid + half * kGlX[k]);
-      const double psi = cfg_.psi_start_rad + st.angle;
-      const double w = kGlW[k] * half;
-      earth_rate_int += w * Vec3(u2 * std::sin(psi), u2 * std::cos(psi), u3);
-      omega2_int += w * st.rate * st.rate;
+  if (cuts_.size() == 2 && sa.rate == 0 && sa.accel == 0) {
+    // at rest over the whole step (no piece starts inside it): the
+    // integrand is constant, its sine and cosine those of the last step
+    // while the table has not moved
+    const double psi = cfg_.psi_start_rad + sa.angle;
+    if (psi != rest_psi_) {
+      rest_psi_ = psi;
+      rest_sin_ = std::sin(psi);
+      rest_cos_ = std::cos(psi);
+    }
+    earth_rate_int = (tb - ta) * Vec3(u2 * rest_sin_, u2 * rest_cos_, u3);
+  } else {
+    for (std::size_t i = 0; i + 1 < cuts_.size(); ++i) {
+      const double mid = 0.5 * (cuts_[i] + cuts_[i + 1]), half = 0.5 * (cuts_[i + 1] - cuts_[i]);
+      for (int k = 0; k < 3; ++k) {
+        const auto st = table_at(mid + half * kGlX[k]);
+        const double psi = cfg_.psi_start_rad + st.angle;
+        const double w = kGlW[k] * half;
+        earth_rate_int += w * Vec3(u2 * std::sin(psi), u2 * std::cos(psi), u3);
+        omega2_int += w * st.rate * st.rate;
+      }
     }
   }
-  const auto sa = table_at(ta), sb = table_at(tb);
+  const auto sb = table_at(tb);
   const double dt = tb - ta;
   Increments inc;
   const Vec3 true_dtheta = earth_rate_int + Vec3(0, 0, sb.angle - sa.angle);
@@ -125,9 +155,11 @@ void Strapdown::align() {
 }
 
 void Strapdown::navigate(const Increments& inc, double dt) {
-  const double rm = earth::meridian_radius(lat_) + h_, rn = earth::normal_radius(lat_) + h_;
-  const Vec3 w_ie(0, earth::kRate * std::cos(lat_), earth::kRate * std::sin(lat_));
-  const Vec3 w_en(-v_.y() / rm, v_.x() / rn, v_.x() * std::tan(lat_) / rn);
+  const double sin_lat = std::sin(lat_), cos_lat = std::cos(lat_);
+  const double rm = earth::meridian_radius_at_sin(sin_lat) + h_;
+  const double rn = earth::normal_radius_at_sin(sin_lat) + h_;
+  const Vec3 w_ie(0, earth::kRate * cos_lat, earth::kRate * sin_lat);
+  const Vec3 w_en(-v_.y() / rm, v_.x() / rn, v_.x() * (sin_lat / cos_lat) / rn);
   const Vec3 w_in = w_ie + w_en;
   // coning and sculling (two-sample, previous-interval form)
   const Vec3 phi = inc.dtheta + prev_.dtheta.cross(inc.dtheta) / 12.0;
@@ -136,7 +168,7 @@ void Strapdown::navigate(const Increments& inc, double dt) {
   // specific force into the mid-interval navigation frame
   Vec3 dv_n = c_bn_ * dv_b;
   dv_n -= 0.5 * (w_in * dt).cross(dv_n);
-  const Vec3 gravity(0, 0, -earth::normal_gravity(lat_, h_));
+  const Vec3 gravity(0, 0, -earth::normal_gravity_at_sin(sin_lat, h_));
   const Vec3 v_old = v_;
   v_ += dv_n + (gravity - (2 * w_ie + w_en).cross(v_)) * dt;
   v_.z() = 0;  // vertical channel held: the stand is at a known height
@@ -175,17 +207,26 @@ EncoderSample Strapdown::encoder() const {
 Run simulate(const Config& config) {
   Strapdown sd(config);
   Run run;
-  const auto out_every =
-      static_cast<long>(std::llround(config.imu_rate_hz / config.output_rate_hz));
-  const auto enc_every =
-      static_cast<long>(std::llround(config.imu_rate_hz / config.encoder_rate_hz));
+  // a rate above the IMU's gives a sample every IMU step
+  const long out_every =
+      std::max(1L, static_cast<long>(std::llround(config.imu_rate_hz / config.output_rate_hz)));
+  const bool with_encoder = config.encoder_rate_hz > 0;
+  const long enc_every =
+      with_encoder
+          ? std::max(1L,
+                     static_cast<long>(std::llround(config.imu_rate_hz / config.encoder_rate_hz)))
+          : 0;
+  const double steps = std::max(0.0, config.profile.duration_s * config.imu_rate_hz) + 2;
+  run.velocity.reserve(static_cast<std::size_t>(steps / static_cast<double>(out_every)) + 1);
+  if (with_encoder)
+    run.encoder.reserve(static_cast<std::size_t>(steps / static_cast<double>(enc_every)) + 1);
   long k = 0;
   run.velocity.push_back(sd.output());
-  run.encoder.push_back(sd.encoder());
+  if (with_encoder) run.encoder.push_back(sd.encoder());
   while (sd.step()) {
     ++k;
     if (k % out_every == 0) run.velocity.push_back(sd.output());
-    if (k % enc_every == 0) run.encoder.push_back(sd.encoder());
+    if (with_encoder && k % enc_every == 0) run.encoder.push_back(sd.encoder());
   }
   return run;
 }

@@ -94,4 +94,41 @@ TEST_SUITE("table motion") {
     CHECK(tr.at(600).angle == doctest::Approx(90 * kDeg));
     CHECK(tr.duration() == 600);
   }
+
+  TEST_CASE("a read with a hint gives the searched state, whatever the hint") {
+    // an encoder-like motion of many pieces, read stepping forward, at the
+    // same time again, back in time, from a hint past the end, and after
+    // the plan was cut short: each state equal, bit for bit, to at(t)'s
+    TableMotion m;
+    for (int k = 0; k < 2000; ++k) m.append(0.01 * k, 0.001 * k * k, 0.2 * k, 0);
+    std::size_t hint = 0;
+    int differ = 0, checked = 0;
+    const auto same = [&](double t) {
+      const TableMotion::State a = m.at(t), b = m.at(t, hint);
+      ++checked;
+      if (a.angle != b.angle || a.rate != b.rate || a.accel != b.accel) ++differ;
+    };
+    for (double t = -1; t < 21; t += 0.0037) same(t);  // before, through and past the pieces
+    same(20.5);
+    same(20.5);
+    for (double t = 15; t > -0.5; t -= 0.71) same(t);  // backwards: a search each time
+    hint = 1u << 20;                                   // nonsense: a search
+    same(3.3);
+    std::vector<double> cuts;
+    m.breakpoints_in(4.999, 5.031, cuts, hint);  // from the hint at 3.3 s: a search
+    CHECK(cuts == std::vector<double>{0.01 * 500, 0.01 * 501, 0.01 * 502, 0.01 * 503});
+    cuts.clear();
+    m.breakpoints_in(0.01 * 500, 0.01 * 502, cuts, hint);  // strictly inside: not its ends
+    CHECK(cuts == std::vector<double>{0.01 * 501});
+    for (double t = 18; t < 20.5; t += 0.01) same(t);    // the hint near the end
+    for (int k = 0; k < 2000; k += 7) same(0.01 * k);    // exactly on piece starts
+    for (int k = 1990; k > 0; k -= 331) same(0.01 * k);  // and back
+    same(10.007);                             // the hint inside the plan that is cut short next
+    const double rest = m.stop(10.005, 1e4);  // the plan cut short: a stale hint, within its size
+    CHECK(rest > 10.005);
+    same(10.005);
+    for (double t = 9.9; t < 12; t += 0.001) same(t);
+    CHECK(checked > 6000);
+    CHECK(differ == 0);
+  }
 }

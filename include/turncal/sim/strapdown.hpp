@@ -62,8 +62,8 @@ struct Config {
   /// error start.dpsi0_rad is added either way.
   double heading_given_rad = NAN;
   double imu_rate_hz = 400;
-  double output_rate_hz = 100;
-  double encoder_rate_hz = 200;
+  double output_rate_hz = 100;   ///< positive; above imu_rate_hz: every IMU step
+  double encoder_rate_hz = 200;  ///< simulate()'s encoder samples; 0 (or less): none
   std::uint64_t seed = 1;
 };
 
@@ -108,6 +108,12 @@ class Strapdown {
   Config cfg_;
   TableTrajectory profile_table_;
   const TableMotion* motion_;  // the profile's or the config's
+  /// Where the last read of motion_ left off (TableMotion::at's hint). A
+  /// Strapdown is one thread's; the hint changes no result.
+  mutable std::size_t motion_hint_ = 0;
+  std::vector<double> cuts_;  ///< imu()'s integration intervals, kept to reuse their memory
+  /// The table angle of the last step at rest and its sine and cosine.
+  double rest_psi_ = NAN, rest_sin_ = NAN, rest_cos_ = NAN;
   double motion_t0_;
   double angle_t0_;
   std::mt19937_64 rng_;
@@ -115,6 +121,9 @@ class Strapdown {
   double t_ = 0;
   long k_ = 0;  ///< IMU periods since t0
   double dt_;
+  /// The true Earth rate's North and Up components and gravity at the
+  /// stand, rad/s and m/s^2.
+  double u2_, u3_, g_;
   // INS state: attitude body to computed ENU, velocity, position
   Eigen::Matrix3d c_bn_;
   Eigen::Vector3d v_;
