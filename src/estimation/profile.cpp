@@ -35,9 +35,7 @@ TableMotion::State TableMotion::state_in(std::size_t count, double t) const {
 }
 
 TableMotion::State TableMotion::at(double t) const {
-  const auto it = std::upper_bound(pieces_.begin(), pieces_.end(), t,
-                                   [](double v, const Piece& p) { return v < p.t0; });
-  return state_in(static_cast<std::size_t>(it - pieces_.begin()), t);
+  return state_in(count_until(t, 0), t);
 }
 
 TableMotion::State TableMotion::at(double t, std::size_t& hint) const {
