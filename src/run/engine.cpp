@@ -135,7 +135,10 @@ void Engine::on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out) {
   const Sample s = ingest_.on_frame(scaled);
   last_frame_s_ = t;
   stamped(f.time_ns);
-  if (!implausible_fed_) check_plausible(t, out);
+  // with no implausible frame yet, no stream can have failed (unless the
+  // fraction allowed is below zero, which any stream passes)
+  if (!implausible_fed_ && (ingest_.implausible_total() > 0 || !(plausible_.max_fraction >= 0)))
+    check_plausible(t, out);
   if (t > record_end_s()) record_complete_ = true;
   use(s, t, out);
   // a protocol's answers to the frame, and the samples it held back
@@ -167,11 +170,9 @@ void Engine::use(const Sample& s, double t, std::vector<OutFrame>& out) {
     record_.add(s);
     // samples of a clock that jumped are dropped; one that stays jumped
     // would leave the estimate without them, or with them at the wrong time
-    if (!clock_fault_fed_) {
-      if (std::string why = record_.clock_fault(); !why.empty()) {
-        clock_fault_fed_ = true;
-        feed(HostFault{t, why}, out);
-      }
+    if (!clock_fault_fed_ && record_.clock_faulted()) {
+      clock_fault_fed_ = true;
+      feed(HostFault{t, record_.clock_fault()}, out);
     }
   }
   if (const auto* v = std::get_if<VelocitySample>(&s)) {
@@ -282,6 +283,8 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out, std::int64_t 
 }
 
 void Engine::stamped(std::int64_t time_ns) {
+  // only a hold (tick()) reads them: none without a hold length (a replay)
+  if (!(seq_.settings().hold_s < std::numeric_limits<double>::infinity())) return;
   const double t = stand_s(time_ns);
   if (t <= prev_tick_s_) return;
   if (stamps_.size() < kMaxStamps)

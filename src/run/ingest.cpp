@@ -296,6 +296,7 @@ Sample Ingest::implausible(Stream s) {
   ++health_[s].frames;
   ++health_[s].implausible;
   ++health_[s].implausible_run;
+  ++implausible_total_;
   return {};
 }
 

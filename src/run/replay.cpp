@@ -216,7 +216,7 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   while (have) {
     // a hold is a stretch no frame was stamped in: one in it says the
     // report is not this log's
-    const double at = engine.stand_s(rec->time_ns);
+    const double at = holds.at.empty() ? 0 : engine.stand_s(rec->time_ns);
     // the log takes each port's frames in turn: its times may step back
     const auto after = std::ranges::upper_bound(holds.at, at, {}, &Engine::Hold::from_s);
     if (after != holds.at.begin() && at > std::prev(after)->from_s + stamp_slack_s &&

@@ -119,6 +119,8 @@ class TagCheck {
   /// Why the clock cannot be trusted any more ("" while it can); `what`
   /// names the device's clock ("INS clock").
   [[nodiscard]] std::string fault(const std::string& what) const;
+  /// fault() is not "": a test for every sample, with no string built.
+  [[nodiscard]] bool faulted() const { return fault_ != Fault::None; }
 
  private:
   bool have_ = false;
@@ -219,6 +221,8 @@ class Ingest {
   Sample poll(double host_s);
   [[nodiscard]] const StreamHealth& health(Stream s) const { return health_[s]; }
   [[nodiscard]] const IngestCounters& counters() const { return counters_; }
+  /// Implausible frames of every stream so far.
+  [[nodiscard]] std::uint64_t implausible_total() const { return implausible_total_; }
   [[nodiscard]] InsDriver& ins() { return *ins_; }
   [[nodiscard]] TableDriver& table() { return *table_; }
   [[nodiscard]] const InsDriver& ins() const { return *ins_; }
@@ -241,6 +245,7 @@ class Ingest {
   /// A frame of `s` that cannot be: counted, and nothing more.
   Sample implausible(Stream s);
   Plausibility plausible_;
+  std::uint64_t implausible_total_ = 0;
   double last_encoder_host_ = NAN, last_encoder_angle_ = NAN;
   /// Encoder samples refused in a row that agree with each other: when
   /// kReanchor of them do and the reference had at most kReanchor samples

@@ -56,6 +56,10 @@ class Record {
   [[nodiscard]] const TagCheck& encoder_tags() const { return encoder_tags_; }
   /// Why a device clock cannot be trusted any more ("" while both can).
   [[nodiscard]] std::string clock_fault() const;
+  /// clock_fault() is not "".
+  [[nodiscard]] bool clock_faulted() const {
+    return velocity_tags_.faulted() || encoder_tags_.faulted();
+  }
 
  private:
   ClockFit ins_clock_, table_clock_;
