@@ -135,8 +135,9 @@ void Engine::on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out) {
   const Sample s = ingest_.on_frame(scaled);
   last_frame_s_ = t;
   stamped(f.time_ns);
-  // with no implausible frame yet, no stream can have failed (unless the
-  // fraction allowed is below zero, which any stream passes)
+  // with no implausible frame yet, no stream can have failed, unless the
+  // fraction allowed is below zero (every stream of 100 frames fails it)
+  // or NaN: checked as before
   if (!implausible_fed_ && (ingest_.implausible_total() > 0 || !(plausible_.max_fraction >= 0)))
     check_plausible(t, out);
   if (t > record_end_s()) record_complete_ = true;

@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 
 namespace turncal::run {
 namespace {
@@ -14,8 +15,8 @@ namespace {
 /// Asks the kernel to back the whole pages of [p, p + bytes) with huge
 /// pages where it can: a vector of a run's samples (17 MB for two hours)
 /// then takes a few page faults as it fills instead of thousands. A hint:
-/// where the kernel declines (no transparent huge pages), nothing changes,
-/// so its result is not an error.
+/// where the kernel declines (no transparent huge pages), the values are
+/// the same, so its result is not an error.
 void advise_huge_pages(const void* p, std::size_t bytes) noexcept {
   const long page = sysconf(_SC_PAGESIZE);
   if (page <= 0 || bytes == 0) return;
@@ -40,7 +41,8 @@ void Record::add(const Sample& s) {
         const double n = rate * 1.02 * expected_span_s_;
         if (n < 1e9) {
           velocity_.reserve(std::max(kRateSamples, static_cast<std::size_t>(n)));
-          advise_huge_pages(velocity_.data(), velocity_.capacity() * sizeof(est::VelocityObs));
+          if (huge_pages_)
+            advise_huge_pages(velocity_.data(), velocity_.capacity() * sizeof(est::VelocityObs));
         }
       }
     }

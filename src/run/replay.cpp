@@ -207,6 +207,7 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   TURNCAL_ASSIGN(holds, live_holds(live));
   const std::uint64_t holds_unlisted = holds.count - holds.at.size();
   engine.replay_holds(holds.at);
+  engine.replaying();
   // the log's times are to the microsecond, the live loop's to the nanosecond
   const double stamp_slack_s = 2e-6 * tb.scale;
   std::int64_t first_ns = have ? rec->time_ns : 0, last_ns = first_ns;

@@ -635,10 +635,15 @@ TEST_CASE("judge: tolerances in display units; none means pass") {
 }
 
 TEST_CASE("sha256: fed in pieces, and of a file read in pieces, with its line count") {
-  std::string data;
-  // more than the 1 MiB sha256_file reads at a time
-  for (int i = 0; i < 30000; ++i) data += "(1700000000.000000) vcan0 123#DEADBEEF\n";
+  // more than the 1 MiB sha256_file reads at a time; a first line as long
+  // as puts a line's end on the second read's first byte
+  const std::string line = "(1700000000.000000) vcan0 123#DEADBEEF\n";
+  const std::size_t first = ((std::size_t{1} << 20) + 1) % line.size();
+  REQUIRE(first > 0);
+  std::string data = std::string(first - 1, '#') + "\n";
+  for (int i = 0; i < 30000; ++i) data += line;
   REQUIRE(data.size() > (std::size_t{1} << 20));
+  REQUIRE(data[std::size_t{1} << 20] == '\n');
   const std::string whole = sha256_hex(data);
   for (std::size_t piece : {1U, 63U, 64U, 65U, 4097U}) {
     CAPTURE(piece);
@@ -657,7 +662,7 @@ TEST_CASE("sha256: fed in pieces, and of a file read in pieces, with its line co
   std::remove(path.c_str());
   REQUIRE(d.ok());
   CHECK(d->sha256 == whole);
-  CHECK(d->lines == 30000);
+  CHECK(d->lines == 30001);
   CHECK_FALSE(sha256_file(path).ok());
 }
 

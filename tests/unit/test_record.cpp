@@ -76,6 +76,7 @@ TEST_SUITE("record") {
     CHECK(r.velocity_tags().dropped() == 20);
     CHECK(r.velocity().size() == 2980);
     CHECK(r.clock_fault().empty());
+    CHECK_FALSE(r.clock_faulted());
     for (std::size_t i = 1; i < r.velocity().size(); ++i)
       REQUIRE(r.velocity()[i].t_s > r.velocity()[i - 1].t_s);
   }
@@ -102,6 +103,7 @@ TEST_SUITE("record") {
       const std::string why = r.clock_fault();
       CAPTURE(why);
       CHECK(why.find(c.reason) == 0);
+      CHECK(r.clock_faulted());
       // within the latency's jitter (0.4 ms) and the message's 1 ms
       CHECK(std::abs(jump_of(why) - std::abs(c.jump_s)) < 2e-3);
       CHECK(r.velocity_tags().dropped() > 0);
@@ -127,12 +129,15 @@ TEST_SUITE("record") {
     // no frame for 0.5 s at 20 s; the clock 0.2 s back after it: no tag goes
     // back, but every frame comes 0.2 s later than its tag says
     Record r;
-    int late_from = -1;
+    int late_from = -1, disagree = 0;
     for (int k = 0; k < 4000; ++k) {
       if (k >= 2000 && k < 2050) continue;
       r.add(VelocitySample{on_time(k) - (k >= 2050 ? 0.2 : 0.0), 1.7e9 + 0.01 * k + 1e-3, 0, 0});
       if (late_from < 0 && !r.clock_fault().empty()) late_from = k;
+      // the test without the text agrees with it, before the fault and after
+      disagree += r.clock_faulted() == r.clock_fault().empty();
     }
+    CHECK(disagree == 0);
     CAPTURE(r.clock_fault());
     CHECK(r.clock_fault().find("the INS clock fell behind by 0.200 s: every frame for 10 s") == 0);
     CHECK(late_from == 1999 + 1000);  // 10 s after the last frame on time

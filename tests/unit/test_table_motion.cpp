@@ -1,6 +1,8 @@
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include "turncal/profile.hpp"
 
@@ -98,15 +100,20 @@ TEST_SUITE("table motion") {
   TEST_CASE("a read with a hint gives the searched state, whatever the hint") {
     // an encoder-like motion of many pieces, read stepping forward, at the
     // same time again, back in time, from a hint past the end, and after
-    // the plan was cut short: each state equal, bit for bit, to at(t)'s
+    // the plan was cut short: each state equal, bit for bit, to at(t)'s,
+    // and the hint left at the number of pieces that start at or before t,
+    // counted here from the breakpoints
     TableMotion m;
     for (int k = 0; k < 2000; ++k) m.append(0.01 * k, 0.001 * k * k, 0.2 * k, 0);
     std::size_t hint = 0;
     int differ = 0, checked = 0;
     const auto same = [&](double t) {
       const TableMotion::State a = m.at(t), b = m.at(t, hint);
+      const std::vector<double> starts = m.breakpoints();
+      const auto count = static_cast<std::size_t>(
+          std::upper_bound(starts.begin(), starts.end(), t) - starts.begin());
       ++checked;
-      if (a.angle != b.angle || a.rate != b.rate || a.accel != b.accel) ++differ;
+      if (a.angle != b.angle || a.rate != b.rate || a.accel != b.accel || hint != count) ++differ;
     };
     for (double t = -1; t < 21; t += 0.0037) same(t);  // before, through and past the pieces
     same(20.5);

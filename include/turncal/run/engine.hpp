@@ -154,6 +154,8 @@ class Engine {
   /// each taken from the first tick past its start, as the live loop took
   /// it on its end.
   void replay_holds(std::vector<Hold> holds);
+  /// A replay: the record's velocity on huge pages (Record::use_huge_pages).
+  void replaying() { record_.use_huge_pages(); }
   /// Tables of the commands we sent, counted.
   [[nodiscard]] std::uint64_t commands_sent() const { return commands_sent_; }
 

@@ -30,6 +30,11 @@ class Record {
   /// reserved, so the vector never grows by doubling (which would hold old
   /// and new storage, three times the data, at once).
   void expect_span(double span_s) { expected_span_s_ = span_s; }
+  /// That room asks the kernel for huge pages (a few page faults where
+  /// there would be thousands): for a replay only, whose loop no device
+  /// waits on. Not in the daemon: with the kernel's usual settings a huge
+  /// page's first touch may compact memory, a stall in its event loop.
+  void use_huge_pages() { huge_pages_ = true; }
   /// A real second is `scale` stand seconds (the stand's time_scale): the
   /// time tag checks' and the clock fits' gates are real time.
   void set_time_scale(double scale) {
@@ -66,6 +71,7 @@ class Record {
   TagCheck velocity_tags_, encoder_tags_;
   std::size_t clock_outliers_ = 0;
   double expected_span_s_ = 0;
+  bool huge_pages_ = false;
   std::vector<est::VelocityObs> velocity_;
   std::vector<EncoderSample> encoder_;
   bool pending_ = false;
