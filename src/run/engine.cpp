@@ -135,11 +135,7 @@ void Engine::on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out) {
   const Sample s = ingest_.on_frame(scaled);
   last_frame_s_ = t;
   stamped(f.time_ns);
-  // with no implausible frame yet, no stream can have failed, unless the
-  // fraction allowed is below zero (every stream of 100 frames fails it)
-  // or NaN: checked as before
-  if (!implausible_fed_ && (ingest_.implausible_total() > 0 || !(plausible_.max_fraction >= 0)))
-    check_plausible(t, out);
+  if (!implausible_fed_) check_plausible(t, out);
   if (t > record_end_s()) record_complete_ = true;
   use(s, t, out);
   // a protocol's answers to the frame, and the samples it held back
@@ -196,6 +192,10 @@ void Engine::use(const Sample& s, double t, std::vector<OutFrame>& out) {
 /// A stream with more implausible frames than the configured fraction (of
 /// 100 or more) is a device or a bus that garbles: the run fails.
 void Engine::check_plausible(double t, std::vector<OutFrame>& out) {
+  // with no implausible frame yet, no stream can have failed, unless the
+  // fraction allowed is below zero (every stream of 100 frames fails it)
+  // or NaN: the streams are looked at as ever then
+  if (ingest_.implausible_total() == 0 && plausible_.max_fraction >= 0) return;
   for (const Stream st : {kVelocity, kInsStatus, kEncoder, kTableStatus}) {
     const StreamHealth& h = ingest_.health(st);
     const bool on_end = h.implausible_run >= Plausibility::kMaxRun;

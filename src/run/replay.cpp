@@ -217,16 +217,18 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   while (have) {
     // a hold is a stretch no frame was stamped in: one in it says the
     // report is not this log's
-    const double at = holds.at.empty() ? 0 : engine.stand_s(rec->time_ns);
-    // the log takes each port's frames in turn: its times may step back
-    const auto after = std::ranges::upper_bound(holds.at, at, {}, &Engine::Hold::from_s);
-    if (after != holds.at.begin() && at > std::prev(after)->from_s + stamp_slack_s &&
-        at < std::prev(after)->to_s - stamp_slack_s)
-      return make_error("the live report's loop_holds: at_s[" +
-                        std::to_string(std::distance(holds.at.begin(), after) - 1) +
-                        "] is a stretch no frame was stamped in, and line " +
-                        std::to_string(reader.line_number()) +
-                        " of the log is in it: the report is not this log's; replay without it");
+    if (!holds.at.empty()) {
+      const double at = engine.stand_s(rec->time_ns);
+      // the log takes each port's frames in turn: its times may step back
+      const auto after = std::ranges::upper_bound(holds.at, at, {}, &Engine::Hold::from_s);
+      if (after != holds.at.begin() && at > std::prev(after)->from_s + stamp_slack_s &&
+          at < std::prev(after)->to_s - stamp_slack_s)
+        return make_error("the live report's loop_holds: at_s[" +
+                          std::to_string(std::distance(holds.at.begin(), after) - 1) +
+                          "] is a stretch no frame was stamped in, and line " +
+                          std::to_string(reader.line_number()) +
+                          " of the log is in it: the report is not this log's; replay without it");
+    }
     engine.on_frame({rec->time_ns, rec->frame}, sent);
     const std::int64_t t = rec->time_ns;
     last_ns = std::max(last_ns, t);

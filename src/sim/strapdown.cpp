@@ -207,15 +207,13 @@ EncoderSample Strapdown::encoder() const {
 Run simulate(const Config& config) {
   Strapdown sd(config);
   Run run;
-  // a rate above the IMU's gives a sample every IMU step
-  const long out_every =
-      std::max(1L, static_cast<long>(std::llround(config.imu_rate_hz / config.output_rate_hz)));
+  // IMU steps a sample; a rate above the IMU's gives one every step
+  const auto every = [&](double rate_hz) {
+    return std::max(1L, static_cast<long>(std::llround(config.imu_rate_hz / rate_hz)));
+  };
+  const long out_every = every(config.output_rate_hz);
   const bool with_encoder = config.encoder_rate_hz > 0;
-  const long enc_every =
-      with_encoder
-          ? std::max(1L,
-                     static_cast<long>(std::llround(config.imu_rate_hz / config.encoder_rate_hz)))
-          : 0;
+  const long enc_every = with_encoder ? every(config.encoder_rate_hz) : 0;
   const double steps = std::max(0.0, config.profile.duration_s * config.imu_rate_hz) + 2;
   run.velocity.reserve(static_cast<std::size_t>(steps / static_cast<double>(out_every)) + 1);
   if (with_encoder)
