@@ -103,7 +103,7 @@ struct Plausibility {
   static Plausibility none();
   /// A stream with more than this fraction of its frames implausible (once
   /// it has 100), or 5 on end (before it is called lost for them), fails
-  /// the run: the engine's check.
+  /// the run: the engine's check. In [0, 1].
   double max_fraction = 0.01;
   static constexpr std::uint64_t kMaxRun = 5;
   /// Within the DBC's [min|max] of `sig` ([0|0]: no range); always when

@@ -133,6 +133,11 @@ std::vector<std::string> missing_roles(const Engine& e, const RoleMap& roles) {
 Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, const RoleMap& roles,
                                  const std::string& log_path, const json* live,
                                  const ReplayOptions& options) {
+  // the live report's settings are read as check_report has found them:
+  // of their types, and the bounds and the time scale ones a run can have
+  if (live != nullptr)
+    if (const std::string why = check_report(*live); !why.empty())
+      return make_error("the live report: " + why);
   TURNCAL_ASSIGN(plan, replay_plan(cfg, live, options));
   TURNCAL_ASSIGN(file, can::LogReader::open(log_path));
   ReadAheadLogReader reader(std::move(file));  // parsed on a core of its own
@@ -181,10 +186,15 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   // carried them checked nothing, and neither does its replay
   Plausibility pl = live != nullptr && !live->contains("plausibility") ? Plausibility::none()
                                                                        : plausibility_of(cfg);
-  pl.max_velocity_mps =
-      live_number(live, "plausibility", "max_velocity_mps").value_or(pl.max_velocity_mps);
-  pl.max_table_rate_rps =
-      live_number(live, "plausibility", "max_table_rate_rps").value_or(pl.max_table_rate_rps);
+  // a bound written as null is none (JSON has no infinity)
+  const auto bound = [live](const char* key, double otherwise) {
+    if (live != nullptr && live->contains("plausibility") && (*live)["plausibility"].is_object() &&
+        (*live)["plausibility"].contains(key) && (*live)["plausibility"][key].is_null())
+      return std::numeric_limits<double>::infinity();
+    return live_number(live, "plausibility", key).value_or(otherwise);
+  };
+  pl.max_velocity_mps = bound("max_velocity_mps", pl.max_velocity_mps);
+  pl.max_table_rate_rps = bound("max_table_rate_rps", pl.max_table_rate_rps);
   pl.max_fraction = live_number(live, "plausibility", "max_fraction").value_or(pl.max_fraction);
   pl.step_slack_s = live_number(live, "plausibility", "step_slack_s").value_or(pl.step_slack_s);
   drivers::Devices dev = drivers::make_devices(cfg.can, roles, pl, tb.scale);

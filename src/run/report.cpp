@@ -178,8 +178,10 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
                   {"toml", plan.text},
                   {"overrides", plan.overrides}};
   // what a replay needs besides the log and the profile to see what this run saw
-  j["plausibility"] = {{"max_velocity_mps", engine.plausibility().max_velocity_mps},
-                       {"max_table_rate_rps", engine.plausibility().max_table_rate_rps},
+  // no bound (infinite) is null, in the file as in memory (JSON has no infinity)
+  const auto bound = [](double b) { return std::isfinite(b) ? json(b) : json(nullptr); };
+  j["plausibility"] = {{"max_velocity_mps", bound(engine.plausibility().max_velocity_mps)},
+                       {"max_table_rate_rps", bound(engine.plausibility().max_table_rate_rps)},
                        {"max_fraction", engine.plausibility().max_fraction},
                        {"step_slack_s", engine.plausibility().step_slack_s}};
   j["settings"] = {{"heading_offset_rad", seq.settings().heading_offset_rad},
@@ -603,6 +605,23 @@ class Checker {
       check(v, at + ".");
     }
   }
+  /// `key` of object `j`, if present (and not null, where `nullable`), a
+  /// number within [lo, hi] (above lo, where `above` is set): a bound no
+  /// run could have had is a report edited or damaged, and read so it
+  /// would fail or pass every frame.
+  void number_in(const json& j, const std::string& path, const char* key, double lo, double hi,
+                 bool above = false, bool nullable = false) {
+    if (!field(j, path, key, Kind::Number, false, nullable)) return;
+    const double v = j[key].get<double>();
+    if (v >= lo && v <= hi && (!above || v > lo)) return;
+    char b[160];
+    if (hi < std::numeric_limits<double>::max())
+      std::snprintf(b, sizeof b, "expected a number in [%g, %g], not %g", lo, hi, v);
+    else
+      std::snprintf(b, sizeof b, "expected a number %s %g, not %g", above ? "above" : "of at least",
+                    lo, v);
+    fail(path + key, b);
+  }
   void fail(const std::string& path, const std::string& what) {
     if (error.empty()) error = path + ": " + what;
   }
@@ -612,6 +631,8 @@ class Checker {
 }  // namespace
 
 std::string check_report(const json& r) {
+  // the largest finite double: a number JSON gives as 1e999 is infinite
+  constexpr double kMaxNumber = std::numeric_limits<double>::max();
   if (!r.is_object()) return "not a JSON object";
   Checker c;
   if (c.field(r, "", "schema_version", Kind::Integer) &&
@@ -634,9 +655,18 @@ std::string check_report(const json& r) {
     for (const char* k : {"file", "sha256"}) c.field(r["log"], "log.", k, Kind::String);
     c.field(r["log"], "log.", "lines", Kind::Integer);
   }
-  if (c.field(r, "", "time_base", Kind::Object))
-    for (const char* k : {"epoch_us", "scale"})
-      c.field(r["time_base"], "time_base.", k, Kind::Number);
+  if (c.field(r, "", "time_base", Kind::Object)) {
+    c.field(r["time_base"], "time_base.", "epoch_us", Kind::Number);
+    c.number_in(r["time_base"], "time_base.", "scale", 0, kMaxNumber, true);
+  }
+  if (c.field(r, "", "plausibility", Kind::Object)) {
+    const json& p = r["plausibility"];
+    // null: no bound (infinite), as a replay of a log from before bounds writes
+    for (const char* k : {"max_velocity_mps", "max_table_rate_rps"})
+      c.number_in(p, "plausibility.", k, 0, kMaxNumber, true, true);
+    c.number_in(p, "plausibility.", "step_slack_s", 0, kMaxNumber);
+    c.number_in(p, "plausibility.", "max_fraction", 0, 1);
+  }
   if (c.field(r, "", "settings", Kind::Object)) {
     const json& s = r["settings"];
     for (const char* k : {"two_stage", "observe"}) c.field(s, "settings.", k, Kind::Boolean);

@@ -72,6 +72,25 @@ void load_stand(const std::string& path, Stand& st) {
   st.roles = *roles;
 }
 
+/// tests/data/golden: a short reference-stand run's log and its stand,
+/// replayed by its first pass only (on its full tactical prior the
+/// nonlinear second pass runs, and moves the estimates by design).
+struct Golden {
+  std::string dir = std::string(TURNCAL_SOURCE_DIR) + "/tests/data/golden/";
+  Stand g;
+  run::ReplayOptions o;
+  Golden() {
+    load_stand(dir + "turncal.toml", g);
+    o.profile = dir + "short.toml";
+    o.second_pass = est::SecondPassSettings::Mode::Off;
+  }
+  Golden(const Golden&) = delete;  // the roles point into its database
+  Golden& operator=(const Golden&) = delete;
+  [[nodiscard]] Result<run::ReplayOutcome> replay(const nlohmann::json* live) const {
+    return run::replay_log(g.cfg, g.db, g.roles, dir + "reference-short.log", live, o);
+  }
+};
+
 const RoleMap& stand_roles() {
   static const RoleMap r = [] {
     auto roles = resolve_roles(reference_stand().cfg.can, reference_stand().db);
@@ -1990,26 +2009,62 @@ TEST_SUITE("run engine on the virtual stand") {
     // with a configuration whose table counts otherwise (here the
     // reference table, whose DBC scaling says it) every angle would be
     // scaled or mirrored
-    const std::string dir = std::string(TURNCAL_SOURCE_DIR) + "/tests/data/golden/";
-    Stand g;
-    load_stand(dir + "turncal.toml", g);
-    run::ReplayOptions o;
-    o.profile = dir + "short.toml";
-    o.second_pass = est::SecondPassSettings::Mode::Off;
+    const Golden gold;
     nlohmann::json live = {
         {"settings",
          {{"table_geometry",
            "counts_per_revolution 10000, gear_ratio 100, counts increase clockwise"}}}};
-    auto r = run::replay_log(g.cfg, g.db, g.roles, dir + "reference-short.log", &live, o);
+    auto r = gold.replay(&live);
     REQUIRE_FALSE(r.ok());
     CHECK(r.error().message.find("counts increase clockwise") != std::string::npos);
     CHECK(r.error().message.find("scaled or mirrored") != std::string::npos);
     // the same geometry as the run's (none of its own, for the reference
     // table): replayed
     live["settings"]["table_geometry"] = "";
-    auto same = run::replay_log(g.cfg, g.db, g.roles, dir + "reference-short.log", &live, o);
+    auto same = gold.replay(&live);
     REQUIRE(same.ok());
     CHECK(same->report["settings"]["table_geometry"] == "");
+  }
+
+  TEST_CASE("a replay refuses a live report it cannot read as a run's, and reads a null bound") {
+    // a live report's settings pass check_report before anything reads
+    // them: a wrong type is refused, not thrown; a bound or a time scale
+    // no run can have is refused, not replayed to a run that fails or
+    // passes every frame
+    const Golden gold;
+    struct Case {
+      const char* pointer;
+      nlohmann::json value;
+      const char* error;
+    };
+    for (const Case& c :
+         {Case{"/settings/two_stage", "yes",
+               "the live report: settings.two_stage: expected true or false"},
+          Case{"/time_base/scale", 0,
+               "the live report: time_base.scale: expected a number above 0, not 0"},
+          Case{"/plausibility/max_fraction", -0.5,
+               "the live report: plausibility.max_fraction: expected a number in [0, 1], not "
+               "-0.5"}}) {
+      CAPTURE(c.pointer);
+      nlohmann::json live = nlohmann::json::object();
+      live[nlohmann::json::json_pointer(c.pointer)] = c.value;
+      auto r = gold.replay(&live);
+      REQUIRE_FALSE(r.ok());
+      CHECK(r.error().message == c.error);
+    }
+    // null: no bound, as a replay of a log from before bounds wrote it
+    // (JSON has no infinity); the replay keeps it, not the config's
+    nlohmann::json live = {{"plausibility",
+                            {{"max_velocity_mps", nullptr},
+                             {"max_table_rate_rps", nullptr},
+                             {"max_fraction", 0.5},
+                             {"step_slack_s", 0.05}}}};
+    auto r = gold.replay(&live);
+    REQUIRE(r.ok());
+    CHECK(r->report["plausibility"]["max_velocity_mps"].is_null());
+    CHECK(r->report["plausibility"]["max_table_rate_rps"].is_null());
+    CHECK(r->report["plausibility"]["max_fraction"] == 0.5);
+    CHECK(run::check_report(r->report).empty());
   }
 
   TEST_CASE("a reference-stand log replays to the report it gave before the drivers per device") {
@@ -2020,17 +2075,11 @@ TEST_SUITE("run engine on the virtual stand") {
     // is the same, bit for bit (JSON's shortest round trip of each double),
     // but a turn's peak rate, computed otherwise since; keys added since are
     // new. Paths are where the files are.
-    const std::string dir = std::string(TURNCAL_SOURCE_DIR) + "/tests/data/golden/";
-    Stand g;
-    load_stand(dir + "turncal.toml", g);
-    // the first pass, as before: on this log's full tactical prior the
-    // nonlinear second pass runs, and moves the estimates (by design)
-    run::ReplayOptions o;
-    o.profile = dir + "short.toml";
-    o.second_pass = est::SecondPassSettings::Mode::Off;
-    auto r = run::replay_log(g.cfg, g.db, g.roles, dir + "reference-short.log", nullptr, o);
+    // the first pass, as before (Golden)
+    const Golden gold;
+    auto r = gold.replay(nullptr);
     REQUIRE(r.ok());
-    std::ifstream in(dir + "golden-report.json");
+    std::ifstream in(gold.dir + "golden-report.json");
     const nlohmann::json golden = nlohmann::json::parse(in);
     REQUIRE(golden["status"] == "done");
     REQUIRE(golden["health"]["ins_velocity"]["implausible"].get<int>() > 0);  // it has teeth

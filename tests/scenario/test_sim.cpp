@@ -66,13 +66,13 @@ TEST_SUITE("simulation") {
     // breakpoints (so the reference itself never straddles a jump), to
     // 1e-10 relative, each part against its own size: the horizontal angle
     // increment (the Earth rate alone, ~1e-7 rad a step), the vertical one
-    // (Earth rate and table angle) and dv_2; dv_1 is zero and dv_3 g dt. The
-    // match is to a few 1e-15. A closed form taken in a step where the
-    // table moves misses the horizontal increment by 2e-7 (a turn that
-    // starts inside the step) to 2e-3 (cruising) of itself, and dv_2 by 5e-7
-    // to all of it (tried: the closed form without the rest test's rate, or
-    // without its piece test, fails the horizontal and the dv_2 check; the
-    // vertical one holds, as the table angle's difference is exact).
+    // (Earth rate and table angle) and dv_2; dv_1, with a bias df0_1 and a
+    // g-sensitivity G13 injected, is (df0_1 + G13 g) dt and dv_3 g dt, dt
+    // being the step's own tb - ta. The match is to a few 1e-15. A closed form taken in a step
+    // where the table moves misses the horizontal increment by 2e-7 (a turn that starts inside the
+    // step) to 2e-3 (cruising) of itself, and dv_2 by 5e-7 to all of it (tried: the closed form
+    // without the rest test's rate, or without its piece test, fails the horizontal and the dv_2
+    // check; the vertical one holds, as the table angle's difference is exact).
     sim::Config c;
     c.latitude_rad = 55.75 * kDeg;
     c.height_m = 150;
@@ -83,6 +83,8 @@ TEST_SUITE("simulation") {
     c.profile.turns = {{5, 180 * kDeg, 60 * kDeg, 40 * kDeg},
                        {20.0011, -450 * kDeg, 90 * kDeg, 60 * kDeg}};  // inside a step
     c.errors.r = Eigen::Vector2d(0.03, -0.02);
+    c.errors.df0.x() = 2e-3;  // m/s^2, some 200 ug
+    c.errors.g.x() = 3e-4;    // G13
     sim::Strapdown sd(c);
     const TableTrajectory table(c.profile);
     const std::vector<double> breaks = table.breakpoints();
@@ -133,10 +135,14 @@ TEST_SUITE("simulation") {
                               std::abs(c.errors.r.y() * omega2) + 1e-12 * g * dt;
       worsen(worst_h,
              (inc.dtheta.head<2>() - earth_int.head<2>()).norm() / earth_int.head<2>().norm());
-      worsen(worst_v, std::abs(inc.dtheta.z() - dtheta_z) / (std::abs(dtheta_z) + 1e-12 * u3 * dt));
+      // relative to the Earth term's and the table angle's size
+      worsen(worst_v, std::abs(inc.dtheta.z() - dtheta_z) /
+                          (std::abs(earth_int.z()) + std::abs(sb.angle - sa.angle)));
       worsen(worst_dv, std::abs(inc.dv.y() - dv2) / dv2_size);
-      worsen(worst_other, std::abs(inc.dv.x()) / (g * dt));
-      worsen(worst_other, std::abs(inc.dv.z() - g * dt) / (g * dt));
+      const double step = tb - ta;  // as the strapdown takes it, 7e-15 off dt at 40 s
+      const double dv1 = (c.errors.df0.x() + c.errors.g.x() * g) * step;
+      worsen(worst_other, std::abs(inc.dv.x() - dv1) / std::abs(dv1));
+      worsen(worst_other, std::abs(inc.dv.z() - g * step) / (g * step));
     }
     MESSAGE("worst relative error: horizontal angle increment "
             << worst_h << ", vertical " << worst_v << ", dv_2 " << worst_dv << ", dv_1 and dv_3 "
@@ -154,7 +160,7 @@ TEST_SUITE("simulation") {
     CHECK(worst_h < 1e-10);
     CHECK(worst_v < 1e-10);
     CHECK(worst_dv < 1e-10);
-    CHECK(worst_other < 1e-10);  // g as the strapdown computes it, 2e-12 from this one
+    CHECK(worst_other < 1e-10);
   }
 
   TEST_CASE("a run that asks for no encoder samples gets none, and the same velocity") {

@@ -168,6 +168,17 @@ TEST_SUITE("commands") {
           "(-21474.83648 to 21474.83647 deg)");
   }
 
+  TEST_CASE("an engine's record asks for huge pages only when told it replays") {
+    // the daemon's loop must not stall on a huge page's first touch
+    Stand st;
+    Plan plan;
+    plan.profile = two_turns(180, st.roles).profile;
+    Engine e(st.db, st.roles, plan, two_turns(180, st.roles), BuildSettings{}, TimeBase{});
+    CHECK_FALSE(e.record().huge_pages());
+    e.replaying();
+    CHECK(e.record().huge_pages());
+  }
+
   TEST_CASE("a command that does not fit at run time is not sent: the run fails, quick stop") {
     // A stand whose INS takes headings in -180..180 deg only: the heading
     // given at alignment (270 deg here) depends on where the table stands,

@@ -12,6 +12,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 
 #include "control.hpp"
 #include "state_dir.hpp"
@@ -164,6 +165,21 @@ TEST_CASE("check_report: every field a reader takes is type-checked") {
       {"/verdict", nullptr, "verdict: expected an object"},
       {"/profile/name", nullptr, "profile.name: expected a string"},
       {"/estimates/nu0_1/unit", nullptr, "estimates.nu0_1.unit: expected a string"},
+      // a bound or a time scale no run can have (a replay would read it)
+      {"/time_base/scale", 0, "time_base.scale: expected a number above 0, not 0"},
+      {"/time_base/scale", std::numeric_limits<double>::infinity(),
+       "time_base.scale: expected a number above 0, not inf"},
+      {"/plausibility/max_fraction", -0.5,
+       "plausibility.max_fraction: expected a number in [0, 1], not -0.5"},
+      {"/plausibility/max_fraction", 1.5,
+       "plausibility.max_fraction: expected a number in [0, 1], not 1.5"},
+      {"/plausibility/max_velocity_mps", 0,
+       "plausibility.max_velocity_mps: expected a number above 0, not 0"},
+      {"/plausibility/max_table_rate_rps", -1,
+       "plausibility.max_table_rate_rps: expected a number above 0, not -1"},
+      {"/plausibility/step_slack_s", -0.01,
+       "plausibility.step_slack_s: expected a number of at least 0, not -0.01"},
+      {"/plausibility/step_slack_s", nullptr, "plausibility.step_slack_s: expected a number"},
   };
   for (const Case& c : cases) {
     CAPTURE(c.pointer);
@@ -174,6 +190,15 @@ TEST_CASE("check_report: every field a reader takes is type-checked") {
   json replayed = sample_report();  // a replay's report: a whole log has damage null
   replayed["replay"] = {{"of_live_report", true}, {"damage", nullptr}};
   CHECK(run::check_report(replayed).empty());
+  json bounded = sample_report();  // the ends of each range; null: no bound
+  bounded["plausibility"] = {{"max_velocity_mps", nullptr},
+                             {"max_table_rate_rps", 1e-9},
+                             {"max_fraction", 1},
+                             {"step_slack_s", 0}};
+  bounded["time_base"]["scale"] = 1e-9;
+  CHECK(run::check_report(bounded).empty());
+  bounded["plausibility"]["max_fraction"] = 0;
+  CHECK(run::check_report(bounded).empty());
   json unnamed = sample_report();
   unnamed["unit"] = nullptr;
   CHECK(run::check_report(unnamed).empty());

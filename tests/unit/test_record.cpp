@@ -51,13 +51,22 @@ TEST_SUITE("record") {
   double on_time(int k) {
     return 1000 + 0.01 * k;
   }
+  /// The record of n samples; `disagree`, where given, counts the samples
+  /// after which clock_faulted() (the test without the text) disagrees
+  /// with clock_fault(). `encoder`: the table clock's samples, not the INS's.
   Record record_with(int n, const std::function<double(int)>& tag,
-                     const std::function<double(int)>& delay = {}, double time_scale = 1) {
+                     const std::function<double(int)>& delay = {}, double time_scale = 1,
+                     int* disagree = nullptr, bool encoder = false) {
     Record r;
     r.set_time_scale(time_scale);
-    for (int k = 0; k < n; ++k)
-      r.add(VelocitySample{
-          tag(k), 1.7e9 + 0.01 * k + 1e-3 + 2e-4 * (k % 3) + (delay ? delay(k) : 0.0), 0, 0});
+    for (int k = 0; k < n; ++k) {
+      const double host = 1.7e9 + 0.01 * k + 1e-3 + 2e-4 * (k % 3) + (delay ? delay(k) : 0.0);
+      if (encoder)
+        r.add(EncoderSample{tag(k), host, 0});
+      else
+        r.add(VelocitySample{tag(k), host, 0, 0});
+      if (disagree != nullptr) *disagree += r.clock_faulted() == r.clock_fault().empty();
+    }
     return r;
   }
   /// The number after "by " in a fault's reason.
@@ -91,22 +100,32 @@ TEST_SUITE("record") {
     // tags before the last one kept; back by 0.2 s: 0.2 s of those, then
     // every frame 0.2 s late. At 20 s the clock's fit is the reference; at
     // 3 s (before it spans 10 s) the lowest offset seen.
+    // The same for the table's clock (its encoder samples).
     for (const Case& c : {Case{0.3, 2000, "the INS clock jumped ahead by "},
                           Case{-0.8, 2000, "the INS clock stepped back by "},
                           Case{-0.2, 2000, "the INS clock fell behind by "},
                           Case{0.3, 300, "the INS clock jumped ahead by "},
-                          Case{-0.2, 300, "the INS clock fell behind by "}}) {
+                          Case{-0.2, 300, "the INS clock fell behind by "},
+                          Case{0.3, 2000, "the table clock jumped ahead by "},
+                          Case{-0.8, 2000, "the table clock stepped back by "},
+                          Case{-0.2, 2000, "the table clock fell behind by "}}) {
       CAPTURE(c.jump_s);
       CAPTURE(c.at);
-      const Record r =
-          record_with(3000, [&](int k) { return on_time(k) + (k >= c.at ? c.jump_s : 0.0); });
+      const bool encoder = std::string(c.reason).find("table") != std::string::npos;
+      CAPTURE(encoder);
+      int disagree = 0;
+      const Record r = record_with(
+          3000, [&](int k) { return on_time(k) + (k >= c.at ? c.jump_s : 0.0); }, {}, 1, &disagree,
+          encoder);
       const std::string why = r.clock_fault();
       CAPTURE(why);
       CHECK(why.find(c.reason) == 0);
       CHECK(r.clock_faulted());
+      // the test without the text agrees with it, before the fault and after
+      CHECK(disagree == 0);
       // within the latency's jitter (0.4 ms) and the message's 1 ms
       CHECK(std::abs(jump_of(why) - std::abs(c.jump_s)) < 2e-3);
-      CHECK(r.velocity_tags().dropped() > 0);
+      CHECK((encoder ? r.encoder_tags() : r.velocity_tags()).dropped() > 0);
     }
     // 45 ms back: within the gate, kept (the late fault needs over 50 ms)
     const Record small =

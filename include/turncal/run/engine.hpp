@@ -155,6 +155,8 @@ class Engine {
   /// it on its end.
   void replay_holds(std::vector<Hold> holds);
   /// A replay: the record's velocity on huge pages (Record::use_huge_pages).
+  /// Call before the first frame: the record reserves its room at the
+  /// 256th velocity sample, and asks for huge pages only then.
   void replaying() { record_.use_huge_pages(); }
   /// Tables of the commands we sent, counted.
   [[nodiscard]] std::uint64_t commands_sent() const { return commands_sent_; }

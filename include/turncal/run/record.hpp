@@ -34,7 +34,9 @@ class Record {
   /// there would be thousands): for a replay only, whose loop no device
   /// waits on. Not in the daemon: with the kernel's usual settings a huge
   /// page's first touch may compact memory, a stall in its event loop.
+  /// Call before the 256th velocity sample, when the room is reserved.
   void use_huge_pages() { huge_pages_ = true; }
+  [[nodiscard]] bool huge_pages() const { return huge_pages_; }
   /// A real second is `scale` stand seconds (the stand's time_scale): the
   /// time tag checks' and the clock fits' gates are real time.
   void set_time_scale(double scale) {
