@@ -6,6 +6,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
+#include <future>
 #include <optional>
 #include <system_error>
 #include <thread>
@@ -772,7 +773,51 @@ double linearisation_error_sigma(const EstimationInput& in, const EstimationResu
   return rho * worst;
 }
 
+namespace {
+
+Result<TwoStage> two_stage_sigmas(const EstimationInput& in);
+TwoStage compared(TwoStage ts, const StateMat& single_p);
+
+/// The two-stage baseline, where the input asks for it: its holds' runs
+/// need nothing of the single-loop filter's, so they start on a thread of
+/// their own beside the caller's passes (where `threads` allows more than
+/// one, and a thread can be had) and are compared with its covariance when
+/// taken. Its result and any exception come out of `take` as they would
+/// have from a call there; a baseline not taken is waited for when this is
+/// destroyed (it reads the input).
+class Baseline {
+ public:
+  explicit Baseline(const EstimationInput& in) : in_(in) {
+    if (!in.with_two_stage || in.second_pass.threads == 1) return;
+    try {
+      sigmas_ = std::async(std::launch::async, [&in] { return two_stage_sigmas(in); });
+    } catch (const std::system_error&) {  // no thread: taken where it is asked for
+    }
+  }
+  Baseline(const Baseline&) = delete;
+  Baseline& operator=(const Baseline&) = delete;
+  ~Baseline() {
+    if (sigmas_.valid()) sigmas_.wait();
+  }
+  /// Sets r's two-stage result against the covariance `single_p`.
+  Status take(EstimationResult& r, const StateMat& single_p) {
+    if (!in_.with_two_stage) return Status{Ok{}};
+    auto ts = sigmas_.valid() ? sigmas_.get() : two_stage_sigmas(in_);
+    if (!ts) return std::move(ts).error();
+    r.two_stage = compared(*ts, single_p);
+    r.has_two_stage = true;
+    return Status{Ok{}};
+  }
+
+ private:
+  const EstimationInput& in_;
+  std::future<Result<TwoStage>> sigmas_;
+};
+
+}  // namespace
+
 Result<EstimationResult> estimate(const EstimationInput& in) {
+  Baseline baseline(in);
   TURNCAL_ASSIGN(r, run(in, in.timeline, true));
   interpret(in, r);
   const SecondPassSettings& sp = in.second_pass;
@@ -846,28 +891,25 @@ Result<EstimationResult> estimate(const EstimationInput& in) {
   }
   r.second_pass = pass;
   r.innovation_stats = innovation_stats(r.innovations, in.whiteness_lags);
-  if (in.with_two_stage) {
-    // against the linear covariance: the two-stage baseline has no
-    // consider term, and its ratio compares the filters, not that term
-    TURNCAL_ASSIGN(ts, two_stage(in, p_linear));
-    r.two_stage = ts;
-    r.has_two_stage = true;
-  }
+  // against the linear covariance: the two-stage baseline has no consider
+  // term, and its ratio compares the filters, not that term
+  TURNCAL_TRY(baseline.take(r, p_linear));
   return r;
 }
 
 Result<EstimationResult> analyse(const EstimationInput& in) {
+  Baseline baseline(in);
   TURNCAL_ASSIGN(r, run(in, in.timeline, false));
   interpret(in, r);
-  if (in.with_two_stage) {
-    TURNCAL_ASSIGN(ts, two_stage(in, r.p));
-    r.two_stage = ts;
-    r.has_two_stage = true;
-  }
+  TURNCAL_TRY(baseline.take(r, r.p));
   return r;
 }
 
-Result<TwoStage> two_stage(const EstimationInput& in, const StateMat& single_p) {
+namespace {
+
+/// The two-stage baseline's sigmas (TwoStage::sigma; the ratios are left
+/// to `compared`): each hold's own run, nothing of the single-loop filter's.
+Result<TwoStage> two_stage_sigmas(const EstimationInput& in) {
   TURNCAL_ASSIGN(holds, hold_spans(in.timeline));
   const ParamVec prior = prior_params(in.priors);
   ParamVec d = prior;
@@ -900,13 +942,27 @@ Result<TwoStage> two_stage(const EstimationInput& in, const StateMat& single_p) 
   info -= static_cast<double>(used - 1) * ParamMat::Identity();
   const ParamMat pw = info.ldlt().solve(ParamMat::Identity());
   TwoStage ts;
+  for (int j = 0; j < sx::kParams; ++j)
+    ts.sigma[static_cast<std::size_t>(j)] =
+        prior(j) > 0 ? d(j) * std::sqrt(std::max(0.0, pw(j, j))) : 0.0;
+  return ts;
+}
+
+/// The baseline's sigmas with their ratios to the single-loop filter's.
+TwoStage compared(TwoStage ts, const StateMat& single_p) {
   for (int j = 0; j < sx::kParams; ++j) {
     const auto u = static_cast<std::size_t>(j);
-    ts.sigma[u] = prior(j) > 0 ? d(j) * std::sqrt(std::max(0.0, pw(j, j))) : 0.0;
     const double single = std::sqrt(std::max(0.0, single_p(sx::kNu0 + j, sx::kNu0 + j)));
     ts.ratio[u] = ts.sigma[u] > 0 ? single / ts.sigma[u] : 1.0;
   }
   return ts;
+}
+
+}  // namespace
+
+Result<TwoStage> two_stage(const EstimationInput& in, const StateMat& single_p) {
+  TURNCAL_ASSIGN(ts, two_stage_sigmas(in));
+  return compared(ts, single_p);
 }
 
 }  // namespace turncal::est

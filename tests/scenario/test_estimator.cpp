@@ -154,6 +154,41 @@ TEST_SUITE("estimator") {
       }
   }
 
+  TEST_CASE("the two-stage baseline beside the first pass gives what it gives after it") {
+    // estimate() and analyse() start the baseline's holds on a thread of
+    // their own (threads != 1); the result must be the same, bit for bit,
+    // as one thread's, and as two_stage() against the same covariance
+    est::EstimationInput in = plan(tactical(), 37 * kDeg, reference_profile());
+    in.with_two_stage = true;
+    for (const bool analysed : {true, false}) {
+      CAPTURE(analysed);
+      auto once = [&](unsigned threads) {
+        est::EstimationInput i = in;
+        i.second_pass.threads = threads;
+        return analysed ? est::analyse(i) : est::estimate(i);
+      };
+      const auto one = once(1), beside = once(2);
+      REQUIRE(one.ok());
+      REQUIRE(beside.ok());
+      REQUIRE(one->has_two_stage);
+      REQUIRE(beside->has_two_stage);
+      const auto direct = est::two_stage(in, one->p);
+      REQUIRE(direct.ok());
+      int differ = 0;
+      for (std::size_t j = 0; j < est::kParamNames.size(); ++j) {
+        differ += beside->two_stage.sigma[j] != one->two_stage.sigma[j];
+        differ += beside->two_stage.ratio[j] != one->two_stage.ratio[j];
+        differ += direct->sigma[j] != one->two_stage.sigma[j];
+        if (analysed) differ += direct->ratio[j] != one->two_stage.ratio[j];
+      }
+      CHECK(differ == 0);
+      // it has something to compare: sigmas from the holds (the plan's
+      // input has no velocity for estimate() to narrow r1 by)
+      CHECK(one->two_stage.sigma[kIdx(est::sx::kNu0)] > 0);
+      if (analysed) CHECK(one->two_stage.ratio[kIdx(est::sx::kR)] < 0.2);
+    }
+  }
+
   /// A simulated tactical run with no noise, errors at a tenth of the
   /// prior and the proof-mass offset at its full prior (a large turn jump),
   /// and how far the model's transitions, fed an encoder record, stray from

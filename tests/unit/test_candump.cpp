@@ -70,6 +70,47 @@ TEST_SUITE("candump") {
     }
   }
 
+  TEST_CASE("a record parsed into again holds the new frame alone, its unused bytes zero") {
+    // the reader parses every line into the record it was given: nothing
+    // of the line before (an FD frame's bytes, a flag) may stay
+    LogRecord rec;
+    REQUIRE(parse_log_line("(1.000000) vcan0 12345678##3" + std::string(128, 'A'), rec));
+    REQUIRE(rec.frame.len == 64);
+    REQUIRE(parse_log_line("(2.000000) vcan0 20000040#", rec));
+    REQUIRE(rec.frame.error);
+    REQUIRE(parse_log_line("(3.000000) vcan1 123#c0fFeE", rec));
+    CHECK(rec.time_ns == 3'000'000'000);
+    CHECK(rec.interface == "vcan1");
+    CHECK(rec.frame.id == 0x123);
+    CHECK(rec.frame.len == 3);
+    CHECK_FALSE(rec.frame.extended);
+    CHECK_FALSE(rec.frame.fd);
+    CHECK_FALSE(rec.frame.brs);
+    CHECK_FALSE(rec.frame.esi);
+    CHECK_FALSE(rec.frame.error);
+    CHECK_FALSE(rec.frame.remote);
+    CHECK(rec.frame.data[0] == 0xC0);
+    CHECK(rec.frame.data[1] == 0xFF);
+    CHECK(rec.frame.data[2] == 0xEE);
+    int nonzero = 0;
+    for (std::size_t k = 3; k < rec.frame.data.size(); ++k) nonzero += rec.frame.data[k] != 0;
+    CHECK(nonzero == 0);
+    // every byte value's hex digits, both cases, and what is none
+    for (int b = 0; b < 256; ++b) {
+      char line[64];
+      std::snprintf(line, sizeof line, "(1.0) vcan0 123#%02x%02X", b, b);
+      CAPTURE(line);
+      REQUIRE(parse_log_line(line, rec));
+      CHECK(rec.frame.data[0] == b);
+      CHECK(rec.frame.data[1] == b);
+    }
+    for (const char c : std::string("gG:@/`~\x7f\xc3")) {
+      const std::string line = std::string("(1.0) vcan0 123#0") + c;
+      CAPTURE(line);
+      CHECK_FALSE(parse_log_line(line, rec));
+    }
+  }
+
   TEST_CASE("malformed lines are errors with a column") {
     const char* bad[] = {
         "",
