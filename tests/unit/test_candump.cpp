@@ -95,6 +95,16 @@ TEST_SUITE("candump") {
     int nonzero = 0;
     for (std::size_t k = 3; k < rec.frame.data.size(); ++k) nonzero += rec.frame.data[k] != 0;
     CHECK(nonzero == 0);
+    // a payload with dots: three bytes, the fourth (of its eight digits and
+    // dots) zero
+    REQUIRE(parse_log_line("(4.000000) vcan1 123#11.22.33", rec));
+    CHECK(rec.frame.len == 3);
+    CHECK(rec.frame.data[2] == 0x33);
+    CHECK(rec.frame.data[3] == 0);
+    // the DLC suffix of a classic frame of 8 bytes
+    REQUIRE(parse_log_line("(5.000000) vcan1 123#0102030405060708_9", rec));
+    CHECK(rec.frame.len == 8);
+    CHECK(rec.frame.data[7] == 8);
     // every byte value's hex digits, both cases, and what is none
     for (int b = 0; b < 256; ++b) {
       char line[64];
