@@ -796,7 +796,9 @@ TwoStage compared(TwoStage ts, const StateMat& single_p);
 class Baseline {
  public:
   explicit Baseline(const EstimationInput& in) : in_(in) {
-    if (!in.with_two_stage || in.second_pass.threads == 1) return;
+    const unsigned threads =
+        in.second_pass.threads != 0 ? in.second_pass.threads : std::thread::hardware_concurrency();
+    if (!in.with_two_stage || threads <= 1) return;
     try {
       sigmas_ = std::async(std::launch::async, [&in] { return two_stage_sigmas(in); });
     } catch (const std::system_error&) {  // no thread: taken where it is asked for

@@ -197,6 +197,11 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   pl.max_table_rate_rps = bound("max_table_rate_rps", pl.max_table_rate_rps);
   pl.max_fraction = live_number(live, "plausibility", "max_fraction").value_or(pl.max_fraction);
   pl.step_slack_s = live_number(live, "plausibility", "step_slack_s").value_or(pl.step_slack_s);
+  // whether frames were held to their DBC ranges (a replay of a run from
+  // before the bounds was not; reports say so since)
+  if (live != nullptr && live->contains("plausibility") &&
+      (*live)["plausibility"].contains("dbc_ranges"))
+    pl.dbc_ranges = (*live)["plausibility"]["dbc_ranges"].get<bool>();
   drivers::Devices dev = drivers::make_devices(cfg.can, roles, pl, tb.scale);
   // the live run's table geometry (reports carry it since it could differ)
   if (live != nullptr && live->contains("settings") && (*live)["settings"].is_object() &&

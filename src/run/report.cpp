@@ -183,7 +183,8 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
   j["plausibility"] = {{"max_velocity_mps", bound(engine.plausibility().max_velocity_mps)},
                        {"max_table_rate_rps", bound(engine.plausibility().max_table_rate_rps)},
                        {"max_fraction", engine.plausibility().max_fraction},
-                       {"step_slack_s", engine.plausibility().step_slack_s}};
+                       {"step_slack_s", engine.plausibility().step_slack_s},
+                       {"dbc_ranges", engine.plausibility().dbc_ranges}};
   j["settings"] = {{"heading_offset_rad", seq.settings().heading_offset_rad},
                    {"observe", seq.settings().observe},
                    {"stale_floor_s", seq.settings().stale_floor_s},
@@ -656,8 +657,10 @@ std::string check_report(const json& r) {
     c.field(r["log"], "log.", "lines", Kind::Integer);
   }
   if (c.field(r, "", "time_base", Kind::Object)) {
-    c.field(r["time_base"], "time_base.", "epoch_us", Kind::Number);
-    c.number_in(r["time_base"], "time_base.", "scale", 0, kMaxNumber, true);
+    // microseconds since 1970 whose nanoseconds fit 64 bits; the config's
+    // range of time_scale
+    c.number_in(r["time_base"], "time_base.", "epoch_us", 0, 9.2e15);
+    c.number_in(r["time_base"], "time_base.", "scale", 1e-3, 1e4);
   }
   if (c.field(r, "", "plausibility", Kind::Object)) {
     const json& p = r["plausibility"];
@@ -666,12 +669,13 @@ std::string check_report(const json& r) {
       c.number_in(p, "plausibility.", k, 0, kMaxNumber, true, true);
     c.number_in(p, "plausibility.", "step_slack_s", 0, kMaxNumber);
     c.number_in(p, "plausibility.", "max_fraction", 0, 1);
+    c.field(p, "plausibility.", "dbc_ranges", Kind::Boolean);
   }
   if (c.field(r, "", "settings", Kind::Object)) {
     const json& s = r["settings"];
     for (const char* k : {"two_stage", "observe"}) c.field(s, "settings.", k, Kind::Boolean);
-    for (const char* k : {"heading_offset_rad", "stale_floor_s"})
-      c.field(s, "settings.", k, Kind::Number);
+    c.field(s, "settings.", "heading_offset_rad", Kind::Number);
+    c.number_in(s, "settings.", "stale_floor_s", 0, kMaxNumber);
     c.field(s, "settings.", "table_geometry", Kind::String);  // older reports lack it
   }
   if (c.field(r, "", "replay", Kind::Object)) {

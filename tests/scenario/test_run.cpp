@@ -2041,7 +2041,7 @@ TEST_SUITE("run engine on the virtual stand") {
          {Case{"/settings/two_stage", "yes",
                "the live report: settings.two_stage: expected true or false"},
           Case{"/time_base/scale", 0,
-               "the live report: time_base.scale: expected a number above 0, not 0"},
+               "the live report: time_base.scale: expected a number in [0.001, 10000], not 0"},
           Case{"/plausibility/max_fraction", -0.5,
                "the live report: plausibility.max_fraction: expected a number in [0, 1], not "
                "-0.5"}}) {
@@ -2065,6 +2065,28 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(r->report["plausibility"]["max_table_rate_rps"].is_null());
     CHECK(r->report["plausibility"]["max_fraction"] == 0.5);
     CHECK(run::check_report(r->report).empty());
+  }
+
+  TEST_CASE("a replay of a run from before frames were checked checks none, replayed again too") {
+    // a live report without plausibility: nothing was checked, nor is it
+    // in the replay (no bound, no DBC range); replayed from that replay's
+    // own report, the frames are taken as the first replay took them
+    const Golden gold;
+    const nlohmann::json old = {{"settings", nlohmann::json::object()}};
+    const auto first = gold.replay(&old);
+    REQUIRE(first.ok());
+    CHECK(first->report["plausibility"]["dbc_ranges"] == false);
+    CHECK(first->report["plausibility"]["max_velocity_mps"].is_null());
+    const auto again = gold.replay(&first->report);
+    REQUIRE(again.ok());
+    CHECK(again->report["plausibility"] == first->report["plausibility"]);
+    CHECK(again->report["health"] == first->report["health"]);
+    CHECK(again->report["estimates"] == first->report["estimates"]);
+    // it has teeth: checked, this log's garbled frames are implausible
+    const auto checked = gold.replay(nullptr);
+    REQUIRE(checked.ok());
+    CHECK(checked->report["health"]["ins_velocity"]["implausible"].get<int>() > 0);
+    CHECK(first->report["health"]["ins_velocity"]["implausible"].get<int>() == 0);
   }
 
   TEST_CASE("a reference-stand log replays to the report it gave before the drivers per device") {

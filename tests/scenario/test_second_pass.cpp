@@ -102,31 +102,35 @@ TEST_SUITE("second pass") {
   TEST_CASE("the criterion's speed is the run's largest, a NaN sample's left out") {
     // rho = b3 + v_max / sqrt(g sqrt(Rm Rn)) is linear in v_max: the
     // criterion with a fastest sample of 300 m/s is as far above that with
-    // none as twice that with 150 m/s, wherever in the run it lies and
-    // whichever way it points; a NaN sample changes nothing
+    // none as twice that with 150 m/s, wherever in the run it lies; a
+    // slower sample with the larger component (0.9 of the speed East, the
+    // fastest's largest 0.8) and a NaN one change nothing
     Simulated run = recommended_run(1.0, 2000);
     run.in.second_pass.mode = est::SecondPassSettings::Mode::Off;
     const auto first = est::estimate(run.in);
     REQUIRE(first.ok());
-    const auto criterion = [&](double speed, std::size_t at) {
+    const auto criterion = [&](double speed, std::size_t at, bool others) {
       est::EstimationInput in = run.in;
       for (est::VelocityObs& v : in.velocity) v.ve = v.vn = 0;
       if (speed > 0) {
         in.velocity[at].ve = -0.6 * speed;
         in.velocity[at].vn = 0.8 * speed;
-        in.velocity[at / 2].ve = 0.5 * speed;  // slower
       }
-      in.velocity[at + 1].ve = std::nan("");
+      if (others) {
+        in.velocity[at / 2].ve = 0.9 * speed;  // slower, its East larger
+        in.velocity[at + 1].ve = std::nan("");
+      }
       return est::linearisation_error_sigma(in, *first);
     };
     const std::size_t n = run.in.velocity.size();
-    const double none = criterion(0, n / 3);
-    const double step = criterion(150, n / 3) - none;
+    const double none = criterion(0, n / 3, false);
+    const double step = criterion(150, n / 3, false) - none;
     CHECK(step > 0.1 * none);  // the speed matters here
     for (const std::size_t at : {n / 3, n - 2}) {
       CAPTURE(at);
-      const double twice = criterion(300, at) - none;
+      const double twice = criterion(300, at, true) - none;
       CHECK(std::abs(twice - 2 * step) <= 1e-9 * twice);
+      CHECK(criterion(300, at, true) == criterion(300, at, false));
     }
   }
 

@@ -95,16 +95,20 @@ TEST_SUITE("candump") {
     int nonzero = 0;
     for (std::size_t k = 3; k < rec.frame.data.size(); ++k) nonzero += rec.frame.data[k] != 0;
     CHECK(nonzero == 0);
-    // a payload with dots: three bytes, the fourth (of its eight digits and
-    // dots) zero
-    REQUIRE(parse_log_line("(4.000000) vcan1 123#11.22.33", rec));
-    CHECK(rec.frame.len == 3);
-    CHECK(rec.frame.data[2] == 0x33);
-    CHECK(rec.frame.data[3] == 0);
-    // the DLC suffix of a classic frame of 8 bytes
-    REQUIRE(parse_log_line("(5.000000) vcan1 123#0102030405060708_9", rec));
-    CHECK(rec.frame.len == 8);
-    CHECK(rec.frame.data[7] == 8);
+    // a payload with dots, and one with a DLC suffix, each right after an
+    // FD frame of 64 bytes: every byte past the payload zero
+    for (const char* line :
+         {"(4.000000) vcan1 123#11.22.33", "(5.000000) vcan1 123#0102030405060708_9"}) {
+      CAPTURE(line);
+      REQUIRE(parse_log_line("(1.000000) vcan0 12345678##3" + std::string(128, 'A'), rec));
+      REQUIRE(parse_log_line(line, rec));
+      CHECK(rec.frame.len == (line[21] == '1' ? 3 : 8));
+      CHECK(rec.frame.data[rec.frame.len - 1] == (line[21] == '1' ? 0x33 : 0x08));
+      int stale = 0;
+      for (std::size_t k = rec.frame.len; k < rec.frame.data.size(); ++k)
+        stale += rec.frame.data[k] != 0;
+      CHECK(stale == 0);
+    }
     // every byte value's hex digits, both cases, and what is none
     for (int b = 0; b < 256; ++b) {
       char line[64];

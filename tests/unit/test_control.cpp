@@ -166,9 +166,15 @@ TEST_CASE("check_report: every field a reader takes is type-checked") {
       {"/profile/name", nullptr, "profile.name: expected a string"},
       {"/estimates/nu0_1/unit", nullptr, "estimates.nu0_1.unit: expected a string"},
       // a bound or a time scale no run can have (a replay would read it)
-      {"/time_base/scale", 0, "time_base.scale: expected a number above 0, not 0"},
+      {"/time_base/scale", 0, "time_base.scale: expected a number in [0.001, 10000], not 0"},
       {"/time_base/scale", std::numeric_limits<double>::infinity(),
-       "time_base.scale: expected a number above 0, not inf"},
+       "time_base.scale: expected a number in [0.001, 10000], not inf"},
+      {"/time_base/epoch_us", -1, "time_base.epoch_us: expected a number in [0, 9.2e+15], not -1"},
+      {"/time_base/epoch_us", 1e16,
+       "time_base.epoch_us: expected a number in [0, 9.2e+15], not 1e+16"},
+      {"/settings/stale_floor_s", -0.1,
+       "settings.stale_floor_s: expected a number of at least 0, not -0.1"},
+      {"/plausibility/dbc_ranges", 1, "plausibility.dbc_ranges: expected true or false"},
       {"/plausibility/max_fraction", -0.5,
        "plausibility.max_fraction: expected a number in [0, 1], not -0.5"},
       {"/plausibility/max_fraction", 1.5,
@@ -195,9 +201,12 @@ TEST_CASE("check_report: every field a reader takes is type-checked") {
                              {"max_table_rate_rps", 1e-9},
                              {"max_fraction", 1},
                              {"step_slack_s", 0}};
-  bounded["time_base"]["scale"] = 1e-9;
+  bounded["time_base"]["scale"] = 1e-3;
+  bounded["time_base"]["epoch_us"] = 0;
   CHECK(run::check_report(bounded).empty());
   bounded["plausibility"]["max_fraction"] = 0;
+  bounded["time_base"]["scale"] = 1e4;
+  bounded["time_base"]["epoch_us"] = 9.2e15;
   CHECK(run::check_report(bounded).empty());
   json unnamed = sample_report();
   unnamed["unit"] = nullptr;

@@ -91,10 +91,11 @@ struct SecondPassSettings {
   /// Refused, with the reason, outside 0.05 to 10 either way.
   double mixed_step_sigmas = 1;
   /// The consider term's passes, independent of each other, run on this
-  /// many threads (0: one per hardware thread), the caller's among them,
-  /// and the two-stage baseline beside the first pass unless it is 1; the
-  /// result does not depend on it. On Linux they start at the caller's
-  /// nice value (turncald's estimation runs below its loop).
+  /// many threads (0: one per hardware thread), the caller's among them;
+  /// where that is more than one, the two-stage baseline runs on one more,
+  /// beside the first pass (and the passes, if it has not ended by then).
+  /// The result does not depend on it. On Linux they start at the
+  /// caller's nice value (turncald's estimation runs below its loop).
   unsigned threads = 0;
 };
 

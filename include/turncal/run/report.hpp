@@ -41,9 +41,11 @@ struct ReportContext {
 inline constexpr int kReportSchemaVersion = 2;
 
 /// Every field a reader of reports (report_text, history, the daemon's
-/// index, the replay) takes, type-checked: empty when the report is
-/// readable, else the first field that is not ("estimates.nu0_1.sigma:
-/// expected a number"). A report file is read only after this passes.
+/// index, the replay) takes, type-checked, and the settings a replay takes
+/// (time base, plausibility bounds) within what a run can have had: empty
+/// when the report is readable, else the first field that is not
+/// ("estimates.nu0_1.sigma: expected a number"). A report file is read
+/// only after this passes.
 std::string check_report(const nlohmann::json& report);
 
 /// The report of a finished run. `input` and `result` are null when the
