@@ -543,3 +543,64 @@ TEST_SUITE("second pass") {
     CHECK(r->second_pass.reason.find("no nonlinear nominal") != std::string::npos);
   }
 }
+
+TEST_SUITE("second pass: the model against its nominal") {
+  TEST_CASE("the model about zero is the nonlinear nominal's derivative there, every parameter") {
+    // The nominal (the strapdown the second pass simulates) moved by a
+    // small step of one parameter, central difference, against the model's
+    // own transitions from the initial map: on the recommended plan (four
+    // reversals, ten revolutions) they agree to 1e-4 of the largest
+    // response over the hour (measured: 1e-5 for the gyro and
+    // accelerometer terms and r2, 1e-3 for r1, whose jump the model takes
+    // from the encoder's samples: 2e-3 for it). A term of F or of a turn's
+    // jump left out or of the wrong sign misses by its whole effect.
+    // About the nominal at the truth of three times the prior the model
+    // misses by more (Theta_33 13%, nu0_3 4%; at the prior 6% and 2%):
+    // the linearisation there does not yet hold all of the nominal's own
+    // errors (issue note).
+    Simulated run = recommended_run(1.0, 2000);
+    const est::EarthAt e = est::EarthAt::at(run.in.timeline.site);
+    const std::array<double, est::sx::kParams> zero{};
+    int checked = 0;
+    for (int j = 0; j < est::sx::kParams; ++j) {
+      const auto u = static_cast<std::size_t>(j);
+      CAPTURE(est::kParamNames[u]);
+      const double delta = 0.02 * run.in.priors.params[u];
+      if (!(delta > 0)) continue;
+      auto moved = [&](double s) {
+        auto q = zero;
+        q[u] = s * delta;
+        auto v = est::strapdown_nominal(run.in, q);
+        REQUIRE(v.ok());
+        return std::move(*v);
+      };
+      const auto up = moved(1), down = moved(-1);
+      REQUIRE(up.size() == down.size());
+      est::XiVec xi = est::XiVec::Zero();
+      xi(est::sxi::kParams + j) = 1;
+      est::StateVec x = est::initial_map(e, run.in.timeline.psi_start_rad) * xi;
+      std::size_t k = 0;
+      double worst = 0, size = 0;
+      int steps = 0;
+      auto rep = est::for_each_step(run.in.timeline, [&](const est::TimelineStep& st) {
+        x = st.d->phi * x;
+        while (k + 1 < up.size() && up[k + 1].t_s <= st.t_to) ++k;
+        const Eigen::Vector2d fd((up[k].ve - down[k].ve) / (2 * delta),
+                                 (up[k].vn - down[k].vn) / (2 * delta));
+        size = std::max(size, fd.norm());
+        worst = std::max(worst, (x.segment<2>(est::sx::kDv) - fd).norm());
+        ++steps;
+      });
+      REQUIRE(rep.ok());
+      REQUIRE(steps > 3000);  // an hour of epochs, but in the turns
+      MESSAGE(est::kParamNames[u] << ": the model misses the nominal's derivative by "
+                                  << worst / size << " of its largest, " << size);
+      CHECK(size > 0);
+      // r1's jump is the table's angular acceleration, which the model
+      // takes from the encoder's samples: 1e-3
+      CHECK(worst <= (j == est::sx::kR - est::sx::kNu0 ? 2e-3 : 1e-4) * size);  // NaN fails
+      ++checked;
+    }
+    CHECK(checked == est::sx::kParams);
+  }
+}
