@@ -197,11 +197,17 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   pl.max_table_rate_rps = bound("max_table_rate_rps", pl.max_table_rate_rps);
   pl.max_fraction = live_number(live, "plausibility", "max_fraction").value_or(pl.max_fraction);
   pl.step_slack_s = live_number(live, "plausibility", "step_slack_s").value_or(pl.step_slack_s);
-  // whether frames were held to their DBC ranges (a replay of a run from
-  // before the bounds was not; reports say so since)
-  if (live != nullptr && live->contains("plausibility") &&
-      (*live)["plausibility"].contains("dbc_ranges"))
-    pl.dbc_ranges = (*live)["plausibility"]["dbc_ranges"].get<bool>();
+  // whether frames were held to their DBC ranges: a replay of a run from
+  // before the bounds was not. Reports say so since; before, such a
+  // replay's report had no velocity bound (null), which no configuration
+  // gives (its range is finite)
+  if (live != nullptr && live->contains("plausibility")) {
+    const json& p = (*live)["plausibility"];
+    if (p.contains("dbc_ranges"))
+      pl.dbc_ranges = p["dbc_ranges"].get<bool>();
+    else if (p.contains("max_velocity_mps") && p["max_velocity_mps"].is_null())
+      pl.dbc_ranges = false;
+  }
   drivers::Devices dev = drivers::make_devices(cfg.can, roles, pl, tb.scale);
   // the live run's table geometry (reports carry it since it could differ)
   if (live != nullptr && live->contains("settings") && (*live)["settings"].is_object() &&

@@ -657,9 +657,10 @@ std::string check_report(const json& r) {
     c.field(r["log"], "log.", "lines", Kind::Integer);
   }
   if (c.field(r, "", "time_base", Kind::Object)) {
-    // microseconds since 1970 whose nanoseconds fit 64 bits; the config's
-    // range of time_scale
-    c.number_in(r["time_base"], "time_base.", "epoch_us", 0, 9.2e15);
+    // microseconds since 1970 whose nanoseconds fit 64 bits (as a log's
+    // time stamps do: its seconds end at 9223372035); the config's range
+    // of time_scale
+    c.number_in(r["time_base"], "time_base.", "epoch_us", 0, 9.223372036e15);
     c.number_in(r["time_base"], "time_base.", "scale", 1e-3, 1e4);
   }
   if (c.field(r, "", "plausibility", Kind::Object)) {

@@ -156,7 +156,8 @@ TEST_SUITE("estimator") {
 
   TEST_CASE("the two-stage baseline beside the first pass gives what it gives after it") {
     // estimate() and analyse() start the baseline's holds on a thread of
-    // their own (threads != 1); the result must be the same, bit for bit,
+    // their own (threads, 0 taken as the hardware's, above 1; 2 here); the
+    // result must be the same, bit for bit,
     // as one thread's, and as two_stage() against the same covariance
     est::EstimationInput in = plan(tactical(), 37 * kDeg, reference_profile());
     in.with_two_stage = true;

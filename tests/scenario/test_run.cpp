@@ -2082,6 +2082,15 @@ TEST_SUITE("run engine on the virtual stand") {
     CHECK(again->report["plausibility"] == first->report["plausibility"]);
     CHECK(again->report["health"] == first->report["health"]);
     CHECK(again->report["estimates"] == first->report["estimates"]);
+    // a replay's report from before reports said so: no dbc_ranges, a
+    // null velocity bound (which no configuration gives)
+    nlohmann::json older = first->report;
+    older["plausibility"].erase("dbc_ranges");
+    const auto from_older = gold.replay(&older);
+    REQUIRE(from_older.ok());
+    CHECK(from_older->report["plausibility"]["dbc_ranges"] == false);
+    CHECK(from_older->report["health"] == first->report["health"]);
+    CHECK(from_older->report["estimates"] == first->report["estimates"]);
     // it has teeth: checked, this log's garbled frames are implausible
     const auto checked = gold.replay(nullptr);
     REQUIRE(checked.ok());
