@@ -3,10 +3,10 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Eigenvalues>
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <future>
+#include <memory>
 #include <optional>
 #include <system_error>
 #include <thread>
@@ -442,11 +442,16 @@ Meas nominal_at(const std::vector<VelocityObs>& nom, double t, std::size_t& k) {
 /// back in parameter terms (p + correction, dv of the nominal plus
 /// correction).
 Result<EstimationResult> pass_about(const EstimationInput& in, const ParamArray& p) {
-  TURNCAL_ASSIGN(nom, in.second_pass.nominal(in, p));
+  TURNCAL_ASSIGN(run_about, in.second_pass.nominal(in, p));
+  const std::vector<VelocityObs>& nom = run_about.velocity;
   if (nom.empty()) return make_error("the nonlinear nominal gave no velocity");
+  if (run_about.track.empty() || run_about.track.front().t_s > 0)
+    return make_error("the nonlinear nominal gave no navigation state from t0");
   EstimationInput resid = in;
   // the model linearised about the nominal (model.md, 8)
-  resid.timeline.nominal = Nominal{p, in.timeline.psi_start_rad};
+  resid.timeline.nominal =
+      Nominal{p, in.timeline.psi_start_rad,
+              std::make_shared<const std::vector<NominalState>>(std::move(run_about.track))};
   std::size_t k = 0;
   for (VelocityObs& v : resid.velocity) {
     const Meas h = nominal_at(nom, v.t_s, k);
@@ -486,267 +491,6 @@ double largest_turn_rad(const TimelineInput& tl) {
     if (a.t_s >= 0 && a.t_s <= tl.duration_s)
       turned = std::max(turned, std::abs(a.psi_rad - tl.psi_start_rad));
   return turned;
-}
-
-/// A product the split's consider term leaves out under this prediction,
-/// in sigmas of df_obs. The prediction takes the partners' step over the
-/// whole run, about twice the term found (about 0.3 predicted on the
-/// single turn at the full tactical prior, where the term widened df_obs's
-/// sigma by 0.8%, about 0.13 sigma in quadrature); a term of a quarter
-/// sigma adds 3% to the RMS error/sigma.
-constexpr double kMixedSigma = 0.5;
-
-/// What one pass about the estimate moved by a shift gave: its parameter
-/// estimates, or why there are none.
-struct Moved {
-  std::optional<ParamVec> x;
-  std::string error;
-  bool internal = false;  ///< failed by an exception whose text could not be kept
-  std::string why() const { return internal ? "internal error in the moved pass" : error; }
-};
-
-/// Passes about `at` moved by each of `shifts`, on up to `threads` threads
-/// (0: one per hardware thread) and this one. They are independent, so the
-/// order they run in changes nothing; each result is in its shift's place.
-std::vector<Moved> passes_moved(const EstimationInput& in, const ParamArray& at,
-                                const std::vector<ParamVec>& shifts, unsigned threads) {
-  std::vector<Moved> out(shifts.size());
-  std::atomic<std::size_t> next{0};
-  const auto work = [&] {
-    for (std::size_t q = next++; q < shifts.size(); q = next++) {
-      Moved& m = out[q];
-      try {
-        ParamArray shifted = at;
-        for (int j = 0; j < sx::kParams; ++j) shifted[static_cast<std::size_t>(j)] += shifts[q](j);
-        auto r = pass_about(in, shifted);
-        if (!r) {
-          m.error = r.error().describe();
-          continue;
-        }
-        const ParamVec x = r->x.segment<sx::kParams>(sx::kNu0);
-        if (x.allFinite())
-          m.x = x;
-        else  // a covariance term of NaN would void every sigma
-          m.error = "the moved pass's estimate is not finite";
-      } catch (const std::exception& e) {  // memory, or a nominal's own: that pass only
-        try {
-          m.error = std::string("internal error in the moved pass: ") + e.what();
-        } catch (...) {  // no memory for the text: nothing leaves the thread
-          m.internal = true;
-        }
-      } catch (...) {
-        m.internal = true;
-      }
-    }
-  };
-  if (threads == 0) threads = std::max(1u, std::thread::hardware_concurrency());
-  std::vector<std::thread> pool;
-  try {
-    pool.reserve(std::min<std::size_t>(threads, shifts.size()));
-    for (unsigned t = 1; t < threads && t < shifts.size(); ++t) pool.emplace_back(work);
-  } catch (...) {  // no more threads (or memory for them): those started and this one do it all
-  }
-  work();  // throws nothing
-  for (std::thread& t : pool) t.join();
-  return out;
-}
-
-/// What the data cannot fix still moves the linearisation: a turn about
-/// the vertical determines df_obs_i = df_z_i - g Theta_i3, not how it
-/// splits, yet the nominal rotates df_z_i by its azimuth error (degrees at
-/// large errors), where Theta_i3 enters otherwise. The estimates'
-/// sensitivity to that split, over its posterior sigma, is an error the
-/// linear covariance of `r` (a converged or stopped second pass) does not
-/// hold: returned as a covariance to add (a consider term), with what was
-/// done appended to `told`.
-///
-/// The rotation is a product, azimuth error times df_z_i, and the azimuth
-/// error is itself uncertain: the vertical gyro's bias nu0_3 (its sigma
-/// over an hour is nearly two degrees at three times the tactical prior)
-/// and Theta_33 (its sigma times the angle turned). The linearisation
-/// about the estimate keeps the product's first-order terms and leaves
-/// out the remainder, the azimuth's error times the split's, which has no
-/// first derivative in either factor alone; its mixed one, times both
-/// sigmas, is the error it leaves. It is added the same way, from two more
-/// passes (+-split, the partners moved by a step), where the product's
-/// predicted size, the step's azimuth (nu0_3's over the run, Theta_33's
-/// over the largest angle turned) times the split's sigma, is over
-/// kMixedSigma of df_obs_i's sigma. The steps are the columns of the
-/// Cholesky factor of the partners' posterior covariance, whose terms sum
-/// to the whole however the fit correlates them (-0.2 on the single turn,
-/// -0.5 to -0.7 on the recommended plan). A failed pass leaves its product
-/// out and keeps the rest. All the passes are planned first and run on
-/// SecondPassSettings::threads.
-///
-/// At three times the tactical prior, over 200 simulated runs, df_obs's
-/// RMS error/sigma on the single turn was 1.19 and 1.13 with the
-/// first-order term alone (other undetermined directions, first-order,
-/// took it to 1.17 only), 1.01 and 0.96 with the product and the partners
-/// taken as independent, and is 1.09 and 1.02 with them correlated; on the
-/// recommended plan, 0.92 and 1.00.
-ParamMat split_consider(const EstimationInput& in, const EstimationResult& r, std::string& told) {
-  const EarthAt e = EarthAt::at(in.timeline.site);
-  const ParamMat pp = r.p.block<sx::kParams, sx::kParams>(sx::kNu0, sx::kNu0);
-  const ParamVec prior = prior_params(in.priors);
-  const double step_sigmas = in.second_pass.mixed_step_sigmas;
-  // the partners of the product: what the azimuth error's spread comes
-  // from, each with the azimuth its unit spreads it by (rad per unit)
-  struct Partner {
-    int k;
-    double lever;
-  };
-  std::vector<Partner> partners;
-  const double turned = largest_turn_rad(in.timeline);
-  const bool with_product = in.second_pass.consider_split_mixed;
-  // a step of a twentieth of a sigma divides the passes' own noise by it;
-  // one of ten linearises far from anything the run supports
-  if (with_product && !(std::abs(step_sigmas) >= 0.05 && std::abs(step_sigmas) <= 10))
-    told += "; the split times an azimuth error not considered: a partner step of " +
-            fixed(step_sigmas, 3) + " sigma (between 0.05 and 10 either way)";
-  else if (with_product)
-    for (const auto& [j, lever] :
-         {std::pair{sx::kNu0 + 2, in.timeline.duration_s}, std::pair{sx::theta(3, 3), turned}}) {
-      const int k = j - sx::kNu0;
-      if (pp(k, k) > 0 && prior(k) > 0) partners.push_back({k, lever});
-    }
-  // The partners' steps: the columns of a factor L of their joint
-  // posterior covariance (L L^T), so that the terms of the steps sum to the
-  // whole (the fit correlates nu0_3 with Theta_33 where both move the
-  // azimuth). Cholesky's: the first column moves nu0_3 by its sigma and
-  // Theta_33 with it as they correlate, the second Theta_33 by what nu0_3
-  // leaves of its sigma; each is named by the partner on its diagonal.
-  // Where the covariance is only semi-definite (a correlation of +-1), the
-  // eigenvectors scaled by their sigmas.
-  auto np = static_cast<Eigen::Index>(partners.size());
-  Eigen::MatrixXd steps = Eigen::MatrixXd::Zero(np, np);
-  std::vector<std::size_t> named(partners.size());  // the partner that names each step
-  for (std::size_t c = 0; c < named.size(); ++c) named[c] = c;
-  {
-    Eigen::MatrixXd cov(np, np);
-    for (Eigen::Index q = 0; q < np; ++q)
-      for (Eigen::Index c = 0; c < np; ++c)
-        cov(q, c) =
-            pp(partners[static_cast<std::size_t>(q)].k, partners[static_cast<std::size_t>(c)].k);
-    const Eigen::LLT<Eigen::MatrixXd> llt(cov);
-    if (!cov.allFinite()) {
-      told +=
-          "; the split times an azimuth error not considered: the partners' covariance is "
-          "not finite";
-      np = 0;
-    } else if (llt.info() == Eigen::Success) {
-      steps = llt.matrixL();
-    } else {
-      const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(cov);
-      for (Eigen::Index c = 0; c < np; ++c) {
-        steps.col(c) = eig.eigenvectors().col(c) * std::sqrt(std::max(0.0, eig.eigenvalues()(c)));
-        // an eigenvector moves both: named by the larger share of its azimuth
-        for (Eigen::Index q = 0; q < np; ++q) {
-          const auto n = named[static_cast<std::size_t>(c)];
-          if (std::abs(steps(q, c)) * partners[static_cast<std::size_t>(q)].lever >
-              std::abs(steps(static_cast<Eigen::Index>(n), c)) * partners[n].lever)
-            named[static_cast<std::size_t>(c)] = static_cast<std::size_t>(q);
-        }
-      }
-      told += "; nu0_3 and theta_33 correlate fully: moved along their covariance's eigenvectors";
-    }
-  }
-  // What to move, planned before any pass (which needs only the
-  // covariance), so that the passes can run at once: per axis the split
-  // by +-its sigma (a), then per partner's step b whose product is
-  // predicted to matter, +-a + b.
-  struct Product {
-    std::string pair;
-    double predicted;
-  };
-  struct Axis {
-    int i;
-    std::size_t first;  // its +a's index in `shifts`; -a next, then +-a + b per product
-    std::vector<Product> products;
-  };
-  std::vector<Axis> axes;
-  std::vector<ParamVec> shifts;
-  for (int i = 0; i < 2; ++i) {
-    ParamVec dir = ParamVec::Zero();  // df_z_i and g Theta_i3 by the same: df_obs kept
-    dir(sx::kDf0 - sx::kNu0 + i) = 1;
-    dir(sx::theta(i + 1, 3) - sx::kNu0) = 1 / e.g;
-    const ParamVec dfz = df_eff_direction(i, e.g);
-    const double sigma = std::sqrt(std::max(0.0, dfz.dot(pp * dfz)));
-    // a Theta_i3 the prior fixes fixes the split too
-    if (!(sigma > 0) || !(prior(sx::theta(i + 1, 3) - sx::kNu0) > 0)) continue;
-    const ParamVec a = sigma * dir;
-    Axis axis{i, shifts.size(), {}};
-    shifts.push_back(a);
-    shifts.push_back(-a);
-    const ParamVec obs = df_obs_direction(i, e.g);
-    const double sigma_obs = std::sqrt(std::max(0.0, obs.dot(pp * obs)));
-    for (Eigen::Index c = 0; c < np && sigma_obs > 0; ++c) {
-      ParamVec b = ParamVec::Zero();
-      double azimuth_rad = 0;                  // the step's azimuth, its terms' signs aside
-      for (Eigen::Index q = 0; q < np; ++q) {  // Cholesky's: zero above the diagonal
-        const Partner& pq = partners[static_cast<std::size_t>(q)];
-        b(pq.k) = steps(q, c) * step_sigmas;
-        azimuth_rad += std::abs(steps(q, c)) * pq.lever;
-      }
-      const double predicted = azimuth_rad * sigma / sigma_obs;
-      if (!(predicted > kMixedSigma)) continue;
-      const auto k = static_cast<std::size_t>(partners[named[static_cast<std::size_t>(c)]].k);
-      axis.products.push_back(
-          {"df_obs_" + std::to_string(i + 1) + " x " + std::string(kParamNames[k]), predicted});
-      shifts.push_back(a + b);
-      shifts.push_back(-a + b);
-    }
-    axes.push_back(std::move(axis));
-  }
-  const std::vector<Moved> m = passes_moved(in, params_of(r.x), shifts, in.second_pass.threads);
-  const auto failed = [&](std::size_t q) { return !m[q].x ? m[q].why() : m[q + 1].why(); };
-  std::vector<std::string> mixed_with;
-  ParamMat consider = ParamMat::Zero();
-  int considered = 0;
-  std::string which;
-  for (const Axis& axis : axes) {
-    const std::string name = "df_obs_" + std::to_string(axis.i + 1);
-    // central: the same one step of the iteration about either side of
-    // the estimate, so neither the iteration's last step (a pass that
-    // stopped unconverged) nor the curvature counts as sensitivity
-    if (!m[axis.first].x || !m[axis.first + 1].x) {
-      told += "; the split of " + name + " not considered: " + failed(axis.first);
-      continue;
-    }
-    // the same data and prior: a linear model would give the same
-    // estimates about either point
-    const ParamVec d = 0.5 * (*m[axis.first].x - *m[axis.first + 1].x);
-    consider += d * d.transpose();
-    ++considered;
-    which += (which.empty() ? "" : ", ") + name;
-    for (std::size_t c = 0; c < axis.products.size(); ++c) {
-      const Product& pr = axis.products[c];
-      const std::size_t q = axis.first + 2 + 2 * c;
-      if (!m[q].x || !m[q + 1].x) {  // the first-order term stands; this product is not in
-        told += "; " + pr.pair + " not considered: " + failed(q);
-        continue;
-      }
-      // the split's sensitivity, central as above, with the partner moved
-      // by its step: what it gains there is the mixed derivative times
-      // both steps (one side in the partner: two passes, not four; the
-      // curvature in the partner is a term of the third order)
-      const ParamVec mixed = (0.5 * (*m[q].x - *m[q + 1].x) - d) / step_sigmas;
-      consider += mixed * mixed.transpose();
-      mixed_with.push_back(pr.pair + " (predicted " + fixed(pr.predicted, 2) + " sigma)");
-    }
-  }
-  if (considered > 0) {
-    told += "; its sensitivity to how df_obs splits (" + which + ": " + std::to_string(considered) +
-            " of 2 axes)";
-    if (!mixed_with.empty()) {
-      told +=
-          ", and to the split times an azimuth error (nu0_3 and theta_33 moved together as "
-          "the fit correlates them) from";
-      for (std::size_t q = 0; q < mixed_with.size(); ++q)
-        told += (q == 0 ? " " : ", ") + mixed_with[q];
-    }
-    told += ", added to the covariance";
-  }
-  return consider;
 }
 
 }  // namespace
@@ -832,7 +576,6 @@ Result<EstimationResult> estimate(const EstimationInput& in) {
   interpret(in, r);
   const SecondPassSettings& sp = in.second_pass;
   SecondPass pass;
-  StateMat p_linear = r.p;  // the covariance before a consider term
   pass.predicted_sigma = linearisation_error_sigma(in, r);
   const std::string predicted = "the first pass predicts a linearisation error of " +
                                 fixed(pass.predicted_sigma, 2) + " sigma (threshold " +
@@ -889,21 +632,11 @@ Result<EstimationResult> estimate(const EstimationInput& in) {
       }
     }
     pass.ran = pass.iterations > 0;
-    if (pass.ran) {
-      std::string told;
-      ParamMat consider = ParamMat::Zero();
-      if (sp.consider_split) consider = split_consider(in, r, told);
-      p_linear = r.p;
-      r.p.block<sx::kParams, sx::kParams>(sx::kNu0, sx::kNu0) += consider;
-      interpret(in, r);
-      pass.reason += told;
-    }
+    if (pass.ran) interpret(in, r);
   }
   r.second_pass = pass;
   r.innovation_stats = innovation_stats(r.innovations, in.whiteness_lags);
-  // against the linear covariance: the two-stage baseline has no consider
-  // term, and its ratio compares the filters, not that term
-  TURNCAL_TRY(baseline.take(r, p_linear));
+  TURNCAL_TRY(baseline.take(r, r.p));
   return r;
 }
 

@@ -1,6 +1,7 @@
 #include "turncal/estimation/model.hpp"
 
 #include <Eigen/Eigenvalues>
+#include <algorithm>
 #include <cmath>
 #include <unsupported/Eigen/MatrixFunctions>
 
@@ -30,18 +31,134 @@ StateMat noise_input(const ProcessNoise& n) {
 
 }  // namespace
 
-StateMat psd_sqrt(const StateMat& q) {
+namespace {
+
+/// psd_sqrt for any fixed size.
+template <int N>
+Eigen::Matrix<double, N, N> psd_sqrt_of(const Eigen::Matrix<double, N, N>& q) {
+  using Vec = Eigen::Matrix<double, N, 1>;
+  using Mat = Eigen::Matrix<double, N, N>;
   // Scaled by its diagonal first: Q spans some 20 orders of magnitude (the
   // a rows see q_a dt^3 / R^2), and an unscaled eigensolver would bury the
   // small blocks in the round-off of the large ones.
-  StateVec d = q.diagonal().cwiseMax(0.0).cwiseSqrt();
-  for (int i = 0; i < sx::kN; ++i)
+  Vec d = q.diagonal().cwiseMax(0.0).cwiseSqrt();
+  for (int i = 0; i < N; ++i)
     if (!(d(i) > 0)) d(i) = 1;
-  const StateMat qs =
+  const Mat qs =
       d.cwiseInverse().asDiagonal() * (0.5 * (q + q.transpose())) * d.cwiseInverse().asDiagonal();
-  Eigen::SelfAdjointEigenSolver<StateMat> es(qs);
-  const StateVec ev = es.eigenvalues().cwiseMax(0.0).cwiseSqrt();
+  Eigen::SelfAdjointEigenSolver<Mat> es(qs);
+  const Vec ev = es.eigenvalues().cwiseMax(0.0).cwiseSqrt();
   return d.asDiagonal() * es.eigenvectors() * ev.asDiagonal();
+}
+
+using NavMat = Eigen::Matrix<double, sx::kNav, sx::kNav>;
+using NavParMat = Eigen::Matrix<double, sx::kNav, sx::kParams>;
+
+/// The nominal's perturbation coordinates from the model's (see Nominal):
+/// (dv, dlat, dlon, psi) = T (dv, a, b), and T^-1.
+NavMat to_perturbation(const EarthAt& e) {
+  using namespace sx;
+  NavMat t = NavMat::Identity();
+  t(kA, kA) = -1;                               // dlat = -a1
+  t(kA + 1, kA + 1) = 1 / std::cos(e.lat_rad);  // dlon = a2 / cos(lat)
+  t(kB, kA) = 1;                                // psi1 = b1 + a1
+  t(kB + 1, kA + 1) = 1;                        // psi2 = b2 + a2
+  t(kB + 2, kA + 1) = e.tan_lat;                // psi3 = b3 + tan(lat) a2
+  return t;
+}
+NavMat from_perturbation(const EarthAt& e) {
+  using namespace sx;
+  NavMat t = NavMat::Identity();
+  t(kA, kA) = -1;                            // a1 = -dlat
+  t(kA + 1, kA + 1) = std::cos(e.lat_rad);   // a2 = cos(lat) dlon
+  t(kB, kA) = 1;                             // b1 = psi1 + dlat
+  t(kB + 1, kA + 1) = -std::cos(e.lat_rad);  // b2 = psi2 - cos(lat) dlon
+  t(kB + 2, kA + 1) = -std::sin(e.lat_rad);  // b3 = psi3 - sin(lat) dlon
+  return t;
+}
+
+/// F about the nominal's state `n` at orientation psi, still: the INS's
+/// error equations with the nominal's velocity, latitude and attitude
+/// (the strapdown's mechanization perturbed; the radii's change with
+/// latitude, under 1% of the terms it would scale, left out), in the
+/// model's coordinates.
+StateMat about_nominal(const EarthAt& e, double psi, const NominalState& n,
+                       const std::array<double, sx::kParams>& p) {
+  using namespace sx;
+  using Vec3 = Eigen::Vector3d;
+  const double lat = e.lat_rad + n.dlat_rad;
+  const double sl = std::sin(lat), cl = std::cos(lat);
+  const double rm = earth::meridian_radius_at_sin(sl) + e.height_m;
+  const double rn = earth::normal_radius_at_sin(sl) + e.height_m;
+  const Vec3 om = earth::kRate * Vec3(0, cl, sl);
+  const Vec3 rho(-n.vn / rm, n.ve / rn, n.ve * sl / (cl * rn));
+  const Vec3 w_in = om + rho;
+  const Vec3 v(n.ve, n.vn, 0);
+  const Mat3 c = n.e * rot(psi);  // body to the computed frame
+  const auto at = [&](int state) { return p[static_cast<std::size_t>(state - kNu0)]; };
+  const Vec3 fc = c * Vec3(at(kDf0) + e.g * at(kG), at(kDf0 + 1) + e.g * at(kG + 1), e.g);
+  // columns in the perturbation coordinates: the rates of (dv, dlat,
+  // dlon, psi) per unit of each
+  Eigen::Matrix<double, kNav, kN> fp = Eigen::Matrix<double, kNav, kN>::Zero();
+  const auto column = [&](int col, const Vec3& dv_dot, const Vec3& psi_dot) {
+    fp.block<2, 1>(kDv, col) += dv_dot.head<2>();  // the vertical channel is held
+    fp.block<3, 1>(kB, col) += psi_dot;
+  };
+  // v_dot = C f + gamma - (2 Omega + rho) x v;  psi_dot = -w_in x psi - C dw + d(w_in)
+  const Vec3 cor = 2 * om + rho;
+  const Vec3 drho_e(0, 1 / rn, sl / (cl * rn)), drho_n(-1 / rm, 0, 0);
+  column(kDv, -cor.cross(Vec3::UnitX()) - drho_e.cross(v), drho_e);
+  column(kDv + 1, -cor.cross(Vec3::UnitY()) - drho_n.cross(v), drho_n);
+  fp(kA, kDv + 1) = 1 / rm;         // dlat_dot = dvN / R_M
+  fp(kA + 1, kDv) = 1 / (rn * cl);  // dlon_dot = dvE / (R_N cos lat) + ...
+  const Vec3 dom = earth::kRate * Vec3(0, -sl, cl);
+  const Vec3 drho_lat(0, 0, n.ve / (rn * cl * cl));
+  column(kA, -(2 * dom + drho_lat).cross(v), dom + drho_lat);
+  fp(kA + 1, kA) = n.ve * sl / (rn * cl * cl);
+  for (int j = 0; j < 3; ++j) column(kB + j, fc.cross(Vec3::Unit(j)), -w_in.cross(Vec3::Unit(j)));
+  // the parameters through the nominal's attitude: the gyros' body rate
+  // at rest (the true one), the accelerometers' errors
+  const Vec3 w = rot(psi).transpose() * Vec3(0, e.u2, e.u3);
+  for (int j = 0; j < 3; ++j) {
+    column(kNu0 + j, Vec3::Zero(), -c.col(j));
+    for (int k = 0; k < 3; ++k) column(theta(j + 1, k + 1), Vec3::Zero(), -c.col(j) * w(k));
+  }
+  for (int j = 0; j < 2; ++j) {
+    column(kDf0 + j, c.col(j), Vec3::Zero());
+    column(kG + j, c.col(j) * e.g, Vec3::Zero());
+  }
+  StateMat f = StateMat::Zero();
+  const NavMat back = from_perturbation(e);
+  f.topLeftCorner<kNav, kNav>() = back * fp.leftCols<kNav>() * to_perturbation(e);
+  f.topRightCorner<kNav, kParams>() = back * fp.rightCols<kParams>();
+  return f;
+}
+
+}  // namespace
+
+StateMat psd_sqrt(const StateMat& q) {
+  return psd_sqrt_of<sx::kN>(q);
+}
+
+NominalState Nominal::at(double t_s, std::size_t& hint) const {
+  const std::vector<NominalState>& s = *track;
+  if (hint >= s.size() || s[hint].t_s > t_s) {  // no hint, or one past t: search
+    const auto it = std::upper_bound(s.begin(), s.end(), t_s,
+                                     [](double t, const NominalState& n) { return t < n.t_s; });
+    hint = it == s.begin() ? 0 : static_cast<std::size_t>(it - s.begin()) - 1;
+  }
+  while (hint + 1 < s.size() && s[hint + 1].t_s <= t_s) ++hint;
+  const NominalState& a = s[hint];
+  if (hint + 1 == s.size() || t_s <= a.t_s) return a;
+  const NominalState& b = s[hint + 1];
+  const double f = (t_s - a.t_s) / (b.t_s - a.t_s);
+  NominalState o;
+  o.t_s = t_s;
+  o.ve = a.ve + f * (b.ve - a.ve);
+  o.vn = a.vn + f * (b.vn - a.vn);
+  o.dlat_rad = a.dlat_rad + f * (b.dlat_rad - a.dlat_rad);
+  o.e = a.e + f * (b.e - a.e);
+  return o;
 }
 
 EarthAt EarthAt::at(const Site& site) {
@@ -51,15 +168,16 @@ EarthAt EarthAt::at(const Site& site) {
                  earth::kRate * std::sin(lat),
                  earth::meridian_radius(lat) + site.height_m,
                  earth::normal_radius(lat) + site.height_m,
-                 std::tan(lat)};
+                 std::tan(lat),
+                 lat,
+                 site.height_m};
 }
 
 StateMat hold_dynamics(const EarthAt& e, double psi, const Nominal* nominal, double t_s) {
   using namespace sx;
+  if (nominal != nullptr) return about_nominal(e, psi, nominal->at(t_s), nominal->params);
   StateMat f = StateMat::Zero();
-  // the computed frame's view of body axes: A(psi - b3) about a nominal
-  const double psi_c = nominal != nullptr ? psi - nominal->b3(t_s, psi) : psi;
-  const Mat3 a = rot(psi_c);
+  const Mat3 a = rot(psi);
   // d(dv1)/dt =  2 u3 dv2 - g (b2 + a2) + da1
   // d(dv2)/dt = -2 u3 dv1 + g (b1 + a1) + da2,   da = A(psi) df_z,
   // df_z1 = df0_1 + G13 g,  df_z2 = df0_2 + G23 g   (section 2, at rest)
@@ -84,38 +202,49 @@ StateMat hold_dynamics(const EarthAt& e, double psi, const Nominal* nominal, dou
   f(kB + 1, kB) = -e.u3;
   f(kB + 2, kB) = e.u2;
   // nu = A(psi) (nu0 + Theta omega_z),  omega_z = A^T u_x = (u2 s, u2 c, u3) at rest
-  // (the true body rate: the true psi)
-  const Eigen::Vector3d w = rot(psi).transpose() * Eigen::Vector3d(0, e.u2, e.u3);
+  const Eigen::Vector3d w = a.transpose() * Eigen::Vector3d(0, e.u2, e.u3);
   for (int i = 0; i < 3; ++i) {
     for (int j = 0; j < 3; ++j) {
       f(kB + i, kNu0 + j) = -a(i, j);
       for (int k = 0; k < 3; ++k) f(kB + i, theta(j + 1, k + 1)) = -a(i, j) * w(k);
     }
   }
-  if (nominal != nullptr) {
-    // b3 against the nominal's errors: d/db3 of A(psi - b3) v is -A' v,
-    // A' = dA/dpsi = [[-s, -c], [c, -s]] on the horizontal
-    const auto& p = nominal->params;
-    const auto at = [&](int state) { return p[static_cast<std::size_t>(state - kNu0)]; };
-    Eigen::Vector3d theta_row;
-    Eigen::Vector3d nu_z;
-    for (int i = 0; i < 3; ++i) {
-      for (int k = 0; k < 3; ++k) theta_row(k) = at(theta(i + 1, k + 1));
-      nu_z(i) = at(kNu0 + i) + theta_row.dot(w);
-    }
-    const Eigen::Vector2d df_z(at(kDf0) + e.g * at(kG), at(kDf0 + 1) + e.g * at(kG + 1));
-    const double c = std::cos(psi_c), s = std::sin(psi_c);
-    Eigen::Matrix2d da;  // A' on the horizontal
-    da << -s, -c, c, -s;
-    const Eigen::Vector2d dv_b3 = -da * df_z;
-    const Eigen::Vector2d b_b3 = da * nu_z.head<2>();
-    for (int i = 0; i < 2; ++i) {
-      f(kDv + i, kB + 2) += dv_b3(i);
-      f(kB + i, kB + 2) += b_b3(i);
-    }
-  }
   return f;
 }
+
+namespace {
+
+/// expm(F dt) and Van Loan's Q_d where only the navigation rows of F are
+/// non-zero, on the navigation block alone: [[Phi_nn, W F_np], [0, I]]
+/// with [Phi_nn, W] from expm([[F_nn, I], [0, 0]] dt), W = int_0^dt
+/// expm(F_nn s) ds, and Q_d from Van Loan's on the block. The same
+/// transition as the whole at a fraction of its cost: the second pass
+/// makes one every epoch.
+Discrete discretize_navigation(const StateMat& f, double dt, const ProcessNoise& noise) {
+  constexpr int v = sx::kNav;
+  using Block = Eigen::Matrix<double, 2 * v, 2 * v>;
+  const NavMat fnn = f.topLeftCorner<v, v>();
+  Block m = Block::Zero();
+  m.topLeftCorner<v, v>() = fnn * dt;
+  m.topRightCorner<v, v>() = NavMat::Identity() * dt;
+  const Block ew = m.exp();
+  Block vl = Block::Zero();
+  vl.topLeftCorner<v, v>() = -fnn * dt;
+  vl.topRightCorner<v, v>() = noise_input(noise).topLeftCorner<v, v>() * dt;
+  vl.bottomRightCorner<v, v>() = fnn.transpose() * dt;
+  const Block eq = vl.exp();
+  Discrete d{StateMat::Identity(), StateMat::Zero(), StateMat::Zero()};
+  const NavMat phi = ew.topLeftCorner<v, v>();
+  d.phi.topLeftCorner<v, v>() = phi;
+  d.phi.topRightCorner<v, sx::kParams>() =
+      ew.topRightCorner<v, v>() * f.topRightCorner<v, sx::kParams>();
+  const NavMat q = phi * eq.topRightCorner<v, v>();
+  d.q.topLeftCorner<v, v>() = 0.5 * (q + q.transpose());
+  d.sqrt_q.topLeftCorner<v, v>() = psd_sqrt_of<v>(d.q.topLeftCorner<v, v>());
+  return d;
+}
+
+}  // namespace
 
 Discrete discretize_hold(const EarthAt& e, double psi, double dt, const ProcessNoise& noise,
                          const Nominal* nominal, double t_mid_s) {
@@ -123,6 +252,7 @@ Discrete discretize_hold(const EarthAt& e, double psi, double dt, const ProcessN
   // Q_d = Phi E12.
   constexpr int n = sx::kN;
   const StateMat f = hold_dynamics(e, psi, nominal, t_mid_s);
+  if (nominal != nullptr) return discretize_navigation(f, dt, noise);
   Eigen::Matrix<double, 2 * n, 2 * n> m = Eigen::Matrix<double, 2 * n, 2 * n>::Zero();
   m.topLeftCorner<n, n>() = -f * dt;
   m.topRightCorner<n, n>() = noise_input(noise) * dt;
@@ -173,6 +303,7 @@ Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
   const NavMat gqg = noise_input(noise).topLeftCorner<kNav, kNav>();
   const bool closed_rate = integrals != nullptr && std::isfinite(integrals->plateau_rate);
   const bool spread_at_end = integrals != nullptr && !closed_rate;
+  std::size_t hint = 0;  // the nominal's, ascending
   for (std::size_t k = 0; k + 1 < samples.size(); ++k) {
     const double dt = samples[k + 1].t_s - samples[k].t_s;
     if (dt <= 0) continue;
@@ -180,21 +311,31 @@ Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
     const double t_mid = 0.5 * (samples[k].t_s + samples[k + 1].t_s);
     // Bounded terms of F at the mid angle, second-order transition:
     // I + F dt + (F dt)^2 / 2, whose parameter rows are those of I.
-    const StateMat f = hold_dynamics(e, 0.5 * (psi1 + psi2), nominal, t_mid);
-    // the angles the computed frame sees the body at (about a nominal:
-    // turned by -b3); the turn itself is the true one
-    const double psi1c = nominal != nullptr ? psi1 - nominal->b3(samples[k].t_s, psi1) : psi1;
-    const double psi2c = nominal != nullptr ? psi2 - nominal->b3(samples[k + 1].t_s, psi2) : psi2;
+    // About a nominal, F at its state at the step's middle, and the jumps
+    // below turned by its attitude E: they are in dv and psi, which are
+    // the model's dv and b where a does not move.
+    Mat3 e_mid = Mat3::Identity();
+    StateMat f;
+    if (nominal != nullptr) {
+      const NominalState n = nominal->at(t_mid, hint);
+      e_mid = n.e;
+      f = about_nominal(e, 0.5 * (psi1 + psi2), n, nominal->params);
+    } else {
+      f = hold_dynamics(e, 0.5 * (psi1 + psi2));
+    }
     const NavMat fnn = f.topLeftCorner<kNav, kNav>() * dt;
     const NavParMat fnp = f.topRightCorner<kNav, kParams>() * dt;
     const NavMat snn = NavMat::Identity() + fnn + 0.5 * fnn * fnn;
     NavParMat snp = fnp + 0.5 * fnn * fnp;
     // Theta_.3 Omega integrates over angle: Delta b = -[int A dpsi] Theta_.3,
-    // int A dpsi = [[S, C, 0], [-C, S, 0], [0, 0, psi2 - psi1]].
-    const double sd = std::sin(psi2c) - std::sin(psi1c), cd = std::cos(psi2c) - std::cos(psi1c);
-    const double ia[3][3] = {{sd, cd, 0}, {-cd, sd, 0}, {0, 0, psi2 - psi1}};
+    // int A dpsi = [[S, C, 0], [-C, S, 0], [0, 0, psi2 - psi1]] (about a
+    // nominal -E [int A dpsi] Theta_.3)
+    const double sd = std::sin(psi2) - std::sin(psi1), cd = std::cos(psi2) - std::cos(psi1);
+    Mat3 ia;
+    ia << sd, cd, 0, -cd, sd, 0, 0, 0, psi2 - psi1;
+    if (nominal != nullptr) ia = (e_mid * ia).eval();
     for (int i = 0; i < 3; ++i)
-      for (int j = 0; j < 3; ++j) snp(kB + i, theta(j + 1, 3) - kNav) -= ia[i][j];
+      for (int j = 0; j < 3; ++j) snp(kB + i, theta(j + 1, 3) - kNav) -= ia(i, j);
     // the proof-mass jump of this step: Omega cos psi dpsi and Omega sin
     // psi dpsi (midpoint), or the closed form's at its plateau rate
     double jc = 0, js = 0;
@@ -203,15 +344,16 @@ Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
         jc = integrals->plateau_rate * sd;
         js = -integrals->plateau_rate * cd;
       } else {
-        const double mid = 0.5 * (psi1c + psi2c), dpsi = psi2 - psi1, omega = dpsi / dt;
+        const double mid = 0.5 * (psi1 + psi2), dpsi = psi2 - psi1, omega = dpsi / dt;
         jc = omega * std::cos(mid) * dpsi;
         js = omega * std::sin(mid) * dpsi;
       }
     }
-    snp(kDv, kR - kNav) += jc;
-    snp(kDv, kR + 1 - kNav) += js;
-    snp(kDv + 1, kR - kNav) += js;
-    snp(kDv + 1, kR + 1 - kNav) -= jc;
+    // dv += J (r1, r2), J = [[Jc, Js], [Js, -Jc]], turned by E about a nominal
+    Eigen::Matrix2d jump;
+    jump << jc, js, js, -jc;
+    if (nominal != nullptr) jump = (e_mid.topLeftCorner<2, 2>() * jump).eval();
+    snp.block<2, 2>(kDv, kR - kNav) += jump;
     pnp = snn * pnp + snp;
     pnn = snn * pnn;
     qnn = snn * qnn * snn.transpose() + gqg * dt;
@@ -221,10 +363,11 @@ Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
   d.phi.topRightCorner<kNav, kParams>() = pnp;
   if (spread_at_end) {
     // Delta dv1 = r1 Jc + r2 Js, Delta dv2 = r1 Js - r2 Jc, at the end
-    d.phi(kDv, kR) += integrals->jc;
-    d.phi(kDv, kR + 1) += integrals->js;
-    d.phi(kDv + 1, kR) += integrals->js;
-    d.phi(kDv + 1, kR + 1) -= integrals->jc;
+    Eigen::Matrix2d jump;
+    jump << integrals->jc, integrals->js, integrals->js, -integrals->jc;
+    if (nominal != nullptr && !samples.empty())
+      jump = (nominal->at(samples.back().t_s).e.topLeftCorner<2, 2>() * jump).eval();
+    d.phi.block<2, 2>(kDv, kR) += jump;
   }
   d.q.topLeftCorner<kNav, kNav>() = 0.5 * (qnn + qnn.transpose());
   d.sqrt_q = psd_sqrt(d.q);

@@ -8,8 +8,8 @@
 
 namespace turncal::est {
 
-Result<std::vector<VelocityObs>> strapdown_nominal(const EstimationInput& in,
-                                                   const std::array<double, sx::kParams>& params) {
+Result<NominalRun> strapdown_nominal(const EstimationInput& in,
+                                     const std::array<double, sx::kParams>& params) {
   const TimelineInput& tl = in.timeline;
   if (!(tl.duration_s > 0)) return make_error("the nominal needs a run of positive length");
   if (tl.encoder.empty() && !tl.turns.empty())
@@ -44,6 +44,7 @@ Result<std::vector<VelocityObs>> strapdown_nominal(const EstimationInput& in,
     return make_error("the nominal's IMU rate must be at least its output rate");
   c.imu_rate_hz = in.second_pass.nominal_imu_rate_hz;
   c.encoder_rate_hz = 0;  // the motion is the encoder's already
+  c.nav_rate_hz = kNominalTrackRateHz;
   c.errors.nu0 = Eigen::Vector3d(params[0], params[1], params[2]);
   for (int i = 0; i < 3; ++i)
     for (int j = 0; j < 3; ++j)
@@ -53,9 +54,17 @@ Result<std::vector<VelocityObs>> strapdown_nominal(const EstimationInput& in,
   c.errors.g = Eigen::Vector2d(at(sx::kG), at(sx::kG + 1));
   c.errors.r = Eigen::Vector2d(at(sx::kR), at(sx::kR + 1));
   const sim::Run run = sim::simulate(c);
-  std::vector<VelocityObs> out;
-  out.reserve(run.velocity.size());
-  for (const sim::VelocitySample& v : run.velocity) out.push_back({v.t_s, v.ve, v.vn});
+  NominalRun out;
+  out.velocity.reserve(run.velocity.size());
+  for (const sim::VelocitySample& v : run.velocity) out.velocity.push_back({v.t_s, v.ve, v.vn});
+  out.track.reserve(run.nav.size());
+  for (const sim::NavSample& n : run.nav) {
+    // E = C A(psi)^T, A(psi) the true body-to-geographic rotation
+    const double cp = std::cos(n.psi_rad), sp = std::sin(n.psi_rad);
+    Eigen::Matrix3d a_t;
+    a_t << cp, sp, 0, -sp, cp, 0, 0, 0, 1;
+    out.track.push_back({n.t_s, n.ve, n.vn, n.lat_rad - tl.site.latitude_rad, n.c_bn * a_t});
+  }
   return out;
 }
 

@@ -164,13 +164,10 @@ Result<TimelineReport> for_each_step(const TimelineInput& in,
   const auto hold = [&](double psi_h, double t_h, double dt) {
     return discretize_hold(e, psi_h, dt, in.noise, nom, t_h + 0.5 * dt);
   };
-  const auto azimuth = [&](double t_h, double psi_h) {
-    return nom != nullptr ? nom->b3(t_h, psi_h) : 0.0;
-  };
   double psi = in.psi_start_rad;
   Discrete epoch = hold(psi, 0, in.epoch_s);
-  double epoch_psi = psi;                            // the orientation `epoch` is for
-  double epoch_b3 = azimuth(0.5 * in.epoch_s, psi);  // and the nominal's azimuth
+  double epoch_psi = psi;  // the orientation `epoch` is for
+  double epoch_t = 0;      // and the time
   double t = 0;
   std::size_t next_turn = 0;
   for (const Mark& m : schedule(in, turns)) {
@@ -192,11 +189,11 @@ Result<TimelineReport> for_each_step(const TimelineInput& in,
     }
     const bool crosses = next_turn < turns.size() && turns[next_turn].w.t_start_s < m.t;
     if (!crosses && std::abs(m.t - t - in.epoch_s) < kSameTime) {
-      const double b3 = azimuth(t + 0.5 * in.epoch_s, psi);
-      if (psi != epoch_psi || std::abs(b3 - epoch_b3) > TimelineInput::kNominalAzimuthStep) {
+      // about a nominal, its state moves: each epoch its own transition
+      if (psi != epoch_psi || (nom != nullptr && t != epoch_t)) {
         epoch = hold(psi, t, in.epoch_s);
         epoch_psi = psi;
-        epoch_b3 = b3;
+        epoch_t = t;
       }
       fn(step);  // a whole epoch of hold
     } else {

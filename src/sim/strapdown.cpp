@@ -204,6 +204,10 @@ EncoderSample Strapdown::encoder() const {
   return {t_, table_at(t_).angle};
 }
 
+NavSample Strapdown::nav() const {
+  return {t_, v_.x(), v_.y(), lat_, c_bn_, cfg_.psi_start_rad + table_at(t_).angle};
+}
+
 Run simulate(const Config& config) {
   Strapdown sd(config);
   Run run;
@@ -214,17 +218,23 @@ Run simulate(const Config& config) {
   const long out_every = every(config.output_rate_hz);
   const bool with_encoder = config.encoder_rate_hz > 0;
   const long enc_every = with_encoder ? every(config.encoder_rate_hz) : 0;
+  const bool with_nav = config.nav_rate_hz > 0;
+  const long nav_every = with_nav ? every(config.nav_rate_hz) : 0;
   const double steps = std::max(0.0, config.profile.duration_s * config.imu_rate_hz) + 2;
   run.velocity.reserve(static_cast<std::size_t>(steps / static_cast<double>(out_every)) + 1);
   if (with_encoder)
     run.encoder.reserve(static_cast<std::size_t>(steps / static_cast<double>(enc_every)) + 1);
+  if (with_nav)
+    run.nav.reserve(static_cast<std::size_t>(steps / static_cast<double>(nav_every)) + 1);
   long k = 0;
   run.velocity.push_back(sd.output());
   if (with_encoder) run.encoder.push_back(sd.encoder());
+  if (with_nav) run.nav.push_back(sd.nav());
   while (sd.step()) {
     ++k;
     if (k % out_every == 0) run.velocity.push_back(sd.output());
     if (with_encoder && k % enc_every == 0) run.encoder.push_back(sd.encoder());
+    if (with_nav && k % nav_every == 0) run.nav.push_back(sd.nav());
   }
   return run;
 }

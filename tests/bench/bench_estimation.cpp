@@ -191,7 +191,7 @@ int main() {
     const double t_nominal = best_of(3, [&] {
       const auto h = est::strapdown_nominal(in, p);
       if (!h) std::abort();
-      sink += h->back().ve;
+      sink += h->velocity.back().ve;
     });
     std::printf(
         "second_pass_recommended_1h_s %.3f  (%s, %d iterations, %s; the first pass alone %.3f s, "

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <memory>
 #include <random>
 
 #include "monte_carlo.hpp"
@@ -45,14 +46,14 @@ Simulated recommended_run(double scale, std::uint64_t seed) {
 /// A nominal that is the strapdown's plus an East ramp that flips sign
 /// and grows tenfold at each call: an iteration about it must diverge.
 int g_diverging_calls = 0;
-Result<std::vector<est::VelocityObs>> diverging_nominal(
-    const est::EstimationInput& in, const std::array<double, est::sx::kParams>& p) {
+Result<est::NominalRun> diverging_nominal(const est::EstimationInput& in,
+                                          const std::array<double, est::sx::kParams>& p) {
   auto v = est::strapdown_nominal(in, p);
   if (!v) return v;
   const double slope =
       (g_diverging_calls % 2 == 0 ? 1.0 : -1.0) * 1e-5 * std::pow(10.0, g_diverging_calls);
   ++g_diverging_calls;
-  for (est::VelocityObs& o : *v) o.ve += slope * o.t_s;
+  for (est::VelocityObs& o : v->velocity) o.ve += slope * o.t_s;
   return v;
 }
 
@@ -60,15 +61,18 @@ Result<std::vector<est::VelocityObs>> diverging_nominal(
 /// g_fail_at (none: count only).
 int g_nominal_calls = 0;
 int g_fail_at = 0;
-Result<std::vector<est::VelocityObs>> failing_nominal(
-    const est::EstimationInput& in, const std::array<double, est::sx::kParams>& p) {
+Result<est::NominalRun> failing_nominal(const est::EstimationInput& in,
+                                        const std::array<double, est::sx::kParams>& p) {
   if (++g_nominal_calls == g_fail_at) return turncal::make_error("an injected failure");
   return est::strapdown_nominal(in, p);
 }
 
-/// The square of df_obs_i's sigma, m^2/s^4.
-double var_obs(const est::EstimationResult& r, std::size_t i) {
-  return r.df_obs[i].sigma * r.df_obs[i].sigma;
+/// The strapdown's velocity without its navigation state.
+Result<est::NominalRun> trackless_nominal(const est::EstimationInput& in,
+                                          const std::array<double, est::sx::kParams>& p) {
+  auto v = est::strapdown_nominal(in, p);
+  if (v) v->track.clear();
+  return v;
 }
 
 }  // namespace
@@ -276,265 +280,47 @@ TEST_SUITE("second pass") {
             0.1 * forced->df_obs[i].sigma);
   }
 
-  TEST_CASE("how df_obs splits, which no vertical turn determines, widens its sigma") {
-    // At three times the tactical prior, where the azimuth error reaches
-    // degrees: moving the split by its sigma moves the estimates (the
-    // nominal turns df_z apart from g Theta_13), which the covariance then
-    // holds; the estimates themselves are those of the same iterations.
-    Simulated run = recommended_run(3.0, 2000);
-    run.in.second_pass.mode = est::SecondPassSettings::Mode::Always;
-    run.in.with_two_stage = true;
-    // the first-order term alone: the product, which would dominate what
-    // this measures, has a case of its own below
-    run.in.second_pass.consider_split_mixed = false;
-    const auto with = est::estimate(run.in);
-    est::EstimationInput without_in = run.in;
-    without_in.second_pass.consider_split = false;
-    const auto without = est::estimate(without_in);
-    REQUIRE(with.ok());
-    REQUIRE(without.ok());
-    MESSAGE(with->second_pass.reason);
-    CHECK(with->second_pass.reason.find("(df_obs_1, df_obs_2: 2 of 2 axes)") != std::string::npos);
-    CHECK(without->second_pass.reason.find("axes") == std::string::npos);
-    CHECK(with->x == without->x);
-    // the two-stage baseline compares the filters on the linear covariance:
-    // the consider term is not in it
-    REQUIRE(with->has_two_stage);
-    REQUIRE(without->has_two_stage);
-    CHECK(with->two_stage.ratio == without->two_stage.ratio);
-    double widest = 0;
-    for (std::size_t i = 0; i < 2; ++i) {
-      const double ratio = with->df_obs[i].sigma / without->df_obs[i].sigma;
-      MESSAGE("df_obs_" << i + 1 << " sigma widened by " << ratio);
-      CHECK(ratio < 1.5);  // a term of a fraction of a sigma, not a new error
-      widest = std::max(widest, ratio);
-    }
-    // at this seed df_obs_1 by 7%: wider by more than rounding, as the
-    // Monte Carlo says it should be
-    CHECK(widest > 1.03);
-    // the parameters the run determines well and the split does not
-    // reach (the horizontal gyro biases) keep their sigma within 1%
-    for (std::size_t j = 0; j < 2; ++j)
-      CHECK(with->parameters[j].sigma < 1.01 * without->parameters[j].sigma);
-  }
-
-  TEST_CASE(
-      "the split times the azimuth error from nu0_3 and Theta_33: considered at three times the "
-      "prior, left out at a tenth of it, where it is predicted small") {
-    // The nominal turns df_z by its azimuth error, and that error is
-    // uncertain by nu0_3's sigma over the run: a product, with no first
-    // derivative in either factor about the estimate. Its mixed one, from
-    // two more passes, is added where predicted over half a sigma of df_obs.
-    // Ten revolutions determine Theta_33, yet its sigma times 3600 deg is
-    // an azimuth error too.
-    const auto pair = [](double scale) {
-      Simulated run = recommended_run(scale, 2000);
-      run.in.second_pass.mode = est::SecondPassSettings::Mode::Always;
-      est::EstimationInput without = run.in;
-      without.second_pass.consider_split_mixed = false;
-      auto a = est::estimate(run.in);
-      auto b = est::estimate(without);
-      REQUIRE(a.ok());
-      REQUIRE(b.ok());
-      MESSAGE("prior x " << scale << ": " << a->second_pass.reason);
-      return std::pair{std::move(*a), std::move(*b)};
-    };
-    {
-      const auto [with, without] = pair(3.0);
-      for (const char* axis : {"df_obs_1 x nu0_3 (predicted", "df_obs_2 x nu0_3 (predicted",
-                               "df_obs_1 x theta_33 (predicted"})
-        CHECK(with.second_pass.reason.find(axis) != std::string::npos);
-      CHECK(without.second_pass.reason.find(" x nu0_3") == std::string::npos);
-      CHECK(with.x == without.x);  // the covariance only
-      double widest = 0;
-      for (std::size_t i = 0; i < 2; ++i) {
-        const double ratio = with.df_obs[i].sigma / without.df_obs[i].sigma;
-        MESSAGE("df_obs_" << i + 1 << " sigma widened by " << ratio << " by the product");
-        CHECK(ratio >= 1);
-        CHECK(ratio < 1.5);
-        widest = std::max(widest, ratio);
-      }
-      // df_obs_1 by 24% at this seed: more than rounding by far
-      CHECK(widest > 1.15);
-      for (std::size_t j = 0; j < 2; ++j)  // the horizontal gyro biases: within 1%
-        CHECK(with.parameters[j].sigma < 1.01 * without.parameters[j].sigma);
-    }
-    {
-      const auto [with, without] = pair(0.1);
-      CHECK(with.second_pass.ran);
-      CHECK(with.second_pass.reason.find("azimuth error") == std::string::npos);
-      CHECK(with.p == without.p);
-    }
-  }
-
-  TEST_CASE(
-      "the product's term is its mixed derivative: the same at half the partners' step and at the "
-      "step reversed") {
-    // The term found at a step s of the partners is (the split's central
-    // sensitivity there - at the estimate) / s: of a product alone, the
-    // same at any s and either sign. Mixing in the first-order term (a
-    // sign slip: + for -) or not dividing by the step makes it depend on
-    // s: tried, they moved these ratios by 70 to 150% and by 74%.
-    Simulated run = recommended_run(3.0, 2000);
-    run.in.second_pass.mode = est::SecondPassSettings::Mode::Always;
-    est::EstimationInput off = run.in;
-    off.second_pass.consider_split_mixed = false;
-    const auto base = est::estimate(off);
-    REQUIRE(base.ok());
-    const auto added = [&](double step) {
-      est::EstimationInput in = run.in;
-      in.second_pass.mixed_step_sigmas = step;
-      const auto r = est::estimate(in);
-      REQUIRE(r.ok());
-      REQUIRE(r->x == base->x);
-      std::array<double, 2> v{};
-      for (std::size_t i = 0; i < 2; ++i) v[i] = var_obs(*r, i) - var_obs(*base, i);
-      MESSAGE("step " << step << " sigma: the product adds " << v[0] << " and " << v[1]
-                      << " m^2/s^4 to df_obs's variance; " << r->second_pass.reason);
-      return v;
-    };
-    const std::array<double, 2> one = added(1), reversed = added(-1), half = added(0.5);
-    {  // the passes on one thread and on three: the same covariance, bit for bit
-      est::EstimationInput in = run.in;
-      in.second_pass.threads = 1;
-      const auto serial = est::estimate(in);
-      in.second_pass.threads = 3;
-      const auto parallel = est::estimate(in);
-      REQUIRE(serial.ok());
-      REQUIRE(parallel.ok());
-      CHECK(serial->p == parallel->p);
-      CHECK(var_obs(*serial, 0) - var_obs(*base, 0) == one[0]);
-    }
-    {  // a step too small to rise above the passes' own noise: refused, and said
-      est::EstimationInput in = run.in;
-      in.second_pass.mixed_step_sigmas = 0.01;
-      const auto r = est::estimate(in);
-      REQUIRE(r.ok());
-      CHECK(r->second_pass.reason.find("not considered: a partner step of 0.010 sigma") !=
-            std::string::npos);
-      CHECK(r->p == base->p);
-    }
-    for (std::size_t i = 0; i < 2; ++i) {
-      CAPTURE(i);
-      REQUIRE(one[i] > 0);
-      // what is left is of the third order, the curvature in the partners
-      // (5 to 7% at this seed): within 20%, far inside what a wrong term
-      // shows
-      CHECK(std::abs(reversed[i] / one[i] - 1) < 0.2);
-      CHECK(std::abs(half[i] / one[i] - 1) < 0.2);
-    }
-  }
-
-  TEST_CASE("a product's pass that fails leaves that product out and keeps the rest, and says so") {
-    // The nominal fails at the first pass of the product df_obs_2 x nu0_3:
-    // after the iterations, the two passes of each axis's first-order term
-    // and the four of df_obs_1's products, the fifth call after the last
-    // of a run without the product. Every term is a covariance added, so
-    // the result lies between the run without the product and the run
-    // with all of it, in every direction.
-    Simulated run = recommended_run(3.0, 2000);
-    run.in.second_pass.mode = est::SecondPassSettings::Mode::Always;
+  TEST_CASE("a nominal that fails stops the iteration: the last estimates stand, and it says why") {
+    // Given the recommended plan at the full prior, seed 2000: a nominal
+    // failing at its second call leaves the first iteration's result, the
+    // same bit for bit as one iteration asked for; one that gives no
+    // navigation state to linearise about leaves the first pass's.
+    Simulated run = recommended_run(1.0, 2000);
+    est::EstimationInput one = run.in;
+    one.second_pass.max_iterations = 1;
+    const auto once = est::estimate(one);
+    REQUIRE(once.ok());
+    REQUIRE(once->second_pass.ran);
+    g_nominal_calls = 0;
+    g_fail_at = 2;
     run.in.second_pass.nominal = &failing_nominal;
-    run.in.second_pass.threads = 1;  // its calls counted in the order they are planned
-    const auto counted = [&](const est::EstimationInput& in, int fail_at) {
-      g_nominal_calls = 0;
-      g_fail_at = fail_at;
-      auto r = est::estimate(in);
-      REQUIRE(r.ok());
-      return std::pair{std::move(*r), g_nominal_calls};
-    };
-    est::EstimationInput off = run.in;
-    off.second_pass.consider_split_mixed = false;
-    const auto without = counted(off, 0);
-    const auto all = counted(run.in, 0);
-    const auto failed = counted(run.in, without.second + 5);
-    MESSAGE(failed.first.second_pass.reason);
-    CHECK(failed.first.second_pass.reason.find(
-              "df_obs_2 x nu0_3 not considered: an injected failure") != std::string::npos);
-    CHECK(failed.first.second_pass.reason.find("(df_obs_1, df_obs_2: 2 of 2 axes)") !=
-          std::string::npos);
-    CHECK(all.first.second_pass.reason.find("df_obs_2 x nu0_3 (predicted") != std::string::npos);
-    CHECK(failed.first.x == all.first.x);
-    for (std::size_t i = 0; i < 2; ++i) {
-      CAPTURE(i);
-      CHECK(var_obs(failed.first, i) >= var_obs(without.first, i) * (1 - 1e-12));
-      CHECK(var_obs(failed.first, i) <= var_obs(all.first, i) * (1 + 1e-12));
-    }
-    // The azimuth error turns df_z_2 into the first axis: df_obs_2's split
-    // times nu0_3 is most of what the product adds to df_obs_1's variance
-    // (97% at this seed), lost with that pair
-    CHECK(var_obs(failed.first, 0) - var_obs(without.first, 0) <
-          0.5 * (var_obs(all.first, 0) - var_obs(without.first, 0)));
-  }
-
-  TEST_CASE(
-      "the split's sensitivity is taken about the estimate: a pass stopped early adds what a "
-      "converged one does") {
-    // One step of the iteration about either side of the estimate (a
-    // central difference). A pass stopped after one iteration is no fixed
-    // point: a step about it moves the estimates by the change the
-    // iteration had left, which a difference from the estimate itself (one
-    // side) would add to the covariance as if it were the split's.
-    Simulated run = recommended_run(3.0, 2000);
-    run.in.second_pass.mode = est::SecondPassSettings::Mode::Always;
-    run.in.second_pass.consider_split_mixed = false;  // the first-order term alone
-    struct Widened {
-      std::array<double, 2> by{};  // the consider term's share of df_obs_i's sigma (m/s^2)
-      double last_change_sigma = 0;
-      bool converged = false;
-    };
-    const auto widened = [&](int iterations) {
-      est::EstimationInput with = run.in;
-      with.second_pass.max_iterations = iterations;
-      est::EstimationInput without = with;
-      without.second_pass.consider_split = false;
-      const auto a = est::estimate(with);
-      const auto b = est::estimate(without);
-      REQUIRE(a.ok());
-      REQUIRE(b.ok());
-      REQUIRE(a->x == b->x);
-      Widened w;
-      for (std::size_t i = 0; i < 2; ++i) {
-        const double sa = a->df_obs[i].sigma;
-        const double sb = b->df_obs[i].sigma;
-        REQUIRE(sa >= sb);
-        w.by[i] = std::sqrt(sa * sa - sb * sb);
-      }
-      w.last_change_sigma = a->second_pass.last_change_sigma;
-      w.converged = a->second_pass.converged;
-      MESSAGE(iterations << " iteration(s), the last change " << a->second_pass.last_change_sigma
-                         << " sigma: " << a->second_pass.reason);
-      return w;
-    };
-    const Widened stopped = widened(1);
-    const Widened converged = widened(8);
-    // the first iteration moves the estimates by some 4 sigma, the
-    // second by nearly one: the step a one-sided difference would count
-    REQUIRE_FALSE(stopped.converged);
-    REQUIRE(stopped.last_change_sigma > 2);
-    REQUIRE(converged.converged);
-    // About points 4 sigma apart the sensitivity differs (by some 40% at
-    // this seed); a one-sided difference, with the second iteration's step
-    // in it, gave 2.3 and 4.3 times the converged pass's term here (tried):
-    // within a factor of 1.7 either way tells the two apart.
-    for (std::size_t i = 0; i < 2; ++i) {
-      CAPTURE(i);
-      MESSAGE("df_obs_" << i + 1 << ": the split adds " << stopped.by[i] << " m/s^2 after one "
-                        << "iteration, " << converged.by[i] << " m/s^2 converged");
-      REQUIRE(converged.by[i] > 0);
-      CHECK(stopped.by[i] < 1.7 * converged.by[i]);
-      CHECK(stopped.by[i] > converged.by[i] / 1.7);
-    }
-  }
-
-  TEST_CASE("a Theta_i3 the prior fixes fixes the split: that axis is not considered") {
-    Simulated run = recommended_run(3.0, 2000);
-    run.in.second_pass.mode = est::SecondPassSettings::Mode::Always;
-    run.in.priors.params[static_cast<std::size_t>(est::sx::theta(1, 3) - est::sx::kNu0)] = 0;
     const auto r = est::estimate(run.in);
+    g_fail_at = 0;
     REQUIRE(r.ok());
     MESSAGE(r->second_pass.reason);
-    CHECK(r->second_pass.reason.find("(df_obs_2: 1 of 2 axes)") != std::string::npos);
+    CHECK(g_nominal_calls == 2);
+    CHECK(r->second_pass.ran);
+    CHECK(r->second_pass.iterations == 1);
+    CHECK_FALSE(r->second_pass.converged);
+    CHECK(r->second_pass.reason.find("stopped after 1 iterations: an injected failure") !=
+          std::string::npos);
+    CHECK(r->x == once->x);
+    CHECK(r->p == once->p);
+
+    run.in.second_pass.nominal = &trackless_nominal;
+    est::EstimationInput off = run.in;
+    off.second_pass.mode = est::SecondPassSettings::Mode::Off;
+    const auto linear = est::estimate(off);
+    const auto bare = est::estimate(run.in);
+    REQUIRE(linear.ok());
+    REQUIRE(bare.ok());
+    MESSAGE(bare->second_pass.reason);
+    CHECK_FALSE(bare->second_pass.ran);
+    CHECK(bare->second_pass.reason.find(
+              "stopped after 0 iterations: the nonlinear nominal gave no navigation state "
+              "from t0") != std::string::npos);
+    CHECK(bare->x == linear->x);
+    CHECK(bare->p == linear->p);
   }
 
   TEST_CASE("without a nominal, or turned off, it says so and the first pass stands") {
@@ -547,6 +333,59 @@ TEST_SUITE("second pass") {
   }
 }
 
+namespace {
+
+/// The model about the nominal at `about` (zero: the model of model.md, 4,
+/// no nominal) against that nominal's central difference in parameter j
+/// at 2% of its prior, over the run: the largest miss of the velocity
+/// response and the largest response, m/s per unit of the parameter.
+struct Miss {
+  double worst = 0, size = 0;
+  int steps = 0, aligned = 0;
+};
+Miss model_against_nominal(const Simulated& run, const std::array<double, est::sx::kParams>& about,
+                           int j) {
+  const auto u = static_cast<std::size_t>(j);
+  const double delta = 0.02 * run.in.priors.params[u];
+  auto moved = [&](double s) {
+    auto q = about;
+    q[u] += s * delta;
+    auto v = est::strapdown_nominal(run.in, q);
+    REQUIRE(v.ok());
+    return std::move(v->velocity);
+  };
+  const auto up = moved(1), down = moved(-1);
+  REQUIRE(up.size() == down.size());
+  est::TimelineInput tl = run.in.timeline;
+  if (std::any_of(about.begin(), about.end(), [](double p) { return p != 0; })) {
+    auto there = est::strapdown_nominal(run.in, about);
+    REQUIRE(there.ok());
+    tl.nominal = est::Nominal{
+        about, tl.psi_start_rad,
+        std::make_shared<const std::vector<est::NominalState>>(std::move(there->track))};
+  }
+  const est::EarthAt e = est::EarthAt::at(tl.site);
+  est::XiVec xi = est::XiVec::Zero();
+  xi(est::sxi::kParams + j) = 1;
+  est::StateVec x = est::initial_map(e, tl.psi_start_rad) * xi;
+  std::size_t k = 0;
+  Miss m;
+  auto rep = est::for_each_step(tl, [&](const est::TimelineStep& st) {
+    x = st.d->phi * x;
+    while (k + 1 < up.size() && up[k + 1].t_s <= st.t_to) ++k;
+    m.aligned += up[k].t_s == st.t_to;  // the nominal's sample at the step, not one before
+    const Eigen::Vector2d fd((up[k].ve - down[k].ve) / (2 * delta),
+                             (up[k].vn - down[k].vn) / (2 * delta));
+    m.size = std::max(m.size, fd.norm());
+    m.worst = std::max(m.worst, (x.segment<2>(est::sx::kDv) - fd).norm());
+    ++m.steps;
+  });
+  REQUIRE(rep.ok());
+  return m;
+}
+
+}  // namespace
+
 TEST_SUITE("second pass: the model against its nominal") {
   TEST_CASE("the model about zero is the nonlinear nominal's derivative there, every parameter") {
     // The nominal (the strapdown the second pass simulates) moved by a
@@ -557,53 +396,52 @@ TEST_SUITE("second pass: the model against its nominal") {
     // accelerometer terms and r2, 1e-3 for r1, whose jump the model takes
     // from the encoder's samples: 2e-3 for it). A term of F or of a turn's
     // jump left out or of the wrong sign misses by its whole effect.
-    // About the nominal at the truth of three times the prior the model
-    // misses by more (Theta_33 13%, nu0_3 4%; at the prior 6% and 2%;
-    // seed 2000): the linearisation there does not yet hold all of the
-    // nominal's own navigation errors.
     Simulated run = recommended_run(1.0, 2000);
-    const est::EarthAt e = est::EarthAt::at(run.in.timeline.site);
     const std::array<double, est::sx::kParams> zero{};
     int checked = 0;
     for (int j = 0; j < est::sx::kParams; ++j) {
       const auto u = static_cast<std::size_t>(j);
       CAPTURE(est::kParamNames[u]);
-      const double delta = 0.02 * run.in.priors.params[u];
-      if (!(delta > 0)) continue;
-      auto moved = [&](double s) {
-        auto q = zero;
-        q[u] = s * delta;
-        auto v = est::strapdown_nominal(run.in, q);
-        REQUIRE(v.ok());
-        return std::move(*v);
-      };
-      const auto up = moved(1), down = moved(-1);
-      REQUIRE(up.size() == down.size());
-      est::XiVec xi = est::XiVec::Zero();
-      xi(est::sxi::kParams + j) = 1;
-      est::StateVec x = est::initial_map(e, run.in.timeline.psi_start_rad) * xi;
-      std::size_t k = 0;
-      double worst = 0, size = 0;
-      int steps = 0, aligned = 0;
-      auto rep = est::for_each_step(run.in.timeline, [&](const est::TimelineStep& st) {
-        x = st.d->phi * x;
-        while (k + 1 < up.size() && up[k + 1].t_s <= st.t_to) ++k;
-        aligned += up[k].t_s == st.t_to;  // the nominal's sample at the step, not one before
-        const Eigen::Vector2d fd((up[k].ve - down[k].ve) / (2 * delta),
-                                 (up[k].vn - down[k].vn) / (2 * delta));
-        size = std::max(size, fd.norm());
-        worst = std::max(worst, (x.segment<2>(est::sx::kDv) - fd).norm());
-        ++steps;
-      });
-      REQUIRE(rep.ok());
-      REQUIRE(steps > 3000);  // an hour of epochs, but in the turns
-      CHECK(aligned == steps);
+      if (!(run.in.priors.params[u] > 0)) continue;
+      const Miss m = model_against_nominal(run, zero, j);
+      REQUIRE(m.steps > 3000);  // an hour of epochs, but in the turns
+      CHECK(m.aligned == m.steps);
       MESSAGE(est::kParamNames[u] << ": the model misses the nominal's derivative by "
-                                  << worst / size << " of its largest, " << size);
-      CHECK(size > 0);
+                                  << m.worst / m.size << " of its largest, " << m.size);
+      CHECK(m.size > 0);
       // r1's jump is the table's angular acceleration, which the model
       // takes from the encoder's samples: 1e-3
-      CHECK(worst <= (j == est::sx::kR - est::sx::kNu0 ? 2e-3 : 1e-4) * size);  // NaN fails
+      CHECK(m.worst <= (j == est::sx::kR - est::sx::kNu0 ? 2e-3 : 1e-4) * m.size);  // NaN fails
+      ++checked;
+    }
+    CHECK(checked == est::sx::kParams);
+  }
+
+  TEST_CASE("the model about the nominal at large errors is its derivative there") {
+    // The same about the nominal at the truth of three times the tactical
+    // prior (seed 2000: velocities of hundreds of m/s, the azimuth off by
+    // 4 deg, the latitude by 0.1 rad): the model about the nominal's own
+    // navigation state (model.md, 8) agrees to 1e-3 of the largest
+    // response (measured: 4e-4 at most, r1 1.2e-3: 2e-3 for it). The model
+    // that turned the parameters' terms by the nominal's azimuth alone
+    // missed Theta_33 by 13% and nu0_3 by 4% here, and the sigmas of both
+    // came out 30% too wide.
+    Simulated run = recommended_run(3.0, 2000);
+    std::array<double, est::sx::kParams> truth{};
+    for (int j = 0; j < est::sx::kParams; ++j)
+      truth[static_cast<std::size_t>(j)] = run.truth(est::sxi::kParams + j);
+    int checked = 0;
+    for (int j = 0; j < est::sx::kParams; ++j) {
+      const auto u = static_cast<std::size_t>(j);
+      CAPTURE(est::kParamNames[u]);
+      if (!(run.in.priors.params[u] > 0)) continue;
+      const Miss m = model_against_nominal(run, truth, j);
+      REQUIRE(m.steps > 3000);
+      CHECK(m.aligned == m.steps);
+      MESSAGE(est::kParamNames[u] << ": about the truth the model misses by " << m.worst / m.size
+                                  << " of its largest, " << m.size);
+      CHECK(m.size > 0);
+      CHECK(m.worst <= (j == est::sx::kR - est::sx::kNu0 ? 2e-3 : 1e-3) * m.size);  // NaN fails
       ++checked;
     }
     CHECK(checked == est::sx::kParams);

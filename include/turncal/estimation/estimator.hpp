@@ -40,13 +40,20 @@ struct VelocityObs {
 
 struct EstimationInput;
 
-/// The nonlinear nominal of the second pass: the velocity the INS would
-/// output, noise-free, if its errors were `params` (SI, state order from
-/// sx::kNu0) and its start errors zero, ascending in time from t0
-/// (strapdown_nominal in turncal/estimation/nominal.hpp: the nonlinear
-/// strapdown over the recorded table motion).
-using NominalModel = Result<std::vector<VelocityObs>> (*)(
-    const EstimationInput& in, const std::array<double, sx::kParams>& params);
+/// What the nonlinear nominal gives: the velocity the INS would output,
+/// noise-free, and its navigation state, which the model is linearised
+/// about (model.md, 8), both ascending in time from t0.
+struct NominalRun {
+  std::vector<VelocityObs> velocity;
+  std::vector<NominalState> track;
+};
+
+/// The nonlinear nominal of the second pass: what the INS would do if its
+/// errors were `params` (SI, state order from sx::kNu0) and its start
+/// errors zero (strapdown_nominal in turncal/estimation/nominal.hpp: the
+/// nonlinear strapdown over the recorded table motion).
+using NominalModel = Result<NominalRun> (*)(const EstimationInput& in,
+                                            const std::array<double, sx::kParams>& params);
 
 /// The nonlinear second pass (model.md, 8): the linear model is exact only
 /// about zero errors. Iterated about the estimate p_i: the nominal's
@@ -54,7 +61,8 @@ using NominalModel = Result<std::vector<VelocityObs>> (*)(
 /// estimated by the linear model, with the prior of the parameters moved
 /// to mean p_prior - p_i = -p_i, until no parameter changes by more than
 /// `tolerance_sigma` of its sigma (Gauss-Newton, or the iterated Kalman
-/// filter, with a Jacobian taken as the linear model's).
+/// filter, with the Jacobian of the model about the nominal's own
+/// navigation state: Nominal in model.hpp).
 struct SecondPassSettings {
   enum class Mode {
     Auto,    ///< where the first pass predicts a linearisation error over threshold_sigma
@@ -75,27 +83,11 @@ struct SecondPassSettings {
   /// sigma against 400 Hz (tests/scenario/test_second_pass.cpp) at a
   /// quarter of the cost.
   double nominal_imu_rate_hz = 100;
-  /// After the iterations, the estimates' sensitivity to how df_obs_i
-  /// splits into df_z_i and g Theta_i3 (which no vertical turn determines,
-  /// yet the nominal's azimuth error turns the two apart: model.md, 8) is
-  /// added to the covariance, a consider term model.md does not have (the
-  /// README says why); off only to compare.
-  bool consider_split = true;
-  /// With it, the split times the azimuth error's sources (nu0_3,
-  /// Theta_33), where that product is predicted to matter (estimator.cpp,
-  /// split_consider); off only to compare.
-  bool consider_split_mixed = true;
-  /// The partners' step for that product, in their posterior sigmas: the
-  /// term found is divided by it, so a product of the two factors alone
-  /// gives the same term at any step and either sign (tests use that).
-  /// Refused, with the reason, outside 0.05 to 10 either way.
-  double mixed_step_sigmas = 1;
-  /// The consider term's passes, independent of each other, run on this
-  /// many threads (0: one per hardware thread), the caller's among them;
-  /// where that is more than one, the two-stage baseline runs on one more,
-  /// beside the first pass (and the passes, if it has not ended by then).
-  /// The result does not depend on it. On Linux they start at the
-  /// caller's nice value (turncald's estimation runs below its loop).
+  /// Where this, 0 resolved to the hardware's thread count, is more than
+  /// one, the two-stage baseline runs on a thread of its own beside the
+  /// first pass and the second. The result does not depend on it. On
+  /// Linux it starts at the caller's nice value (turncald's estimation
+  /// runs below its loop).
   unsigned threads = 0;
 };
 

@@ -4,9 +4,13 @@
 // (section 7), and the alignment ties x0 = T xi (section 6). Pure.
 #pragma once
 
+#include <Eigen/Core>
 #include <array>
 #include <cmath>
+#include <cstdint>
+#include <memory>
 #include <span>
+#include <vector>
 
 #include "turncal/estimation/state.hpp"
 
@@ -25,6 +29,8 @@ struct EarthAt {
   double rm;  ///< R_M + h, m
   double rn;  ///< R_N + h, m
   double tan_lat;
+  double lat_rad;   ///< the site's latitude
+  double height_m;  ///< and height
   static EarthAt at(const Site& site);
 };
 
@@ -34,23 +40,39 @@ struct ProcessNoise {
   double q_g = 0;  ///< gyro, (rad/s)^2/Hz (ARW squared)
 };
 
+/// The nominal's navigation state at one time (model.md, 8): what the
+/// INS computes with the nominal's errors, noise-free, from its start at
+/// zero errors.
+struct NominalState {
+  double t_s = 0;
+  double ve = 0, vn = 0;  ///< computed velocity East, North, m/s
+  double dlat_rad = 0;    ///< computed latitude minus the site's
+  /// The computed attitude against the true one, C A(psi)^T: C the
+  /// computed body-to-local-level matrix, A(psi) the true (model.md, 1);
+  /// the identity about zero errors.
+  Eigen::Matrix3d e = Eigen::Matrix3d::Identity();
+};
+
 /// What a second pass linearises about (model.md, 8): the nominal's
-/// parameters. They turn the computed frame against the true one in
-/// azimuth by b3 = -nu0_3 t - Theta_33 (psi - psi_s) to first order (the
-/// Earth-rate terms of nu_3, under 1e-7 rad/s, and u2 b1 left out; the
-/// nominal's start errors are zero): degrees at the full tactical prior.
-/// About the nominal the body-axis errors reach the computed frame
-/// through A(psi - b3) rather than A(psi) (the computed body axes are the
-/// true ones turned by -b3: C = (I - [b x]) A), and b3 itself couples to
-/// the nominal's biases: d(dv)/dt gets -A'(psi - b3) df_z b3 and d(b)/dt
-/// gets A'(psi - b3) nu_z b3, A' = dA/dpsi.
+/// parameters and its navigation state over the run (its velocity of up
+/// to hundreds of m/s, its latitude, its attitude turned by degrees in
+/// azimuth at large errors). About it the model is the INS's error
+/// equations in the perturbation of that state: the velocity perturbed
+/// dv, the position perturbed in latitude and longitude, and the attitude
+/// by psi with C' = (I - [psi x]) C, carried in the model's coordinates
+/// (a1 = -dlat, a2 = cos(lat) dlon, b = psi - (a1, a2, tan(lat) a2)), so
+/// that about zero it is the model of model.md, 4.
 struct Nominal {
   std::array<double, sx::kParams> params{};  ///< SI, state order from sx::kNu0
   double psi_start_rad = 0;
-  /// The nominal's azimuth error at t with the table at psi, rad.
-  [[nodiscard]] double b3(double t_s, double psi_rad) const {
-    return -params[static_cast<std::size_t>(2)] * t_s -
-           params[static_cast<std::size_t>(sx::theta(3, 3) - sx::kNu0)] * (psi_rad - psi_start_rad);
+  /// Ascending in time, the first at or before t0; shared by the passes
+  /// that use it. Linear between its samples, held beyond its ends.
+  std::shared_ptr<const std::vector<NominalState>> track;
+  /// The state at t_s; `hint` is the search's start, kept between calls.
+  [[nodiscard]] NominalState at(double t_s, std::size_t& hint) const;
+  [[nodiscard]] NominalState at(double t_s) const {
+    std::size_t hint = SIZE_MAX;  // none
+    return at(t_s, hint);
   }
 };
 
@@ -95,9 +117,9 @@ struct TurnIntegrals {
   double js;
   double plateau_rate = NAN;  ///< rad/s, signed; NaN: only the totals are known
 };
-/// With a nominal, each step about it (its angles turned by -b3, the
-/// Theta_.3 and proof-mass jumps included; their own b3 derivatives, of
-/// the nominal's Theta_13, Theta_23 and r, are left out).
+/// With a nominal, each step about it: the Theta_.3 and proof-mass jumps
+/// turned by its attitude (its proof-mass acceleration in the specific
+/// force that tilts turn, under 1% of g at 3 cm and 2 rad/s, left out).
 Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
                          const ProcessNoise& noise, const TurnIntegrals* integrals = nullptr,
                          const Nominal* nominal = nullptr);

@@ -18,9 +18,16 @@ namespace turncal::est {
 /// simulated IMU on the still base, turned by the recorded encoder angle
 /// (linear between samples in each turn window, still in the holds),
 /// levelled over the alignment as the INS does (in.priors.align_s), its
-/// heading and position given without error. At the simulation's output
-/// rate (100 Hz) from t0 to the end of the timeline.
-Result<std::vector<VelocityObs>> strapdown_nominal(const EstimationInput& in,
-                                                   const std::array<double, sx::kParams>& params);
+/// heading and position given without error. The velocity at the
+/// simulation's output rate (100 Hz) from t0 to the end of the timeline,
+/// the navigation state at kNominalTrackRateHz.
+Result<NominalRun> strapdown_nominal(const EstimationInput& in,
+                                     const std::array<double, sx::kParams>& params);
+
+/// The nominal's navigation state's rate, Hz: it moves smoothly (its
+/// velocity with the Schuler period, its azimuth with the table at most
+/// by Theta_33 times the angle), and the model takes it linear between
+/// samples.
+inline constexpr double kNominalTrackRateHz = 10;
 
 }  // namespace turncal::est

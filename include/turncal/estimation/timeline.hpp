@@ -49,10 +49,8 @@ struct TimelineInput {
   /// m/s (test_estimator.cpp).
   double max_encoder_gap_s = 0.25;
   /// The second pass's nominal (model.md, 8): the model linearised about
-  /// it. The epoch's transition in a hold is made again where the
-  /// nominal's azimuth has moved by kNominalAzimuthStep since it was.
+  /// it, each epoch about its state at the epoch's middle.
   std::optional<Nominal> nominal;
-  static constexpr double kNominalAzimuthStep = 2e-4;  ///< rad (0.01 deg)
 };
 
 struct TimelineStep {

@@ -64,6 +64,7 @@ struct Config {
   double imu_rate_hz = 400;
   double output_rate_hz = 100;   ///< positive; above imu_rate_hz: every IMU step
   double encoder_rate_hz = 200;  ///< simulate()'s encoder samples; 0 (or less): none
+  double nav_rate_hz = 0;        ///< simulate()'s navigation states; 0 (or less): none
   std::uint64_t seed = 1;
 };
 
@@ -78,6 +79,15 @@ struct EncoderSample {
   double angle_rad;  ///< table angle, counter-clockwise, relative to t0, unwrapped
 };
 
+/// The INS's own navigation state (noise-free) beside the truth.
+struct NavSample {
+  double t_s;
+  double ve, vn;         ///< computed velocity East, North, m/s
+  double lat_rad;        ///< computed latitude
+  Eigen::Matrix3d c_bn;  ///< computed attitude: body to the computed East-North-Up frame
+  double psi_rad;        ///< true orientation: angle of z1 from East, counter-clockwise
+};
+
 /// Runs alignment, then steps the IMU and the INS one IMU period at a time.
 class Strapdown {
  public:
@@ -89,6 +99,8 @@ class Strapdown {
   [[nodiscard]] VelocitySample output();
   /// Table angle now (truth; the encoder reads it).
   [[nodiscard]] EncoderSample encoder() const;
+  /// The INS's navigation state now, and the true orientation.
+  [[nodiscard]] NavSample nav() const;
 
   /// The IMU's output over [ta, tb] (simulation time from t0): angle and
   /// velocity increments in body axes, with the configured errors and
@@ -136,6 +148,7 @@ class Strapdown {
 struct Run {
   std::vector<VelocitySample> velocity;
   std::vector<EncoderSample> encoder;
+  std::vector<NavSample> nav;  ///< at Config::nav_rate_hz
 };
 Run simulate(const Config& config);
 
