@@ -7,7 +7,6 @@
 #include <cstdio>
 #include <future>
 #include <memory>
-#include <optional>
 #include <system_error>
 #include <thread>
 
@@ -461,6 +460,9 @@ Result<EstimationResult> pass_about(const EstimationInput& in, const ParamArray&
   XiVec mean = XiVec::Zero();
   for (int j = 0; j < sx::kParams; ++j) mean(sxi::kParams + j) = -p[static_cast<std::size_t>(j)];
   TURNCAL_ASSIGN(r, run(resid, resid.timeline, true, mean));
+  // a NaN would pass the iteration's test of its change as none at all
+  if (!r.x.allFinite() || !r.p.allFinite())
+    return make_error("the pass about the nominal gave an estimate that is not finite");
   const ParamVec pv = Eigen::Map<const ParamVec>(p.data());
   r.x.segment<sx::kParams>(sx::kNu0) += pv;
   k = 0;

@@ -141,6 +141,11 @@ StateMat psd_sqrt(const StateMat& q) {
 }
 
 NominalState Nominal::at(double t_s, std::size_t& hint) const {
+  if (!track || track->empty()) {  // none: the state at zero errors
+    NominalState zero;
+    zero.t_s = t_s;
+    return zero;
+  }
   const std::vector<NominalState>& s = *track;
   if (hint >= s.size() || s[hint].t_s > t_s) {  // no hint, or one past t: search
     const auto it = std::upper_bound(s.begin(), s.end(), t_s,
@@ -303,7 +308,7 @@ Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
   const NavMat gqg = noise_input(noise).topLeftCorner<kNav, kNav>();
   const bool closed_rate = integrals != nullptr && std::isfinite(integrals->plateau_rate);
   const bool spread_at_end = integrals != nullptr && !closed_rate;
-  std::size_t hint = 0;  // the nominal's, ascending
+  std::size_t hint = SIZE_MAX;  // the nominal's: searched first, then ascending
   for (std::size_t k = 0; k + 1 < samples.size(); ++k) {
     const double dt = samples[k + 1].t_s - samples[k].t_s;
     if (dt <= 0) continue;

@@ -141,6 +141,9 @@ void compose(Discrete& d, const Discrete& piece) {
 Result<TimelineReport> for_each_step(const TimelineInput& in,
                                      const std::function<void(const TimelineStep&)>& fn) {
   if (!(in.epoch_s > 0)) return make_error("the filter epoch must be positive");
+  if (in.nominal &&
+      (!in.nominal->track || in.nominal->track->empty() || !(in.nominal->track->front().t_s <= 0)))
+    return make_error("the nominal has no navigation state from t0 to linearise about");
   TURNCAL_ASSIGN(turns, resolve_turns(in));
   for (std::size_t i = 0; i < turns.size(); ++i) {
     const TurnWindow& w = turns[i].w;

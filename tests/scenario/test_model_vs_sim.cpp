@@ -2,6 +2,7 @@
 // simulation, noise off, each parameter alone and all together.
 #include <doctest/doctest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <memory>
 #include <string>
@@ -583,6 +584,31 @@ TEST_SUITE("model about a nominal") {
       CHECK(row_relative(t0.phi, tn.phi) < 1e-12);
       CHECK(row_relative(t0.q, tn.q) < 1e-9);
     }
+  }
+
+  TEST_CASE("a nominal without a navigation state from t0 is refused; alone it is zero") {
+    est::TimelineInput in;
+    in.site = scenario::tactical().site;
+    in.duration_s = 10;
+    const est::Nominal none{{}, 0, nullptr};
+    CHECK(none.at(3).e == Eigen::Matrix3d::Identity());
+    CHECK(none.at(3).ve == 0);
+    auto late = std::make_shared<std::vector<est::NominalState>>(1);
+    (*late)[0].t_s = 0.5;
+    for (const est::Nominal& n :
+         {none, est::Nominal{{}, 0, std::make_shared<std::vector<est::NominalState>>()},
+          est::Nominal{{}, 0, late}}) {
+      in.nominal = n;
+      int steps = 0;
+      const auto r = est::for_each_step(in, [&](const est::TimelineStep&) { ++steps; });
+      REQUIRE_FALSE(r.ok());
+      CHECK(r.error().describe().find("no navigation state from t0") != std::string::npos);
+      CHECK(steps == 0);
+    }
+    in.nominal = zero_nominal(0);
+    int steps = 0;
+    CHECK(est::for_each_step(in, [&](const est::TimelineStep&) { ++steps; }).ok());
+    CHECK(steps == 10);
   }
 
   TEST_CASE("the nominal's state is linear between its samples, held beyond them, any order") {

@@ -83,8 +83,8 @@ TEST_SUITE("monte carlo") {
     // N = 50; 1.00 and 1.04 here) and mean z within 3/sqrt(N) = 0.42 of 0.
     // With the model about the nominal's own navigation state, the
     // nominal's derivative there, it reaches its 0.01 sigma in all 50 runs
-    // in at most 3 iterations (the model that turned only the parameters'
-    // terms by the nominal's azimuth converged in 40 within 5).
+    // (measured: in 3 iterations at most; the model that turned only the
+    // parameters' terms by the nominal's azimuth converged in 40 within 5).
     const MonteCarlo& mc = recommended(1.0);
     REQUIRE(mc.errors.empty());
     CHECK(mc.second_pass_ran == mc.runs);

@@ -66,7 +66,8 @@ struct Nominal {
   std::array<double, sx::kParams> params{};  ///< SI, state order from sx::kNu0
   double psi_start_rad = 0;
   /// Ascending in time, the first at or before t0; shared by the passes
-  /// that use it. Linear between its samples, held beyond its ends.
+  /// that use it. Linear between its samples, held beyond its ends; none
+  /// (or empty) is the state at zero errors, which for_each_step refuses.
   std::shared_ptr<const std::vector<NominalState>> track;
   /// The state at t_s; `hint` is the search's start, kept between calls.
   [[nodiscard]] NominalState at(double t_s, std::size_t& hint) const;
@@ -119,7 +120,8 @@ struct TurnIntegrals {
 };
 /// With a nominal, each step about it: the Theta_.3 and proof-mass jumps
 /// turned by its attitude (its proof-mass acceleration in the specific
-/// force that tilts turn, under 1% of g at 3 cm and 2 rad/s, left out).
+/// force that tilts turn, 0.12 m/s^2 or 1.2% of g at 3 cm and 2 rad/s,
+/// left out).
 Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
                          const ProcessNoise& noise, const TurnIntegrals* integrals = nullptr,
                          const Nominal* nominal = nullptr);
