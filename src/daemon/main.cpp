@@ -702,25 +702,40 @@ void Daemon::write_report(bool with_estimates) {
 void Daemon::report_interrupted_runs() {
   for (const std::string& id : state->logs_without_report()) {
     const fs::path log_file = state->path() / (id + ".log");
+    // a write the kill cut short leaves part of a line: no frame
+    std::uint64_t cut = 0;
+    if (auto c = state->cut_torn_tail(id); !c)
+      say(LOG_WARNING, id, "interrupted", c.error().describe());
+    else
+      cut = *c;
     auto dg = run::sha256_file(log_file.string());
     if (!dg) {
       say(LOG_WARNING, id, "interrupted", dg.error().describe());
       continue;
     }
     const std::uint64_t lines = dg->lines;
+    const std::string torn = cut > 0
+                                 ? "; the part of a line the stop cut short (" +
+                                       std::to_string(cut) + " bytes, no frame) was cut off its log"
+                                 : "";
     const json j = {{"format", "turncal-report-1"},
                     {"schema_version", run::kReportSchemaVersion},
                     {"run_id", id},
                     {"status", "interrupted"},
-                    {"reason", "the daemon stopped during the run (killed or crashed)"},
-                    {"log", {{"file", id + ".log"}, {"sha256", dg->sha256}, {"lines", lines}}},
+                    {"reason", "the daemon stopped during the run (killed or crashed)" + torn},
+                    {"log",
+                     {{"file", id + ".log"},
+                      {"sha256", dg->sha256},
+                      {"lines", lines},
+                      {"torn_bytes_cut", cut}}},
                     {"verdict", {{"pass", false}, {"checks", json::array()}}}};
     if (auto w =
             state->write_report(id, j, run::report_text(j), run::report_html(j, nullptr, nullptr));
         !w)
       say(LOG_ERR, id, "interrupted", "report not written: " + w.error().describe());
     say(LOG_WARNING, id, "interrupted",
-        "run " + id + " was interrupted; its log (" + std::to_string(lines) + " frames) is kept");
+        "run " + id + " was interrupted; its log (" + std::to_string(lines) + " frames) is kept" +
+            torn);
   }
 }
 

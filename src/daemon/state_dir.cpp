@@ -215,6 +215,43 @@ std::vector<std::string> StateDir::logs_without_report() const {
   return ids;
 }
 
+Result<std::uint64_t> StateDir::cut_torn_tail(const std::string& run_id) const {
+  const fs::path file = dir_ / (run_id + ".log");
+  const int fd = ::open(file.c_str(), O_RDWR | O_CLOEXEC);
+  if (fd < 0) return make_error(file.string() + ": cannot open: " + std::strerror(errno));
+  struct Closer {
+    int fd;
+    ~Closer() { ::close(fd); }
+  } closer{fd};
+  struct stat st {};
+  if (::fstat(fd, &st) != 0) return make_error(file.string() + ": " + std::strerror(errno));
+  const auto size = static_cast<std::uint64_t>(st.st_size);
+  // the tail: at most one line and its newline before it
+  const std::uint64_t span = std::min<std::uint64_t>(size, can::kMaxLogLine + 1);
+  std::vector<char> tail(span);
+  std::uint64_t got = 0;
+  while (got < span) {
+    const ssize_t n =
+        ::pread(fd, tail.data() + got, span - got, static_cast<off_t>(size - span + got));
+    if (n < 0 && errno == EINTR) continue;
+    if (n <= 0)
+      return make_error(file.string() + ": cannot read its end: " +
+                        (n == 0 ? std::string("it ended early") : std::strerror(errno)));
+    got += static_cast<std::uint64_t>(n);
+  }
+  if (span == 0 || tail.back() == '\n') return std::uint64_t{0};
+  const auto nl = std::find(tail.rbegin(), tail.rend(), '\n');
+  if (nl == tail.rend() && size > span)
+    return make_error(file.string() + ": its last " + std::to_string(span) +
+                      " bytes hold no line's end: not a line cut short, left as it is");
+  const std::uint64_t keep = size - static_cast<std::uint64_t>(nl - tail.rbegin());
+  if (::ftruncate(fd, static_cast<off_t>(keep)) != 0)
+    return make_error(file.string() + ": cannot cut its last line: " + std::strerror(errno));
+  if (::fsync(fd) != 0)
+    return make_error(file.string() + ": cut, but fsync failed: " + std::strerror(errno));
+  return size - keep;
+}
+
 std::vector<PrunedLog> StateDir::prune_logs(const Retention& r, double now_unix_s,
                                             const std::string& keep) const {
   struct Log {

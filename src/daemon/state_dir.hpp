@@ -98,6 +98,12 @@ class StateDir {
   [[nodiscard]] bool has_log(const std::string& run_id) const;
   /// The run ids of logs without a report: runs a killed daemon left.
   [[nodiscard]] std::vector<std::string> logs_without_report() const;
+  /// Cuts a run's log after its last whole line: the part of a line a
+  /// killed writer left (a write the kill cut short ends anywhere), which
+  /// is no frame and would read as damage. Returns the bytes cut (0: none);
+  /// refuses, cutting nothing, a tail longer than a log line, which no
+  /// kill leaves.
+  Result<std::uint64_t> cut_torn_tail(const std::string& run_id) const;
   /// Retention: removes the logs of runs whose report is in the index,
   /// readable and not an interrupted run's (never a report, never a log
   /// without one, never `keep`): first those last

@@ -13,9 +13,11 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <sstream>
 
 #include "control.hpp"
 #include "state_dir.hpp"
+#include "turncal/can/candump.hpp"
 #include "turncal/run/report.hpp"
 
 using namespace turncal;
@@ -428,6 +430,52 @@ TEST_CASE("state directory: retention removes old logs, keeps every report and u
   }
   st.load_index();
   CHECK(st.index().size() == 6);  // every report is there still
+  fs::remove_all(dir);
+}
+
+TEST_CASE("state directory: a killed run's log is cut after its last whole line, no further") {
+  const fs::path dir = fs::temp_directory_path() / ("turncal-torn-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  StateDir st(dir);
+  const std::string whole =
+      "(1.000000) can0 123#0102\n(1.010000) can0 124#0304\n";  // two whole lines
+  const auto write = [&](const std::string& id, const std::string& text) {
+    std::ofstream(dir / (id + ".log"), std::ios::binary) << text;
+  };
+  const auto read = [&](const std::string& id) {
+    std::ifstream in(dir / (id + ".log"), std::ios::binary);
+    std::ostringstream text;
+    text << in.rdbuf();
+    return text.str();
+  };
+  struct Case {
+    const char* id;
+    std::string text;
+    std::uint64_t cut;
+    std::string left;
+  };
+  for (const Case& c : {Case{"whole", whole, 0, whole}, Case{"empty", "", 0, ""},
+                        Case{"torn", whole + "(1.02000", 8, whole},
+                        Case{"fragment", "(1.000000) can0 12", 18, ""}}) {
+    CAPTURE(c.id);
+    write(c.id, c.text);
+    const auto r = st.cut_torn_tail(c.id);
+    REQUIRE(r.ok());
+    CHECK(*r == c.cut);
+    CHECK(read(c.id) == c.left);
+  }
+  // a tail longer than any line holds no newline: damage, not a kill's
+  // cut; left as it is
+  const std::string long_tail = whole + std::string(turncal::can::kMaxLogLine + 10, 'x');
+  write("damaged", long_tail);
+  const auto r = st.cut_torn_tail("damaged");
+  REQUIRE_FALSE(r.ok());
+  CHECK(r.error().describe().find("not a line cut short") != std::string::npos);
+  CHECK(read("damaged") == long_tail);
+  const auto none = st.cut_torn_tail("absent");
+  REQUIRE_FALSE(none.ok());
+  CHECK(none.error().describe().find("cannot open") != std::string::npos);
   fs::remove_all(dir);
 }
 
