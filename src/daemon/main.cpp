@@ -199,6 +199,7 @@ class Daemon {
   std::uint64_t replaced_checked_us = 0;
   std::uint8_t heartbeat_counter = 0;
   std::optional<StateDir> state;
+  DirLock state_lock;  ///< the state directory is this daemon's alone
   /// Frames the bus has lately carried (what a run's log grows at).
   BusRate bus_rate;
   double next_space_check_s = 0;  ///< of this run, real s from its start
@@ -702,6 +703,18 @@ void Daemon::write_report(bool with_estimates) {
 void Daemon::report_interrupted_runs() {
   for (const std::string& id : state->logs_without_report()) {
     const fs::path log_file = state->path() / (id + ".log");
+    // a write the kill cut short leaves part of a line: no frame, cut off;
+    // a tail that is no such part stays, and the report says so
+    std::uint64_t cut = 0;
+    std::string torn;
+    if (auto c = state->cut_torn_tail(id); !c) {
+      torn = "; its log's end was left as it is: " + c.error().describe();
+      say(LOG_WARNING, id, "interrupted", c.error().describe());
+    } else if (*c > 0) {
+      cut = *c;
+      torn = "; the part of a line the stop cut short (" + std::to_string(cut) +
+             " bytes, no frame) was cut off its log";
+    }
     auto dg = run::sha256_file(log_file.string());
     if (!dg) {
       say(LOG_WARNING, id, "interrupted", dg.error().describe());
@@ -712,15 +725,20 @@ void Daemon::report_interrupted_runs() {
                     {"schema_version", run::kReportSchemaVersion},
                     {"run_id", id},
                     {"status", "interrupted"},
-                    {"reason", "the daemon stopped during the run (killed or crashed)"},
-                    {"log", {{"file", id + ".log"}, {"sha256", dg->sha256}, {"lines", lines}}},
+                    {"reason", "the daemon stopped during the run (killed or crashed)" + torn},
+                    {"log",
+                     {{"file", id + ".log"},
+                      {"sha256", dg->sha256},
+                      {"lines", lines},
+                      {"torn_bytes_cut", cut}}},
                     {"verdict", {{"pass", false}, {"checks", json::array()}}}};
     if (auto w =
             state->write_report(id, j, run::report_text(j), run::report_html(j, nullptr, nullptr));
         !w)
       say(LOG_ERR, id, "interrupted", "report not written: " + w.error().describe());
     say(LOG_WARNING, id, "interrupted",
-        "run " + id + " was interrupted; its log (" + std::to_string(lines) + " frames) is kept");
+        "run " + id + " was interrupted; its log (" + std::to_string(lines) + " frames) is kept" +
+            torn);
   }
 }
 
@@ -1325,6 +1343,8 @@ Status Daemon::setup() {
   for (const std::string& w : unitless_role_warnings(roles)) say(LOG_WARNING, "", "idle", w);
   state.emplace(cfg.daemon.state_directory);
   TURNCAL_TRY(state->create());
+  TURNCAL_ASSIGN(held, state->lock());  // before any file in it is touched
+  state_lock = std::move(held);
   state->release_stale();
   report_interrupted_runs();
   state->load_index();

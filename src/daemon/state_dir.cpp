@@ -1,6 +1,7 @@
 #include "state_dir.hpp"
 
 #include <fcntl.h>
+#include <sys/file.h>
 #include <sys/stat.h>
 #include <sys/statvfs.h>
 #include <unistd.h>
@@ -33,13 +34,16 @@ int sys_fsync(int fd) {
 int sys_close(int fd) {
   return ::close(fd);
 }
+int sys_ftruncate(int fd, off_t length) {
+  return ::ftruncate(fd, length);
+}
 
 constexpr const char* kReportSuffix = ".report.json";
 
 }  // namespace
 
 const FileIo& posix_io() {
-  static const FileIo io{sys_write, sys_fsync, sys_close};
+  static const FileIo io{sys_write, sys_fsync, sys_close, sys_ftruncate};
   return io;
 }
 
@@ -49,6 +53,28 @@ Status StateDir::create() const {
   if (ec)
     return make_error("cannot create the state directory " + dir_.string() + ": " + ec.message());
   return Status{Ok{}};
+}
+
+DirLock::~DirLock() {
+  if (fd_ >= 0) (void)::close(fd_);  // the lock goes with the descriptor
+}
+
+Result<DirLock> StateDir::lock() const {
+  const fs::path file = dir_ / ".lock";
+  const int fd = ::open(file.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  if (fd < 0) return make_error("cannot open " + file.string() + ": " + std::strerror(errno));
+  DirLock held(fd);
+  int rc = 0;
+  while ((rc = ::flock(fd, LOCK_EX | LOCK_NB)) != 0 && errno == EINTR) {
+  }
+  if (rc != 0) {
+    if (errno == EWOULDBLOCK)
+      return make_error("the state directory " + dir_.string() +
+                        " is held by another process (another turncald?): its lock " +
+                        file.string() + " is taken; one daemon per state directory");
+    return make_error("cannot lock " + file.string() + ": " + std::strerror(errno));
+  }
+  return held;
 }
 
 Status StateDir::write_atomic(const std::string& name, const std::string& data) const {
@@ -213,6 +239,48 @@ std::vector<std::string> StateDir::logs_without_report() const {
     if (!fs::exists(dir_ / (id + kReportSuffix), gone)) ids.push_back(id);
   }
   return ids;
+}
+
+Result<std::uint64_t> StateDir::cut_torn_tail(const std::string& run_id) const {
+  const fs::path file = dir_ / (run_id + ".log");
+  const int fd = ::open(file.c_str(), O_RDWR | O_CLOEXEC);
+  if (fd < 0) return make_error(file.string() + ": cannot open: " + std::strerror(errno));
+  // every way out closes the file; an error before the close is the one said
+  const auto fail = [&](const std::string& what, int err) {
+    (void)io_->close(fd);
+    return make_error(file.string() + ": " + what + ": " + std::strerror(err));
+  };
+  struct stat st {};
+  if (::fstat(fd, &st) != 0) return fail("cannot stat", errno);
+  const auto size = static_cast<std::uint64_t>(st.st_size);
+  // the tail: at most one line and its newline before it
+  const std::uint64_t span = std::min<std::uint64_t>(size, can::kMaxLogLine + 1);
+  std::vector<char> tail(span);
+  std::uint64_t got = 0;
+  while (got < span) {
+    const ssize_t n =
+        ::pread(fd, tail.data() + got, span - got, static_cast<off_t>(size - span + got));
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) return fail("cannot read its end", errno);
+    if (n == 0) return fail("cannot read its end (it ended early)", EIO);
+    got += static_cast<std::uint64_t>(n);
+  }
+  std::uint64_t keep = size;
+  if (span > 0 && tail.back() != '\n') {
+    const auto nl = std::find(tail.rbegin(), tail.rend(), '\n');
+    if (nl == tail.rend() && size > span) {
+      (void)io_->close(fd);
+      return make_error(file.string() + ": its last " + std::to_string(span) +
+                        " bytes hold no line's end: not a line cut short; left as it is");
+    }
+    keep = size - static_cast<std::uint64_t>(nl - tail.rbegin());
+    if (io_->ftruncate(fd, static_cast<off_t>(keep)) != 0)
+      return fail("cannot cut its last, partial line", errno);
+    if (io_->fsync(fd) != 0) return fail("its partial line cut, but the sync failed", errno);
+  }
+  if (io_->close(fd) != 0)
+    return make_error(file.string() + ": cannot close: " + std::strerror(errno));
+  return size - keep;
 }
 
 std::vector<PrunedLog> StateDir::prune_logs(const Retention& r, double now_unix_s,

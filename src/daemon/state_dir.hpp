@@ -26,6 +26,7 @@ struct FileIo {
   ssize_t (*write)(int fd, const void* data, std::size_t size);
   int (*fsync)(int fd);
   int (*close)(int fd);
+  int (*ftruncate)(int fd, off_t length);
 };
 const FileIo& posix_io();
 
@@ -59,6 +60,27 @@ class BusRate {
   std::deque<std::pair<std::uint64_t, std::uint64_t>> points_;
 };
 
+/// The state directory held by one daemon: an exclusive lock on its
+/// .lock file, kept while this lives, so a second daemon started on the
+/// same directory is refused before it touches a file (it would release a
+/// live run's reservation and cut a live log's last line).
+class DirLock {
+ public:
+  DirLock() = default;
+  explicit DirLock(int fd) : fd_(fd) {}
+  DirLock(const DirLock&) = delete;
+  DirLock& operator=(const DirLock&) = delete;
+  DirLock(DirLock&& o) noexcept : fd_(std::exchange(o.fd_, -1)) {}
+  DirLock& operator=(DirLock&& o) noexcept {
+    std::swap(fd_, o.fd_);
+    return *this;
+  }
+  ~DirLock();
+
+ private:
+  int fd_ = -1;
+};
+
 /// Bytes a log of `frames` records takes at most, on interfaces whose names
 /// are at most `interface_chars` long (classic frames: a CAN FD frame's line
 /// is longer; the reference stand has none).
@@ -72,6 +94,9 @@ class StateDir {
   [[nodiscard]] const std::filesystem::path& path() const { return dir_; }
   /// Creates the directory if missing.
   Status create() const;
+  /// Takes the directory for this process (see DirLock); an error naming
+  /// the directory when another process holds it.
+  [[nodiscard]] Result<DirLock> lock() const;
   /// Temp file, write, fsync, close, rename, fsync of the directory: the file
   /// is whole or absent, and every step's failure is the error.
   Status write_atomic(const std::string& name, const std::string& data) const;
@@ -98,6 +123,13 @@ class StateDir {
   [[nodiscard]] bool has_log(const std::string& run_id) const;
   /// The run ids of logs without a report: runs a killed daemon left.
   [[nodiscard]] std::vector<std::string> logs_without_report() const;
+  /// Cuts a run's log after its last whole line: the part of a line a
+  /// killed writer left (a write the kill cut short ends anywhere), which
+  /// is no frame and would read as damage. Returns the bytes cut (0: none);
+  /// refuses, cutting nothing, a tail longer than a log line, which no
+  /// kill leaves. The cut is synced and the file closed, each checked.
+  /// Call it only under lock(): it must never cut a log being written.
+  Result<std::uint64_t> cut_torn_tail(const std::string& run_id) const;
   /// Retention: removes the logs of runs whose report is in the index,
   /// readable and not an interrupted run's (never a report, never a log
   /// without one, never `keep`): first those last

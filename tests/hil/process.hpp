@@ -14,6 +14,7 @@
 #include <stdexcept>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "turncal/can/candump.hpp"
@@ -26,13 +27,17 @@ using namespace std::chrono_literals;
 /// A child process (fork + exec), its stdout optionally into a file.
 class Child {
  public:
-  Child(std::vector<std::string> argv, const fs::path& cwd, const fs::path& out = {}) {
+  /// Runs argv in cwd; its stdout into `out` and its stderr into `err`
+  /// where given.
+  Child(std::vector<std::string> argv, const fs::path& cwd, const fs::path& out = {},
+        const fs::path& err = {}) {
     pid_ = ::fork();
     if (pid_ == 0) {
       if (::chdir(cwd.c_str()) != 0) ::_exit(126);
-      if (!out.empty()) {
-        const int fd = ::open(out.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-        if (fd < 0 || ::dup2(fd, 1) < 0) ::_exit(126);
+      for (const auto& [path, to] : {std::pair{&out, 1}, std::pair{&err, 2}}) {
+        if (path->empty()) continue;
+        const int fd = ::open(path->c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+        if (fd < 0 || ::dup2(fd, to) < 0) ::_exit(126);
       }
       std::vector<char*> args;
       for (auto& a : argv) args.push_back(a.data());

@@ -16,6 +16,7 @@
 #include "hil.hpp"
 #include "process.hpp"
 #include "turncal/can/candump.hpp"
+#include "turncal/run/sha256.hpp"
 
 using namespace turncal;
 using hil::Child;
@@ -272,6 +273,71 @@ TEST_SUITE("daemon") {
     CHECK(st["table"]["state"] == 5);  // quick-stopped, by itself
     CHECK(st["table"]["fault"] == kHeartbeatLostFault);
     CHECK(st["table"]["rate_dps"] == 0.0);
+  }
+
+  TEST_CASE(
+      "a killed run's log: a line cut short is cut off at the next start and the report says "
+      "so; a damaged end is left and said; a second turncald on the state directory is "
+      "refused") {
+    hil::TempDir dir;
+    write_stand(dir.path, hil::if0());
+    const hil::fs::path state = dir.path / "state";
+    hil::fs::create_directories(state);
+    std::string whole;
+    for (int k = 0; k < 50; ++k)
+      whole += "(1764979200." + std::to_string(100000 + k * 10000) + ") " + hil::if0() +
+               " 123#01020304\n";
+    const std::string torn_tail = "(1764979201.000000) " + hil::if0() + " 12";  // the kill's cut
+    std::ofstream(state / "killed.log", std::ios::binary) << whole << torn_tail;
+    // no line's end in a line's length and more: not a kill's cut
+    const std::string damaged = whole + std::string(can::kMaxLogLine + 5, '#');
+    std::ofstream(state / "damaged.log", std::ios::binary) << damaged;
+
+    const hil::fs::path config = dir.path / "turncal.toml";
+    Child daemon({kDaemon, "--config", config.string()}, dir.path, {}, dir.path / "daemon.err");
+    REQUIRE(wait_for(dir.path / "control.sock", 5000ms));
+    REQUIRE(ctl(dir.path, {"--json", "reports"}, "list.json") == 0);
+    const auto list = nlohmann::json::parse(slurp(dir.path / "list.json"));
+    int interrupted = 0;
+    for (const auto& e : list["reports"]) interrupted += e["status"] == "interrupted";
+    CHECK(interrupted == 2);
+
+    // cut after its last whole line: the log is those lines, and the
+    // report's digest and count are of what is kept
+    CHECK(slurp(state / "killed.log") == whole);
+    CHECK(log_records(state / "killed.log") == 50);
+    const auto r = nlohmann::json::parse(slurp(state / "killed.report.json"));
+    CHECK(r["status"] == "interrupted");
+    CHECK(r["log"]["torn_bytes_cut"] == torn_tail.size());
+    CHECK(r["log"]["lines"] == 50);
+    const auto dg = run::sha256_file((state / "killed.log").string());
+    REQUIRE(dg.ok());
+    CHECK(r["log"]["sha256"] == dg->sha256);
+    CHECK(r["reason"].get<std::string>().find("cut short (" + std::to_string(torn_tail.size()) +
+                                              " bytes, no frame)") != std::string::npos);
+    // the damaged one is left byte for byte, and its report says why
+    CHECK(slurp(state / "damaged.log") == damaged);
+    const auto d = nlohmann::json::parse(slurp(state / "damaged.report.json"));
+    CHECK(d["log"]["torn_bytes_cut"] == 0);
+    CHECK(d["reason"].get<std::string>().find("left as it is") != std::string::npos);
+    CHECK(d["reason"].get<std::string>().find("no line's end") != std::string::npos);
+
+    // a second daemon on the same state directory (and socket) is refused
+    // before it touches a file; the first goes on answering
+    Child second({kDaemon, "--config", config.string()}, dir.path, {}, dir.path / "second.err");
+    CHECK(second.wait(10000ms) == 1);
+    const std::string refused = slurp(dir.path / "second.err");
+    CAPTURE(refused);
+    CHECK(refused.find("held by another process") != std::string::npos);
+    CHECK(ctl(dir.path, {"status"}) == 0);
+    daemon.terminate();
+    CHECK(daemon.wait(10000ms) == 0);
+    // the daemon's log says both
+    const std::string said = slurp(dir.path / "daemon.err");
+    CAPTURE(said);
+    CHECK(said.find("run killed was interrupted") != std::string::npos);
+    CHECK(said.find("cut off its log") != std::string::npos);
+    CHECK(said.find("damaged.log: its last") != std::string::npos);
   }
 
   TEST_CASE(

@@ -13,9 +13,11 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <sstream>
 
 #include "control.hpp"
 #include "state_dir.hpp"
+#include "turncal/can/candump.hpp"
 #include "turncal/run/report.hpp"
 
 using namespace turncal;
@@ -283,6 +285,12 @@ int failing_close(int fd) {
   errno = EIO;
   return -1;
 }
+bool g_fail_ftruncate = false;
+int failing_ftruncate(int fd, off_t length) {
+  if (!g_fail_ftruncate) return ::ftruncate(fd, length);
+  errno = ENOSPC;
+  return -1;
+}
 }  // namespace
 
 TEST_CASE("state directory: the report's space is reserved at the start, or the run refused") {
@@ -310,7 +318,7 @@ TEST_CASE("state directory: the report's space is reserved at the start, or the 
 TEST_CASE("state directory: a write that fails says why and leaves no file, whole or half") {
   const fs::path dir = fs::temp_directory_path() / ("turncal-io-" + std::to_string(::getpid()));
   fs::remove_all(dir);
-  const FileIo io{failing_write, failing_fsync, failing_close};
+  const FileIo io{failing_write, failing_fsync, failing_close, failing_ftruncate};
   StateDir st(dir, io);
   REQUIRE(st.create().ok());
   for (const int err : {ENOSPC, EIO}) {
@@ -428,6 +436,107 @@ TEST_CASE("state directory: retention removes old logs, keeps every report and u
   }
   st.load_index();
   CHECK(st.index().size() == 6);  // every report is there still
+  fs::remove_all(dir);
+}
+
+TEST_CASE("state directory: a killed run's log is cut after its last whole line, no further") {
+  const fs::path dir = fs::temp_directory_path() / ("turncal-torn-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  StateDir st(dir);
+  const std::string whole =
+      "(1.000000) can0 123#0102\n(1.010000) can0 124#0304\n";  // two whole lines
+  const auto write = [&](const std::string& id, const std::string& text) {
+    std::ofstream(dir / (id + ".log"), std::ios::binary) << text;
+  };
+  const auto read = [&](const std::string& id) {
+    std::ifstream in(dir / (id + ".log"), std::ios::binary);
+    std::ostringstream text;
+    text << in.rdbuf();
+    return text.str();
+  };
+  struct Case {
+    const char* id;
+    std::string text;
+    std::uint64_t cut;
+    std::string left;
+  };
+  for (const Case& c : {Case{"whole", whole, 0, whole}, Case{"empty", "", 0, ""},
+                        Case{"torn", whole + "(1.02000", 8, whole},
+                        Case{"fragment", "(1.000000) can0 12", 18, ""}}) {
+    CAPTURE(c.id);
+    write(c.id, c.text);
+    const auto r = st.cut_torn_tail(c.id);
+    REQUIRE(r.ok());
+    CHECK(*r == c.cut);
+    CHECK(read(c.id) == c.left);
+  }
+  // a tail longer than any line holds no newline: damage, not a kill's
+  // cut; left as it is
+  const std::string long_tail = whole + std::string(turncal::can::kMaxLogLine + 10, 'x');
+  write("damaged", long_tail);
+  const auto r = st.cut_torn_tail("damaged");
+  REQUIRE_FALSE(r.ok());
+  CHECK(r.error().describe().find("not a line cut short") != std::string::npos);
+  CHECK(read("damaged") == long_tail);
+  const auto none = st.cut_torn_tail("absent");
+  REQUIRE_FALSE(none.ok());
+  CHECK(none.error().describe().find("cannot open") != std::string::npos);
+
+  // the cut, its sync and the close each fail with their reason
+  const FileIo io{failing_write, failing_fsync, failing_close, failing_ftruncate};
+  StateDir failing(dir, io);
+  struct Step {
+    bool fail_ftruncate;
+    int fsyncs_before_fail;
+    bool fail_close;
+    const char* says;
+    std::string left;
+  };
+  for (const Step& s : {Step{true, 1000, false, "cannot cut", whole + "(1.0"},
+                        Step{false, 0, false, "the sync failed", whole},
+                        Step{false, 1000, true, "cannot close", whole}}) {
+    CAPTURE(s.says);
+    write("t", whole + "(1.0");
+    g_fail_ftruncate = s.fail_ftruncate;
+    g_fsyncs_before_fail = s.fsyncs_before_fail;
+    g_fail_close = s.fail_close;
+    const auto f = failing.cut_torn_tail("t");
+    g_fail_ftruncate = false;
+    g_fsyncs_before_fail = 1000;
+    g_fail_close = false;
+    REQUIRE_FALSE(f.ok());
+    CHECK(f.error().describe().find(s.says) != std::string::npos);
+    CHECK(read("t") == s.left);
+  }
+  // a whole log's close is checked too
+  write("w", whole);
+  g_fail_close = true;
+  const auto wc = failing.cut_torn_tail("w");
+  g_fail_close = false;
+  REQUIRE_FALSE(wc.ok());
+  CHECK(wc.error().describe().find("cannot close") != std::string::npos);
+  fs::remove_all(dir);
+}
+
+TEST_CASE("state directory: one process holds it; a second is refused until the first lets go") {
+  const fs::path dir = fs::temp_directory_path() / ("turncal-lock-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  StateDir st(dir);
+  REQUIRE(st.create().ok());
+  {
+    auto first = st.lock();
+    REQUIRE(first.ok());
+    // flock is per open file: a second open of the lock, as another
+    // daemon's would be, is refused while the first holds it
+    auto second = StateDir(dir).lock();
+    REQUIRE_FALSE(second.ok());
+    CHECK(second.error().describe().find("held by another process") != std::string::npos);
+    CHECK(second.error().describe().find(dir.string()) != std::string::npos);
+    DirLock moved = std::move(*first);  // a move keeps it held
+    CHECK_FALSE(StateDir(dir).lock().ok());
+  }
+  CHECK(st.lock().ok());  // let go with its holder
   fs::remove_all(dir);
 }
 
