@@ -424,16 +424,13 @@ namespace {
 
 using ParamArray = std::array<double, sx::kParams>;
 
-/// The nominal's velocity at t, linear between its samples (ascending),
-/// held beyond its ends; `k` is the search's start, kept between calls
-/// with ascending t.
+/// The nominal's velocity at t (see sample_at).
 Meas nominal_at(const std::vector<VelocityObs>& nom, double t, std::size_t& k) {
-  while (k + 1 < nom.size() && nom[k + 1].t_s <= t) ++k;
-  const VelocityObs& a = nom[k];
-  if (k + 1 == nom.size() || t <= a.t_s) return Meas(a.ve, a.vn);
-  const VelocityObs& b = nom[k + 1];
-  const double f = (t - a.t_s) / (b.t_s - a.t_s);
-  return Meas(a.ve + f * (b.ve - a.ve), a.vn + f * (b.vn - a.vn));
+  const VelocityObs v =
+      sample_at(nom, t, k, [](const VelocityObs& a, const VelocityObs& b, double f) {
+        return VelocityObs{a.t_s, a.ve + f * (b.ve - a.ve), a.vn + f * (b.vn - a.vn)};
+      });
+  return Meas(v.ve, v.vn);
 }
 
 /// One iteration of the second pass about `p`: the filter on z - h(p)
@@ -444,13 +441,11 @@ Result<EstimationResult> pass_about(const EstimationInput& in, const ParamArray&
   TURNCAL_ASSIGN(run_about, in.second_pass.nominal(in, p));
   const std::vector<VelocityObs>& nom = run_about.velocity;
   if (nom.empty()) return make_error("the nonlinear nominal gave no velocity");
-  if (run_about.track.empty() || run_about.track.front().t_s > 0)
-    return make_error("the nonlinear nominal gave no navigation state from t0");
+  // a track that does not start at t0 the timeline refuses, naming it
   EstimationInput resid = in;
   // the model linearised about the nominal (model.md, 8)
   resid.timeline.nominal =
-      Nominal{p, in.timeline.psi_start_rad,
-              std::make_shared<const std::vector<NominalState>>(std::move(run_about.track))};
+      Nominal{p, std::make_shared<const std::vector<NominalState>>(std::move(run_about.track))};
   std::size_t k = 0;
   for (VelocityObs& v : resid.velocity) {
     const Meas h = nominal_at(nom, v.t_s, k);

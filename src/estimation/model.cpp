@@ -8,16 +8,20 @@
 #include "turncal/earth.hpp"
 
 namespace turncal::est {
+
+Eigen::Matrix3d body_to_geographic(double psi) {
+  const double c = std::cos(psi), s = std::sin(psi);
+  Eigen::Matrix3d a;
+  a << c, -s, 0, s, c, 0, 0, 0, 1;
+  return a;
+}
+
 namespace {
 
 using Mat3 = Eigen::Matrix3d;
 
-/// A(psi), body to geographic (model.md, 1).
 Mat3 rot(double psi) {
-  const double c = std::cos(psi), s = std::sin(psi);
-  Mat3 a;
-  a << c, -s, 0, s, c, 0, 0, 0, 1;
-  return a;
+  return body_to_geographic(psi);
 }
 
 /// G Q G^T: accelerometer noise in the dv rows, gyro noise in the b rows
@@ -146,24 +150,16 @@ NominalState Nominal::at(double t_s, std::size_t& hint) const {
     zero.t_s = t_s;
     return zero;
   }
-  const std::vector<NominalState>& s = *track;
-  if (hint >= s.size() || s[hint].t_s > t_s) {  // no hint, or one past t: search
-    const auto it = std::upper_bound(s.begin(), s.end(), t_s,
-                                     [](double t, const NominalState& n) { return t < n.t_s; });
-    hint = it == s.begin() ? 0 : static_cast<std::size_t>(it - s.begin()) - 1;
-  }
-  while (hint + 1 < s.size() && s[hint + 1].t_s <= t_s) ++hint;
-  const NominalState& a = s[hint];
-  if (hint + 1 == s.size() || t_s <= a.t_s) return a;
-  const NominalState& b = s[hint + 1];
-  const double f = (t_s - a.t_s) / (b.t_s - a.t_s);
-  NominalState o;
-  o.t_s = t_s;
-  o.ve = a.ve + f * (b.ve - a.ve);
-  o.vn = a.vn + f * (b.vn - a.vn);
-  o.dlat_rad = a.dlat_rad + f * (b.dlat_rad - a.dlat_rad);
-  o.e = a.e + f * (b.e - a.e);
-  return o;
+  return sample_at(*track, t_s, hint,
+                   [t_s](const NominalState& a, const NominalState& b, double f) {
+                     NominalState o;
+                     o.t_s = t_s;
+                     o.ve = a.ve + f * (b.ve - a.ve);
+                     o.vn = a.vn + f * (b.vn - a.vn);
+                     o.dlat_rad = a.dlat_rad + f * (b.dlat_rad - a.dlat_rad);
+                     o.e = a.e + f * (b.e - a.e);
+                     return o;
+                   });
 }
 
 EarthAt EarthAt::at(const Site& site) {

@@ -60,10 +60,8 @@ Result<NominalRun> strapdown_nominal(const EstimationInput& in,
   out.track.reserve(run.nav.size());
   for (const sim::NavSample& n : run.nav) {
     // E = C A(psi)^T, A(psi) the true body-to-geographic rotation
-    const double cp = std::cos(n.psi_rad), sp = std::sin(n.psi_rad);
-    Eigen::Matrix3d a_t;
-    a_t << cp, sp, 0, -sp, cp, 0, 0, 0, 1;
-    out.track.push_back({n.t_s, n.ve, n.vn, n.lat_rad - tl.site.latitude_rad, n.c_bn * a_t});
+    out.track.push_back({n.t_s, n.ve, n.vn, n.lat_rad - tl.site.latitude_rad,
+                         n.c_bn * body_to_geographic(n.psi_rad).transpose()});
   }
   return out;
 }

@@ -440,8 +440,7 @@ Comparison compare_about(const est::XiVec& xi, const est::XiVec& nominal_xi, dou
   const std::vector<est::VelocityObs>* nominal = &nominal_run->velocity;
   if (linearised_there)
     in.nominal = est::Nominal{
-        p, psi_s,
-        std::make_shared<const std::vector<est::NominalState>>(std::move(nominal_run->track))};
+        p, std::make_shared<const std::vector<est::NominalState>>(std::move(nominal_run->track))};
   REQUIRE(nominal->size() == run.velocity.size());
   const est::EarthAt earth = est::EarthAt::at(in.site);
   est::StateVec x = est::initial_map(earth, psi_s) * (xi - nominal_xi);
@@ -541,10 +540,10 @@ double row_relative(const M& a, const M& b) {
 
 /// A nominal at zero errors: its state at rest at the site, its attitude
 /// the true one, over an hour.
-est::Nominal zero_nominal(double psi_s) {
+est::Nominal zero_nominal() {
   auto track = std::make_shared<std::vector<est::NominalState>>(2);
   (*track)[1].t_s = 3600;
-  return est::Nominal{{}, psi_s, std::move(track)};
+  return est::Nominal{{}, std::move(track)};
 }
 
 }  // namespace
@@ -565,7 +564,7 @@ TEST_SUITE("model about a nominal") {
     const est::ProcessNoise noise{1e-8, 1e-12};
     for (const double psi : {0.0, 0.7, 2.5, -2.0}) {
       CAPTURE(psi);
-      const est::Nominal nom = zero_nominal(psi);
+      const est::Nominal nom = zero_nominal();
       const est::StateMat f0 = est::hold_dynamics(e, psi);
       const est::StateMat fn = est::hold_dynamics(e, psi, &nom, 100);
       CHECK(row_relative(f0, fn) < 1e-12);
@@ -590,14 +589,22 @@ TEST_SUITE("model about a nominal") {
     est::TimelineInput in;
     in.site = scenario::tactical().site;
     in.duration_s = 10;
-    const est::Nominal none{{}, 0, nullptr};
+    const est::Nominal none{{}, nullptr};
     CHECK(none.at(3).e == Eigen::Matrix3d::Identity());
     CHECK(none.at(3).ve == 0);
     auto late = std::make_shared<std::vector<est::NominalState>>(1);
     (*late)[0].t_s = 0.5;
     for (const est::Nominal& n :
-         {none, est::Nominal{{}, 0, std::make_shared<std::vector<est::NominalState>>()},
-          est::Nominal{{}, 0, late}}) {
+         {none, est::Nominal{{}, std::make_shared<std::vector<est::NominalState>>()},
+          est::Nominal{{}, late}}) {
+      if (n.track != late) {  // no state at all: the state at zero errors, at the time asked
+        const est::NominalState z = n.at(3);
+        CHECK(z.t_s == 3);
+        CHECK(z.ve == 0);
+        CHECK(z.vn == 0);
+        CHECK(z.dlat_rad == 0);
+        CHECK(z.e == Eigen::Matrix3d::Identity());
+      }
       in.nominal = n;
       int steps = 0;
       const auto r = est::for_each_step(in, [&](const est::TimelineStep&) { ++steps; });
@@ -605,7 +612,7 @@ TEST_SUITE("model about a nominal") {
       CHECK(r.error().describe().find("no navigation state from t0") != std::string::npos);
       CHECK(steps == 0);
     }
-    in.nominal = zero_nominal(0);
+    in.nominal = zero_nominal();
     int steps = 0;
     CHECK(est::for_each_step(in, [&](const est::TimelineStep&) { ++steps; }).ok());
     CHECK(steps == 10);
@@ -621,7 +628,7 @@ TEST_SUITE("model about a nominal") {
       n.dlat_rad = 1e-3 * k;
       n.e(0, 1) = 0.01 * k;
     }
-    const est::Nominal nom{{}, 0, track};
+    const est::Nominal nom{{}, track};
     std::size_t hint = 0;
     // ascending, then back: the hint is only where the search starts
     for (const double t : {-5.0, 0.0, 5.0, 15.0, 20.0, 25.0, 12.5, 2.5}) {

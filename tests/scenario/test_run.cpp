@@ -1854,7 +1854,8 @@ TEST_SUITE("run engine on the virtual stand") {
           const double across =
               std::abs(est_of[name == "df_obs_1" ? "df_eff_2" : "df_eff_1"]["value"].get<double>());
           CHECK(sigma >= 0.95 * pred);
-          CHECK(sigma <= std::hypot(pred, azimuth * across));
+          // the plan's share with the 5% every other parameter is held to
+          CHECK(sigma <= std::hypot(1.05 * pred, azimuth * across));
         } else {
           CHECK(sigma == doctest::Approx(pred).epsilon(0.05).scale(0));
         }

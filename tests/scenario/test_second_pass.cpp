@@ -323,8 +323,8 @@ TEST_SUITE("second pass") {
     const auto linear = est::estimate(off);
     REQUIRE(linear.ok());
     for (const auto& [spoil, why] :
-         {std::pair{Spoil::None, "the nonlinear nominal gave no navigation state from t0"},
-          std::pair{Spoil::Late, "the nonlinear nominal gave no navigation state from t0"},
+         {std::pair{Spoil::None, "the nominal has no navigation state from t0 to linearise about"},
+          std::pair{Spoil::Late, "the nominal has no navigation state from t0 to linearise about"},
           std::pair{Spoil::NaN,
                     "the pass about the nominal gave an estimate that is not finite"}}) {
       g_spoil = spoil;
@@ -378,8 +378,7 @@ Miss model_against_nominal(const Simulated& run, const std::array<double, est::s
     auto there = est::strapdown_nominal(run.in, about);
     REQUIRE(there.ok());
     tl.nominal = est::Nominal{
-        about, tl.psi_start_rad,
-        std::make_shared<const std::vector<est::NominalState>>(std::move(there->track))};
+        about, std::make_shared<const std::vector<est::NominalState>>(std::move(there->track))};
   }
   const est::EarthAt e = est::EarthAt::at(tl.site);
   est::XiVec xi = est::XiVec::Zero();

@@ -217,8 +217,9 @@ struct EstimationResult {
   bool has_two_stage = false;
   TwoStage two_stage;
   /// After a second pass: the parameters and dv of x and x_history are the
-  /// estimates (nominal plus correction); a and b stay relative to the
-  /// nominal's, which the nominal does not give.
+  /// estimates (nominal plus correction); a and b stay the perturbation
+  /// about the nominal's position and attitude (its track holds those, in
+  /// other coordinates, and they are not added back).
   SecondPass second_pass;
 };
 

@@ -5,6 +5,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -64,7 +65,6 @@ struct NominalState {
 /// that about zero it is the model of model.md, 4.
 struct Nominal {
   std::array<double, sx::kParams> params{};  ///< SI, state order from sx::kNu0
-  double psi_start_rad = 0;
   /// Ascending in time, the first at or before t0; shared by the passes
   /// that use it. Linear between its samples, held beyond its ends; none
   /// (or empty) is the state at zero errors, which for_each_step refuses.
@@ -76,6 +76,27 @@ struct Nominal {
     return at(t_s, hint);
   }
 };
+
+/// The sample of a series ascending in time (non-empty) at t_s: linear
+/// between its samples, held beyond its ends. `hint` is where the search
+/// starts, kept between calls (walks forward in order; searches when t_s
+/// is before it or it is past the end); `mix(a, b, f)` is a + f (b - a).
+template <class Sample, class Mix>
+Sample sample_at(const std::vector<Sample>& s, double t_s, std::size_t& hint, const Mix& mix) {
+  if (hint >= s.size() || s[hint].t_s > t_s) {
+    const auto it = std::upper_bound(s.begin(), s.end(), t_s,
+                                     [](double t, const Sample& n) { return t < n.t_s; });
+    hint = it == s.begin() ? 0 : static_cast<std::size_t>(it - s.begin()) - 1;
+  }
+  while (hint + 1 < s.size() && s[hint + 1].t_s <= t_s) ++hint;
+  const Sample& a = s[hint];
+  if (hint + 1 == s.size() || t_s <= a.t_s) return a;
+  const Sample& b = s[hint + 1];
+  return mix(a, b, (t_s - a.t_s) / (b.t_s - a.t_s));
+}
+
+/// A(psi), the body-to-geographic rotation at orientation psi (model.md, 1).
+Eigen::Matrix3d body_to_geographic(double psi);
 
 /// F at a still orientation psi (no Omega terms), model.md section 4;
 /// with a nominal, linearised about it at time t (see Nominal).
