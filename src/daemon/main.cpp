@@ -703,21 +703,29 @@ void Daemon::write_report(bool with_estimates) {
 void Daemon::report_interrupted_runs() {
   for (const std::string& id : state->logs_without_report()) {
     const fs::path log_file = state->path() / (id + ".log");
-    // a write the kill cut short leaves part of a line: no frame, cut off;
-    // a tail that is no such part stays, and the report says so
-    std::uint64_t cut = 0;
-    std::string torn;
-    if (auto c = state->cut_torn_tail(id); !c) {
-      torn = "; its log's end was left as it is: " + c.error().describe();
-      say(LOG_WARNING, id, "interrupted", c.error().describe());
-    } else if (*c > 0) {
-      cut = *c;
-      torn = "; the part of a line the stop cut short (" + std::to_string(cut) +
-             " bytes, no frame) was cut off its log";
+    // a write the kill cut short leaves part of a line: no frame, cut off
+    // (and said at once, so a failure below leaves the cut on record); a
+    // tail that is no such part stays, and the report says so
+    const TailCut c = state->cut_torn_tail(id);
+    std::string torn, torn_text;
+    for (const char ch : c.bytes) {  // printable, whatever the kill left
+      char b[8];
+      if (ch >= 0x20 && ch < 0x7f)
+        torn_text += ch;
+      else if (std::snprintf(b, sizeof b, "\\x%02x", static_cast<unsigned char>(ch)) > 0)
+        torn_text += b;
     }
+    if (!c.bytes.empty()) {
+      torn = "; the part of a line the stop cut short (" + std::to_string(c.bytes.size()) +
+             " bytes, no frame) was cut off its log";
+      say(LOG_WARNING, id, "interrupted",
+          "cut the last " + std::to_string(c.bytes.size()) +
+              " bytes of its log, part of a line a kill cut short: \"" + torn_text + "\"");
+    }
+    if (!c.error.empty()) torn += "; its log's end: " + c.error;
     auto dg = run::sha256_file(log_file.string());
     if (!dg) {
-      say(LOG_WARNING, id, "interrupted", dg.error().describe());
+      say(LOG_WARNING, id, "interrupted", "no report: " + dg.error().describe() + torn);
       continue;
     }
     const std::uint64_t lines = dg->lines;
@@ -730,7 +738,8 @@ void Daemon::report_interrupted_runs() {
                      {{"file", id + ".log"},
                       {"sha256", dg->sha256},
                       {"lines", lines},
-                      {"torn_bytes_cut", cut}}},
+                      {"torn_bytes_cut", c.bytes.size()},
+                      {"torn_tail", torn_text}}},
                     {"verdict", {{"pass", false}, {"checks", json::array()}}}};
     if (auto w =
             state->write_report(id, j, run::report_text(j), run::report_html(j, nullptr, nullptr));

@@ -241,46 +241,74 @@ std::vector<std::string> StateDir::logs_without_report() const {
   return ids;
 }
 
-Result<std::uint64_t> StateDir::cut_torn_tail(const std::string& run_id) const {
+TailCut StateDir::cut_torn_tail(const std::string& run_id) const {
   const fs::path file = dir_ / (run_id + ".log");
-  const int fd = ::open(file.c_str(), O_RDWR | O_CLOEXEC);
-  if (fd < 0) return make_error(file.string() + ": cannot open: " + std::strerror(errno));
-  // every way out closes the file; an error before the close is the one said
-  const auto fail = [&](const std::string& what, int err) {
-    (void)io_->close(fd);
-    return make_error(file.string() + ": " + what + ": " + std::strerror(err));
+  TailCut out;
+  const auto failed = [&](const std::string& what, int err) {
+    out.error =
+        file.string() + ": " + what + (err != 0 ? std::string(": ") + std::strerror(err) : "");
+    return out;
   };
+  // read only, and only a regular file (never a link's target), until a cut is due
+  const int rfd = ::open(file.c_str(), O_RDONLY | O_NOFOLLOW | O_CLOEXEC);
+  if (rfd < 0) return failed("cannot open", errno);
   struct stat st {};
-  if (::fstat(fd, &st) != 0) return fail("cannot stat", errno);
+  const bool stat_ok = ::fstat(rfd, &st) == 0;
+  const int stat_err = errno;
+  if (!stat_ok || !S_ISREG(st.st_mode)) {
+    (void)::close(rfd);
+    return stat_ok ? failed("not a regular file; left as it is", 0)
+                   : failed("cannot stat", stat_err);
+  }
   const auto size = static_cast<std::uint64_t>(st.st_size);
-  // the tail: at most one line and its newline before it
-  const std::uint64_t span = std::min<std::uint64_t>(size, can::kMaxLogLine + 1);
-  std::vector<char> tail(span);
+  // a kill's part of a line is shorter than a whole line (kMaxLogLine
+  // holds its newline): the last kMaxLogLine bytes hold its start
+  const std::uint64_t span = std::min<std::uint64_t>(size, can::kMaxLogLine);
+  std::string tail(span, '\0');
   std::uint64_t got = 0;
+  int read_err = 0;
   while (got < span) {
     const ssize_t n =
-        ::pread(fd, tail.data() + got, span - got, static_cast<off_t>(size - span + got));
+        ::pread(rfd, tail.data() + got, span - got, static_cast<off_t>(size - span + got));
     if (n < 0 && errno == EINTR) continue;
-    if (n < 0) return fail("cannot read its end", errno);
-    if (n == 0) return fail("cannot read its end (it ended early)", EIO);
+    if (n <= 0) {
+      read_err = n < 0 ? errno : EIO;
+      break;
+    }
     got += static_cast<std::uint64_t>(n);
   }
-  std::uint64_t keep = size;
-  if (span > 0 && tail.back() != '\n') {
-    const auto nl = std::find(tail.rbegin(), tail.rend(), '\n');
-    if (nl == tail.rend() && size > span) {
-      (void)io_->close(fd);
-      return make_error(file.string() + ": its last " + std::to_string(span) +
-                        " bytes hold no line's end: not a line cut short; left as it is");
-    }
-    keep = size - static_cast<std::uint64_t>(nl - tail.rbegin());
-    if (io_->ftruncate(fd, static_cast<off_t>(keep)) != 0)
-      return fail("cannot cut its last, partial line", errno);
-    if (io_->fsync(fd) != 0) return fail("its partial line cut, but the sync failed", errno);
+  (void)::close(rfd);  // read only: nothing of it to lose
+  if (read_err != 0) return failed("cannot read its end", read_err);
+  const std::size_t nl = tail.rfind('\n');
+  if (nl == tail.size() - 1 || span == 0) return out;  // ends with a whole line
+  if (nl == std::string::npos && size >= can::kMaxLogLine)
+    return failed("its last " + std::to_string(span) +
+                      " bytes hold no line's end: longer than any line, not a line cut short; "
+                      "left as it is",
+                  0);
+  const std::string part = nl == std::string::npos ? tail : tail.substr(nl + 1);
+  const std::uint64_t keep = size - part.size();
+  const int fd = ::open(file.c_str(), O_WRONLY | O_NOFOLLOW | O_CLOEXEC);
+  if (fd < 0) return failed("cannot open to cut its last, partial line", errno);
+  struct stat again {};
+  if (::fstat(fd, &again) != 0 || again.st_ino != st.st_ino || again.st_dev != st.st_dev ||
+      again.st_size != st.st_size) {
+    (void)io_->close(fd);
+    return failed("changed while it was read; left as it is", 0);
   }
-  if (io_->close(fd) != 0)
-    return make_error(file.string() + ": cannot close: " + std::strerror(errno));
-  return size - keep;
+  if (io_->ftruncate(fd, static_cast<off_t>(keep)) != 0) {
+    const int err = errno;
+    (void)io_->close(fd);
+    return failed("cannot cut its last, partial line", err);
+  }
+  out.bytes = part;  // cut: whatever fails next, these bytes are gone from the file
+  if (io_->fsync(fd) != 0) {
+    const int err = errno;
+    (void)io_->close(fd);
+    return failed("its partial line was cut, but the sync failed", err);
+  }
+  if (io_->close(fd) != 0) return failed("its partial line was cut, but the close failed", errno);
+  return out;
 }
 
 std::vector<PrunedLog> StateDir::prune_logs(const Retention& r, double now_unix_s,

@@ -86,6 +86,13 @@ class DirLock {
 /// is longer; the reference stand has none).
 std::uint64_t log_bytes_bound(double frames, std::size_t interface_chars);
 
+/// What cutting a killed run's torn log tail did.
+struct TailCut {
+  std::string bytes;  ///< the bytes cut off (the part of a line); empty: none
+  std::string
+      error;  ///< empty: done (or nothing to do); else why not, or what failed after the cut
+};
+
 class StateDir {
  public:
   explicit StateDir(std::filesystem::path dir, const FileIo& io = posix_io())
@@ -125,11 +132,12 @@ class StateDir {
   [[nodiscard]] std::vector<std::string> logs_without_report() const;
   /// Cuts a run's log after its last whole line: the part of a line a
   /// killed writer left (a write the kill cut short ends anywhere), which
-  /// is no frame and would read as damage. Returns the bytes cut (0: none);
-  /// refuses, cutting nothing, a tail longer than a log line, which no
-  /// kill leaves. The cut is synced and the file closed, each checked.
-  /// Call it only under lock(): it must never cut a log being written.
-  Result<std::uint64_t> cut_torn_tail(const std::string& run_id) const;
+  /// is no frame and would read as damage. A part as long as a log line or
+  /// longer is no kill's: damage, left as it is. The cut is synced and the
+  /// file closed, each checked; what was cut is returned even when a later
+  /// step failed. Call it only under lock(): it must never cut a log being
+  /// written.
+  [[nodiscard]] TailCut cut_torn_tail(const std::string& run_id) const;
   /// Retention: removes the logs of runs whose report is in the index,
   /// readable and not an interrupted run's (never a report, never a log
   /// without one, never `keep`): first those last

@@ -428,7 +428,7 @@ using ParamArray = std::array<double, sx::kParams>;
 Meas nominal_at(const std::vector<VelocityObs>& nom, double t, std::size_t& k) {
   const VelocityObs v =
       sample_at(nom, t, k, [](const VelocityObs& a, const VelocityObs& b, double f) {
-        return VelocityObs{a.t_s, a.ve + f * (b.ve - a.ve), a.vn + f * (b.vn - a.vn)};
+        return VelocityObs{0, a.ve + f * (b.ve - a.ve), a.vn + f * (b.vn - a.vn)};
       });
   return Meas(v.ve, v.vn);
 }

@@ -145,15 +145,10 @@ StateMat psd_sqrt(const StateMat& q) {
 }
 
 NominalState Nominal::at(double t_s, std::size_t& hint) const {
-  if (!track || track->empty()) {  // none: the state at zero errors
-    NominalState zero;
-    zero.t_s = t_s;
-    return zero;
-  }
-  return sample_at(*track, t_s, hint,
-                   [t_s](const NominalState& a, const NominalState& b, double f) {
+  static const std::vector<NominalState> none;  // the state at zero errors
+  return sample_at(track ? *track : none, t_s, hint,
+                   [](const NominalState& a, const NominalState& b, double f) {
                      NominalState o;
-                     o.t_s = t_s;
                      o.ve = a.ve + f * (b.ve - a.ve);
                      o.vn = a.vn + f * (b.vn - a.vn);
                      o.dlat_rad = a.dlat_rad + f * (b.dlat_rad - a.dlat_rad);

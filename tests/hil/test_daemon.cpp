@@ -309,6 +309,7 @@ TEST_SUITE("daemon") {
     const auto r = nlohmann::json::parse(slurp(state / "killed.report.json"));
     CHECK(r["status"] == "interrupted");
     CHECK(r["log"]["torn_bytes_cut"] == torn_tail.size());
+    CHECK(r["log"]["torn_tail"] == torn_tail);  // what was cut, kept in the report
     CHECK(r["log"]["lines"] == 50);
     const auto dg = run::sha256_file((state / "killed.log").string());
     REQUIRE(dg.ok());
@@ -323,12 +324,20 @@ TEST_SUITE("daemon") {
     CHECK(d["reason"].get<std::string>().find("no line's end") != std::string::npos);
 
     // a second daemon on the same state directory (and socket) is refused
-    // before it touches a file; the first goes on answering
+    // before it touches a file: a reservation and a torn log without a
+    // report, which a start releases and cuts, stay as they are; the first
+    // daemon goes on answering
+    const std::string reserve = "space held for a report";
+    std::ofstream(state / ".live.reserve", std::ios::binary) << reserve;
+    std::ofstream(state / "live.log", std::ios::binary) << whole << torn_tail;
     Child second({kDaemon, "--config", config.string()}, dir.path, {}, dir.path / "second.err");
     CHECK(second.wait(10000ms) == 1);
     const std::string refused = slurp(dir.path / "second.err");
     CAPTURE(refused);
     CHECK(refused.find("held by another process") != std::string::npos);
+    CHECK(slurp(state / ".live.reserve") == reserve);
+    CHECK(slurp(state / "live.log") == whole + torn_tail);
+    CHECK_FALSE(hil::fs::exists(state / "live.report.json"));
     CHECK(ctl(dir.path, {"status"}) == 0);
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
@@ -336,7 +345,8 @@ TEST_SUITE("daemon") {
     const std::string said = slurp(dir.path / "daemon.err");
     CAPTURE(said);
     CHECK(said.find("run killed was interrupted") != std::string::npos);
-    CHECK(said.find("cut off its log") != std::string::npos);
+    CHECK(said.find("cut the last " + std::to_string(torn_tail.size()) + " bytes of its log") !=
+          std::string::npos);
     CHECK(said.find("damaged.log: its last") != std::string::npos);
   }
 

@@ -634,6 +634,7 @@ TEST_SUITE("model about a nominal") {
     for (const double t : {-5.0, 0.0, 5.0, 15.0, 20.0, 25.0, 12.5, 2.5}) {
       CAPTURE(t);
       const est::NominalState n = nom.at(t, hint);
+      CHECK(n.t_s == t);  // the time asked, held beyond the ends too
       const double c = std::clamp(t, 0.0, 20.0);
       const double vn = c <= 10 ? -0.2 * c : -2.0 - 0.6 * (c - 10);
       CHECK(n.ve == doctest::Approx(1.0 + c / 10).epsilon(1e-12));

@@ -455,35 +455,49 @@ TEST_CASE("state directory: a killed run's log is cut after its last whole line,
     text << in.rdbuf();
     return text.str();
   };
+  // a kill's part of a line is shorter than a whole line (kMaxLogLine
+  // with its newline): one byte short of that is cut, that long is damage
+  const std::string longest_part(turncal::can::kMaxLogLine - 1, 'x');
+  const std::string too_long(turncal::can::kMaxLogLine, 'x');
   struct Case {
     const char* id;
     std::string text;
-    std::uint64_t cut;
+    std::string cut;
     std::string left;
+    const char* error;  // nullptr: none
   };
-  for (const Case& c : {Case{"whole", whole, 0, whole}, Case{"empty", "", 0, ""},
-                        Case{"torn", whole + "(1.02000", 8, whole},
-                        Case{"fragment", "(1.000000) can0 12", 18, ""}}) {
+  for (const Case& c :
+       {Case{"whole", whole, "", whole, nullptr}, Case{"empty", "", "", "", nullptr},
+        Case{"torn", whole + "(1.02000", "(1.02000", whole, nullptr},
+        Case{"fragment", "(1.000000) can0 12", "(1.000000) can0 12", "", nullptr},
+        Case{"longest", whole + longest_part, longest_part, whole, nullptr},
+        Case{"longest-alone", longest_part, longest_part, "", nullptr},
+        Case{"too-long", whole + too_long, "", whole + too_long, "not a line cut short"},
+        Case{"too-long-alone", too_long, "", too_long, "not a line cut short"}}) {
     CAPTURE(c.id);
     write(c.id, c.text);
-    const auto r = st.cut_torn_tail(c.id);
-    REQUIRE(r.ok());
-    CHECK(*r == c.cut);
+    const TailCut r = st.cut_torn_tail(c.id);
+    CHECK(r.bytes == c.cut);
+    if (c.error == nullptr)
+      CHECK(r.error.empty());
+    else
+      CHECK(r.error.find(c.error) != std::string::npos);
     CHECK(read(c.id) == c.left);
   }
-  // a tail longer than any line holds no newline: damage, not a kill's
-  // cut; left as it is
-  const std::string long_tail = whole + std::string(turncal::can::kMaxLogLine + 10, 'x');
-  write("damaged", long_tail);
-  const auto r = st.cut_torn_tail("damaged");
-  REQUIRE_FALSE(r.ok());
-  CHECK(r.error().describe().find("not a line cut short") != std::string::npos);
-  CHECK(read("damaged") == long_tail);
-  const auto none = st.cut_torn_tail("absent");
-  REQUIRE_FALSE(none.ok());
-  CHECK(none.error().describe().find("cannot open") != std::string::npos);
+  const TailCut none = st.cut_torn_tail("absent");
+  CHECK(none.bytes.empty());
+  CHECK(none.error.find("cannot open") != std::string::npos);
+  // never through a link, never anything but a regular file
+  write("target", whole + "(1.0");
+  fs::create_symlink(dir / "target.log", dir / "link.log");
+  const TailCut link = st.cut_torn_tail("link");
+  CHECK(link.error.find("cannot open") != std::string::npos);
+  CHECK(read("target") == whole + "(1.0");
+  fs::create_directories(dir / "dir.log");
+  CHECK(st.cut_torn_tail("dir").error.find("not a regular file") != std::string::npos);
 
-  // the cut, its sync and the close each fail with their reason
+  // the cut, its sync and the close each fail with their reason; after the
+  // cut, what was cut is said with the failure
   const FileIo io{failing_write, failing_fsync, failing_close, failing_ftruncate};
   StateDir failing(dir, io);
   struct Step {
@@ -491,31 +505,25 @@ TEST_CASE("state directory: a killed run's log is cut after its last whole line,
     int fsyncs_before_fail;
     bool fail_close;
     const char* says;
+    std::string cut;
     std::string left;
   };
-  for (const Step& s : {Step{true, 1000, false, "cannot cut", whole + "(1.0"},
-                        Step{false, 0, false, "the sync failed", whole},
-                        Step{false, 1000, true, "cannot close", whole}}) {
+  for (const Step& s : {Step{true, 1000, false, "cannot cut", "", whole + "(1.0"},
+                        Step{false, 0, false, "cut, but the sync failed", "(1.0", whole},
+                        Step{false, 1000, true, "cut, but the close failed", "(1.0", whole}}) {
     CAPTURE(s.says);
     write("t", whole + "(1.0");
     g_fail_ftruncate = s.fail_ftruncate;
     g_fsyncs_before_fail = s.fsyncs_before_fail;
     g_fail_close = s.fail_close;
-    const auto f = failing.cut_torn_tail("t");
+    const TailCut f = failing.cut_torn_tail("t");
     g_fail_ftruncate = false;
     g_fsyncs_before_fail = 1000;
     g_fail_close = false;
-    REQUIRE_FALSE(f.ok());
-    CHECK(f.error().describe().find(s.says) != std::string::npos);
+    CHECK(f.error.find(s.says) != std::string::npos);
+    CHECK(f.bytes == s.cut);
     CHECK(read("t") == s.left);
   }
-  // a whole log's close is checked too
-  write("w", whole);
-  g_fail_close = true;
-  const auto wc = failing.cut_torn_tail("w");
-  g_fail_close = false;
-  REQUIRE_FALSE(wc.ok());
-  CHECK(wc.error().describe().find("cannot close") != std::string::npos);
   fs::remove_all(dir);
 }
 

@@ -77,22 +77,28 @@ struct Nominal {
   }
 };
 
-/// The sample of a series ascending in time (non-empty) at t_s: linear
-/// between its samples, held beyond its ends. `hint` is where the search
-/// starts, kept between calls (walks forward in order; searches when t_s
-/// is before it or it is past the end); `mix(a, b, f)` is a + f (b - a).
+/// The sample of a series ascending in time at t_s, its time t_s: linear
+/// between its samples, held beyond its ends; an empty series is the
+/// default sample. `hint` is where the search starts, kept between calls
+/// (walks forward in order; searches when t_s is before it or it is past
+/// the end); `mix(a, b, f)` is a + f (b - a).
 template <class Sample, class Mix>
 Sample sample_at(const std::vector<Sample>& s, double t_s, std::size_t& hint, const Mix& mix) {
-  if (hint >= s.size() || s[hint].t_s > t_s) {
-    const auto it = std::upper_bound(s.begin(), s.end(), t_s,
-                                     [](double t, const Sample& n) { return t < n.t_s; });
-    hint = it == s.begin() ? 0 : static_cast<std::size_t>(it - s.begin()) - 1;
+  Sample o{};
+  if (!s.empty()) {
+    if (hint >= s.size() || s[hint].t_s > t_s) {
+      const auto it = std::upper_bound(s.begin(), s.end(), t_s,
+                                       [](double t, const Sample& n) { return t < n.t_s; });
+      hint = it == s.begin() ? 0 : static_cast<std::size_t>(it - s.begin()) - 1;
+    }
+    while (hint + 1 < s.size() && s[hint + 1].t_s <= t_s) ++hint;
+    const Sample& a = s[hint];
+    o = hint + 1 == s.size() || t_s <= a.t_s
+            ? a
+            : mix(a, s[hint + 1], (t_s - a.t_s) / (s[hint + 1].t_s - a.t_s));
   }
-  while (hint + 1 < s.size() && s[hint + 1].t_s <= t_s) ++hint;
-  const Sample& a = s[hint];
-  if (hint + 1 == s.size() || t_s <= a.t_s) return a;
-  const Sample& b = s[hint + 1];
-  return mix(a, b, (t_s - a.t_s) / (b.t_s - a.t_s));
+  o.t_s = t_s;
+  return o;
 }
 
 /// A(psi), the body-to-geographic rotation at orientation psi (model.md, 1).
