@@ -707,14 +707,8 @@ void Daemon::report_interrupted_runs() {
     // (and said at once, so a failure below leaves the cut on record); a
     // tail that is no such part stays, and the report says so
     const TailCut c = state->cut_torn_tail(id);
-    std::string torn, torn_text;
-    for (const char ch : c.bytes) {  // printable, whatever the kill left
-      char b[8];
-      if (ch >= 0x20 && ch < 0x7f)
-        torn_text += ch;
-      else if (std::snprintf(b, sizeof b, "\\x%02x", static_cast<unsigned char>(ch)) > 0)
-        torn_text += b;
-    }
+    const std::string torn_text = printable_bytes(c.bytes);  // whatever the kill left
+    std::string torn;
     if (!c.bytes.empty()) {
       torn = "; the part of a line the stop cut short (" + std::to_string(c.bytes.size()) +
              " bytes, no frame) was cut off its log";

@@ -234,11 +234,34 @@ std::vector<std::string> StateDir::logs_without_report() const {
   for (fs::directory_iterator it(dir_, ec), end; !ec && it != end; it.increment(ec)) {
     const std::string name = it->path().filename().string();
     if (!name.ends_with(".log")) continue;
+    // a run's log is a regular file; a link or anything else is no run's
+    // (its digest would read what it points at, or never end)
+    std::error_code kind;
+    if (!it->is_regular_file(kind) || it->is_symlink(kind)) continue;
     const std::string id = name.substr(0, name.size() - 4);
     std::error_code gone;
     if (!fs::exists(dir_ / (id + kReportSuffix), gone)) ids.push_back(id);
   }
   return ids;
+}
+
+std::string printable_bytes(std::string_view bytes) {
+  std::string out;
+  out.reserve(bytes.size());
+  for (const char ch : bytes) {
+    const auto u = static_cast<unsigned char>(ch);
+    if (u == '\\') {
+      out += "\\\\";
+    } else if (u >= 0x20 && u < 0x7f) {
+      out += ch;
+    } else {
+      static constexpr char kHex[] = "0123456789abcdef";
+      out += "\\x";
+      out += kHex[u >> 4];
+      out += kHex[u & 0xf];
+    }
+  }
+  return out;
 }
 
 TailCut StateDir::cut_torn_tail(const std::string& run_id) const {
@@ -250,7 +273,8 @@ TailCut StateDir::cut_torn_tail(const std::string& run_id) const {
     return out;
   };
   // read only, and only a regular file (never a link's target), until a cut is due
-  const int rfd = ::open(file.c_str(), O_RDONLY | O_NOFOLLOW | O_CLOEXEC);
+  // (never blocking: a FIFO in its place would hold the start up)
+  const int rfd = ::open(file.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
   if (rfd < 0) return failed("cannot open", errno);
   struct stat st {};
   const bool stat_ok = ::fstat(rfd, &st) == 0;
@@ -261,8 +285,9 @@ TailCut StateDir::cut_torn_tail(const std::string& run_id) const {
                    : failed("cannot stat", stat_err);
   }
   const auto size = static_cast<std::uint64_t>(st.st_size);
-  // a kill's part of a line is shorter than a whole line (kMaxLogLine
-  // holds its newline): the last kMaxLogLine bytes hold its start
+  // a kill's part of a line is shorter than kMaxLogLine, the bound on a
+  // whole line with its newline (the longest format_log_line writes is
+  // shorter still): the last kMaxLogLine bytes hold its start
   const std::uint64_t span = std::min<std::uint64_t>(size, can::kMaxLogLine);
   std::string tail(span, '\0');
   std::uint64_t got = 0;
@@ -288,11 +313,15 @@ TailCut StateDir::cut_torn_tail(const std::string& run_id) const {
                   0);
   const std::string part = nl == std::string::npos ? tail : tail.substr(nl + 1);
   const std::uint64_t keep = size - part.size();
-  const int fd = ::open(file.c_str(), O_WRONLY | O_NOFOLLOW | O_CLOEXEC);
+  const int fd = ::open(file.c_str(), O_WRONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
   if (fd < 0) return failed("cannot open to cut its last, partial line", errno);
   struct stat again {};
-  if (::fstat(fd, &again) != 0 || again.st_ino != st.st_ino || again.st_dev != st.st_dev ||
-      again.st_size != st.st_size) {
+  if (::fstat(fd, &again) != 0) {
+    const int err = errno;
+    (void)io_->close(fd);
+    return failed("cannot stat it to cut its last, partial line", err);
+  }
+  if (again.st_ino != st.st_ino || again.st_dev != st.st_dev || again.st_size != st.st_size) {
     (void)io_->close(fd);
     return failed("changed while it was read; left as it is", 0);
   }

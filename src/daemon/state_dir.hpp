@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <nlohmann/json.hpp>
 #include <string>
+#include <string_view>
 #include <utility>
 #include <vector>
 
@@ -85,6 +86,10 @@ class DirLock {
 /// are at most `interface_chars` long (classic frames: a CAN FD frame's line
 /// is longer; the reference stand has none).
 std::uint64_t log_bytes_bound(double frames, std::size_t interface_chars);
+
+/// Bytes as printable text: printable ASCII as it is, a backslash doubled,
+/// any other byte as \xNN (what a kill left of a line, for a report).
+std::string printable_bytes(std::string_view bytes);
 
 /// What cutting a killed run's torn log tail did.
 struct TailCut {

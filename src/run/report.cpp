@@ -396,7 +396,15 @@ std::string report_text(const json& r, const json* truth) {
   if (r.contains("profile"))
     line("  profile: " + r["profile"].value("name", std::string()) + " (" +
          fmt("%.0f s", r["profile"].value("duration_s", 0.0)) + ")");
-  if (r.contains("log")) line("  log: " + r["log"].value("file", std::string()));
+  if (r.contains("log")) {
+    const json& lg = r["log"];
+    std::string s = "  log: " + lg.value("file", std::string());
+    if (lg.contains("torn_bytes_cut") && lg["torn_bytes_cut"].is_number_integer() &&
+        lg["torn_bytes_cut"].get<std::int64_t>() > 0)
+      s += " (cut off its end: " + lg["torn_bytes_cut"].dump() + " bytes of a line cut short, \"" +
+           lg.value("torn_tail", std::string()) + "\")";
+    line(s);
+  }
   if (r.contains("replay") && r["replay"].is_object()) {
     const json& p = r["replay"];
     std::string s = "  replay";
@@ -655,6 +663,9 @@ std::string check_report(const json& r) {
   if (c.field(r, "", "log", Kind::Object)) {
     for (const char* k : {"file", "sha256"}) c.field(r["log"], "log.", k, Kind::String);
     c.field(r["log"], "log.", "lines", Kind::Integer);
+    // an interrupted run's: the part of a line its kill left, cut off
+    c.field(r["log"], "log.", "torn_bytes_cut", Kind::Integer);
+    c.field(r["log"], "log.", "torn_tail", Kind::String);
   }
   if (c.field(r, "", "time_base", Kind::Object)) {
     // microseconds since 1970 whose nanoseconds fit 64 bits (as a log's

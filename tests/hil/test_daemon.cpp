@@ -310,6 +310,9 @@ TEST_SUITE("daemon") {
     CHECK(r["status"] == "interrupted");
     CHECK(r["log"]["torn_bytes_cut"] == torn_tail.size());
     CHECK(r["log"]["torn_tail"] == torn_tail);  // what was cut, kept in the report
+    CHECK(slurp(state / "killed.report.txt")
+              .find("cut off its end: " + std::to_string(torn_tail.size()) +
+                    " bytes of a line cut short, \"" + torn_tail + "\"") != std::string::npos);
     CHECK(r["log"]["lines"] == 50);
     const auto dg = run::sha256_file((state / "killed.log").string());
     REQUIRE(dg.ok());

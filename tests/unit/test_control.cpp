@@ -8,6 +8,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <filesystem>
@@ -495,6 +496,11 @@ TEST_CASE("state directory: a killed run's log is cut after its last whole line,
   CHECK(read("target") == whole + "(1.0");
   fs::create_directories(dir / "dir.log");
   CHECK(st.cut_torn_tail("dir").error.find("not a regular file") != std::string::npos);
+  // nor are they runs a killed daemon left: only regular files are
+  const auto left = st.logs_without_report();
+  CHECK(std::count(left.begin(), left.end(), "target") == 1);
+  CHECK(std::count(left.begin(), left.end(), "link") == 0);
+  CHECK(std::count(left.begin(), left.end(), "dir") == 0);
 
   // the cut, its sync and the close each fail with their reason; after the
   // cut, what was cut is said with the failure
@@ -525,6 +531,15 @@ TEST_CASE("state directory: a killed run's log is cut after its last whole line,
     CHECK(read("t") == s.left);
   }
   fs::remove_all(dir);
+}
+
+TEST_CASE("state directory: the bytes a kill left are kept as printable text, reversibly") {
+  CHECK(printable_bytes("(1.0) can0 12") == "(1.0) can0 12");
+  CHECK(printable_bytes(std::string("a\0b", 3)) == "a\\x00b");
+  CHECK(printable_bytes("\r\x7f\xff") == "\\x0d\\x7f\\xff");
+  // a backslash is doubled, so the text \x00 is not a NUL byte
+  CHECK(printable_bytes("\\x00") == "\\\\x00");
+  CHECK(printable_bytes("") == "");
 }
 
 TEST_CASE("state directory: one process holds it; a second is refused until the first lets go") {
