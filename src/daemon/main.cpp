@@ -701,7 +701,10 @@ void Daemon::write_report(bool with_estimates) {
 /// A log with no report: a run that was killed. Its log replays up to that
 /// moment; the report says so.
 void Daemon::report_interrupted_runs() {
-  for (const std::string& id : state->logs_without_report()) {
+  const LogsWithoutReport left = state->logs_without_report();
+  for (const std::string& what : left.skipped)
+    say(LOG_WARNING, "", "start", "in the state directory, " + what);
+  for (const std::string& id : left.runs) {
     const fs::path log_file = state->path() / (id + ".log");
     // a write the kill cut short leaves part of a line: no frame, cut off
     // (and said at once, so a failure below leaves the cut on record); a
@@ -717,23 +720,29 @@ void Daemon::report_interrupted_runs() {
               " bytes of its log, part of a line a kill cut short: \"" + torn_text + "\"");
     }
     if (!c.error.empty()) torn += "; its log's end: " + c.error;
+    if (!c.regular) {
+      // not opened as a regular file (gone, unreadable, or replaced since
+      // the directory was read): nothing to digest, and never a blocking read
+      say(LOG_WARNING, id, "interrupted", "no report: " + c.error);
+      continue;
+    }
     auto dg = run::sha256_file(log_file.string());
     if (!dg) {
       say(LOG_WARNING, id, "interrupted", "no report: " + dg.error().describe() + torn);
       continue;
     }
     const std::uint64_t lines = dg->lines;
+    json log_j = {{"file", id + ".log"},
+                {"sha256", dg->sha256},
+                {"lines", lines},
+                {"torn_bytes_cut", c.bytes.size()}};
+    if (!c.bytes.empty()) log_j["torn_tail"] = torn_text;
     const json j = {{"format", "turncal-report-1"},
                     {"schema_version", run::kReportSchemaVersion},
                     {"run_id", id},
                     {"status", "interrupted"},
                     {"reason", "the daemon stopped during the run (killed or crashed)" + torn},
-                    {"log",
-                     {{"file", id + ".log"},
-                      {"sha256", dg->sha256},
-                      {"lines", lines},
-                      {"torn_bytes_cut", c.bytes.size()},
-                      {"torn_tail", torn_text}}},
+                    {"log", std::move(log_j)},
                     {"verdict", {{"pass", false}, {"checks", json::array()}}}};
     if (auto w =
             state->write_report(id, j, run::report_text(j), run::report_html(j, nullptr, nullptr));

@@ -37,13 +37,16 @@ int sys_close(int fd) {
 int sys_ftruncate(int fd, off_t length) {
   return ::ftruncate(fd, length);
 }
+int sys_fstat(int fd, struct stat* st) {
+  return ::fstat(fd, st);
+}
 
 constexpr const char* kReportSuffix = ".report.json";
 
 }  // namespace
 
 const FileIo& posix_io() {
-  static const FileIo io{sys_write, sys_fsync, sys_close, sys_ftruncate};
+  static const FileIo io{sys_write, sys_fsync, sys_close, sys_ftruncate, sys_fstat};
   return io;
 }
 
@@ -228,8 +231,8 @@ bool StateDir::has_log(const std::string& run_id) const {
   return fs::exists(dir_ / (run_id + ".log"), ec);
 }
 
-std::vector<std::string> StateDir::logs_without_report() const {
-  std::vector<std::string> ids;
+LogsWithoutReport StateDir::logs_without_report() const {
+  LogsWithoutReport out;
   std::error_code ec;
   for (fs::directory_iterator it(dir_, ec), end; !ec && it != end; it.increment(ec)) {
     const std::string name = it->path().filename().string();
@@ -237,12 +240,25 @@ std::vector<std::string> StateDir::logs_without_report() const {
     // a run's log is a regular file; a link or anything else is no run's
     // (its digest would read what it points at, or never end)
     std::error_code kind;
-    if (!it->is_regular_file(kind) || it->is_symlink(kind)) continue;
+    const fs::file_status st = it->symlink_status(kind);
+    if (kind) {
+      out.skipped.push_back(name + ": cannot tell what it is: " + kind.message());
+      continue;
+    }
+    if (st.type() != fs::file_type::regular) {
+      out.skipped.push_back(
+          name + ": " + (st.type() == fs::file_type::symlink ? "a link" : "not a regular file") +
+          ", no run's log; left as it is");
+      continue;
+    }
     const std::string id = name.substr(0, name.size() - 4);
     std::error_code gone;
-    if (!fs::exists(dir_ / (id + kReportSuffix), gone)) ids.push_back(id);
+    if (!fs::exists(dir_ / (id + kReportSuffix), gone)) out.runs.push_back(id);
   }
-  return ids;
+  if (ec)
+    out.skipped.push_back("the state directory " + dir_.string() +
+                          " could not be read to its end: " + ec.message());
+  return out;
 }
 
 std::string printable_bytes(std::string_view bytes) {
@@ -252,7 +268,7 @@ std::string printable_bytes(std::string_view bytes) {
     const auto u = static_cast<unsigned char>(ch);
     if (u == '\\') {
       out += "\\\\";
-    } else if (u >= 0x20 && u < 0x7f) {
+    } else if (u >= 0x20 && u < 0x7f && u != '"') {
       out += ch;
     } else {
       static constexpr char kHex[] = "0123456789abcdef";
@@ -277,13 +293,14 @@ TailCut StateDir::cut_torn_tail(const std::string& run_id) const {
   const int rfd = ::open(file.c_str(), O_RDONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
   if (rfd < 0) return failed("cannot open", errno);
   struct stat st {};
-  const bool stat_ok = ::fstat(rfd, &st) == 0;
+  const bool stat_ok = io_->fstat(rfd, &st) == 0;
   const int stat_err = errno;
   if (!stat_ok || !S_ISREG(st.st_mode)) {
     (void)::close(rfd);
     return stat_ok ? failed("not a regular file; left as it is", 0)
                    : failed("cannot stat", stat_err);
   }
+  out.regular = true;
   const auto size = static_cast<std::uint64_t>(st.st_size);
   // a kill's part of a line is shorter than kMaxLogLine, the bound on a
   // whole line with its newline (the longest format_log_line writes is
@@ -316,7 +333,7 @@ TailCut StateDir::cut_torn_tail(const std::string& run_id) const {
   const int fd = ::open(file.c_str(), O_WRONLY | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC);
   if (fd < 0) return failed("cannot open to cut its last, partial line", errno);
   struct stat again {};
-  if (::fstat(fd, &again) != 0) {
+  if (io_->fstat(fd, &again) != 0) {
     const int err = errno;
     (void)io_->close(fd);
     return failed("cannot stat it to cut its last, partial line", err);

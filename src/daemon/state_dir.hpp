@@ -5,6 +5,7 @@
 // "unreadable" entry with its reason, never an exception.
 #pragma once
 
+#include <sys/stat.h>
 #include <sys/types.h>
 
 #include <cstdint>
@@ -28,6 +29,7 @@ struct FileIo {
   int (*fsync)(int fd);
   int (*close)(int fd);
   int (*ftruncate)(int fd, off_t length);
+  int (*fstat)(int fd, struct stat* st);
 };
 const FileIo& posix_io();
 
@@ -87,8 +89,9 @@ class DirLock {
 /// is longer; the reference stand has none).
 std::uint64_t log_bytes_bound(double frames, std::size_t interface_chars);
 
-/// Bytes as printable text: printable ASCII as it is, a backslash doubled,
-/// any other byte as \xNN (what a kill left of a line, for a report).
+/// Bytes as printable text: printable ASCII as it is but for a backslash
+/// (doubled) and a double quote (\x22, so the text can be quoted), any
+/// other byte as \xNN (what a kill left of a line, for a report).
 std::string printable_bytes(std::string_view bytes);
 
 /// What cutting a killed run's torn log tail did.
@@ -96,6 +99,15 @@ struct TailCut {
   std::string bytes;  ///< the bytes cut off (the part of a line); empty: none
   std::string
       error;  ///< empty: done (or nothing to do); else why not, or what failed after the cut
+  bool regular = false;  ///< the log was opened and is a regular file (a run's log may be read)
+};
+
+/// The logs a killed daemon left (no report beside them), and the `.log`
+/// entries that are no run's log (a link, a directory, a FIFO), each as
+/// "name: why", to be said rather than passed over.
+struct LogsWithoutReport {
+  std::vector<std::string> runs;
+  std::vector<std::string> skipped;
 };
 
 class StateDir {
@@ -133,8 +145,9 @@ class StateDir {
   void index_report(const std::string& run_id, const nlohmann::json& report);
   [[nodiscard]] const Index& index() const { return index_; }
   [[nodiscard]] bool has_log(const std::string& run_id) const;
-  /// The run ids of logs without a report: runs a killed daemon left.
-  [[nodiscard]] std::vector<std::string> logs_without_report() const;
+  /// The run ids of logs without a report: runs a killed daemon left; and
+  /// what was passed over, with why.
+  [[nodiscard]] LogsWithoutReport logs_without_report() const;
   /// Cuts a run's log after its last whole line: the part of a line a
   /// killed writer left (a write the kill cut short ends anywhere), which
   /// is no frame and would read as damage. A part as long as a log line or

@@ -20,10 +20,6 @@ namespace {
 
 using Mat3 = Eigen::Matrix3d;
 
-Mat3 rot(double psi) {
-  return body_to_geographic(psi);
-}
-
 /// G Q G^T: accelerometer noise in the dv rows, gyro noise in the b rows
 /// (isotropic, so the rotation A(psi) leaves it unchanged).
 StateMat noise_input(const ProcessNoise& n) {
@@ -98,7 +94,7 @@ StateMat about_nominal(const EarthAt& e, double psi, const NominalState& n,
   const Vec3 rho(-n.vn / rm, n.ve / rn, n.ve * sl / (cl * rn));
   const Vec3 w_in = om + rho;
   const Vec3 v(n.ve, n.vn, 0);
-  const Mat3 c = n.e * rot(psi);  // body to the computed frame
+  const Mat3 c = n.e * body_to_geographic(psi);  // body to the computed frame
   const auto at = [&](int state) { return p[static_cast<std::size_t>(state - kNu0)]; };
   const Vec3 fc = c * Vec3(at(kDf0) + e.g * at(kG), at(kDf0 + 1) + e.g * at(kG + 1), e.g);
   // columns in the perturbation coordinates: the rates of (dv, dlat,
@@ -122,7 +118,7 @@ StateMat about_nominal(const EarthAt& e, double psi, const NominalState& n,
   for (int j = 0; j < 3; ++j) column(kB + j, fc.cross(Vec3::Unit(j)), -w_in.cross(Vec3::Unit(j)));
   // the parameters through the nominal's attitude: the gyros' body rate
   // at rest (the true one), the accelerometers' errors
-  const Vec3 w = rot(psi).transpose() * Vec3(0, e.u2, e.u3);
+  const Vec3 w = body_to_geographic(psi).transpose() * Vec3(0, e.u2, e.u3);
   for (int j = 0; j < 3; ++j) {
     column(kNu0 + j, Vec3::Zero(), -c.col(j));
     for (int k = 0; k < 3; ++k) column(theta(j + 1, k + 1), Vec3::Zero(), -c.col(j) * w(k));
@@ -173,7 +169,7 @@ StateMat hold_dynamics(const EarthAt& e, double psi, const Nominal* nominal, dou
   using namespace sx;
   if (nominal != nullptr) return about_nominal(e, psi, nominal->at(t_s), nominal->params);
   StateMat f = StateMat::Zero();
-  const Mat3 a = rot(psi);
+  const Mat3 a = body_to_geographic(psi);
   // d(dv1)/dt =  2 u3 dv2 - g (b2 + a2) + da1
   // d(dv2)/dt = -2 u3 dv1 + g (b1 + a1) + da2,   da = A(psi) df_z,
   // df_z1 = df0_1 + G13 g,  df_z2 = df0_2 + G23 g   (section 2, at rest)
@@ -373,7 +369,7 @@ Discrete turn_transition(const EarthAt& e, std::span<const AngleSample> samples,
 XiMat initial_map(const EarthAt& e, double psi_s) {
   using namespace sx;
   XiMat t = XiMat::Zero();
-  const Mat3 a = rot(psi_s);
+  const Mat3 a = body_to_geographic(psi_s);
   // dv(t0) = v0
   t(kDv, sxi::kV0) = 1;
   t(kDv + 1, sxi::kV0 + 1) = 1;

@@ -317,7 +317,7 @@ std::string summary(const json& r) {
     item("profile", r["profile"].value("name", std::string()) + " (" +
                         fmt("%.0f s", r["profile"].value("duration_s", 0.0)) + ")");
   item("mode", r.value("mode", std::string()));
-  if (r.contains("log")) item("log", r["log"].value("file", std::string()));
+  if (r.contains("log")) item("log", log_text(r["log"]));
   if (r.contains("site"))
     item("site", fmt("latitude %.4f deg", r["site"].value("latitude_rad", 0.0) * kRadToDeg) +
                      fmt(", height %.0f m", r["site"].value("height_m", 0.0)));

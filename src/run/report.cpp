@@ -361,6 +361,16 @@ std::string combination_terms(const json& c, const json& report) {
   return terms;
 }
 
+std::string log_text(const json& log) {
+  if (!log.is_object()) return "";
+  std::string s = log.value("file", std::string());
+  if (log.contains("torn_bytes_cut") && log["torn_bytes_cut"].is_number_integer() &&
+      log["torn_bytes_cut"].get<std::int64_t>() > 0)
+    s += " (cut off its end: " + log["torn_bytes_cut"].dump() + " bytes of a line cut short, \"" +
+         log.value("torn_tail", std::string()) + "\")";
+  return s;
+}
+
 std::string whiteness_text(const json& innovations) {
   const json& i = innovations;
   // two numbers, as check_report has made sure where the field is there
@@ -396,15 +406,7 @@ std::string report_text(const json& r, const json* truth) {
   if (r.contains("profile"))
     line("  profile: " + r["profile"].value("name", std::string()) + " (" +
          fmt("%.0f s", r["profile"].value("duration_s", 0.0)) + ")");
-  if (r.contains("log")) {
-    const json& lg = r["log"];
-    std::string s = "  log: " + lg.value("file", std::string());
-    if (lg.contains("torn_bytes_cut") && lg["torn_bytes_cut"].is_number_integer() &&
-        lg["torn_bytes_cut"].get<std::int64_t>() > 0)
-      s += " (cut off its end: " + lg["torn_bytes_cut"].dump() + " bytes of a line cut short, \"" +
-           lg.value("torn_tail", std::string()) + "\")";
-    line(s);
-  }
+  if (r.contains("log")) line("  log: " + log_text(r["log"]));
   if (r.contains("replay") && r["replay"].is_object()) {
     const json& p = r["replay"];
     std::string s = "  replay";

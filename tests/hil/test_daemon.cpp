@@ -4,6 +4,7 @@
 #include <doctest/doctest.h>
 
 #include <sys/socket.h>
+#include <sys/stat.h>
 #include <sys/un.h>
 
 #include <cstring>
@@ -287,8 +288,15 @@ TEST_SUITE("daemon") {
     for (int k = 0; k < 50; ++k)
       whole += "(1764979200." + std::to_string(100000 + k * 10000) + ") " + hil::if0() +
                " 123#01020304\n";
-    const std::string torn_tail = "(1764979201.000000) " + hil::if0() + " 12";  // the kill's cut
+    // the kill's cut, with a byte no text has and a quote: the report keeps
+    // it as printable text that can be quoted
+    const std::string torn_tail = "(1764979201.000000) " + hil::if0() + " 12\x01\"";
+    const std::string torn_text = "(1764979201.000000) " + hil::if0() + " 12\\x01\\x22";
     std::ofstream(state / "killed.log", std::ios::binary) << whole << torn_tail;
+    // no run's logs: a link to one, and a FIFO (read, it would hold the
+    // start up); each is passed over and said
+    hil::fs::create_symlink(state / "killed.log", state / "alias.log");
+    REQUIRE(::mkfifo((state / "pipe.log").c_str(), 0600) == 0);
     // no line's end in a line's length and more: not a kill's cut
     const std::string damaged = whole + std::string(can::kMaxLogLine + 5, '#');
     std::ofstream(state / "damaged.log", std::ios::binary) << damaged;
@@ -309,10 +317,14 @@ TEST_SUITE("daemon") {
     const auto r = nlohmann::json::parse(slurp(state / "killed.report.json"));
     CHECK(r["status"] == "interrupted");
     CHECK(r["log"]["torn_bytes_cut"] == torn_tail.size());
-    CHECK(r["log"]["torn_tail"] == torn_tail);  // what was cut, kept in the report
-    CHECK(slurp(state / "killed.report.txt")
+    CHECK(r["log"]["torn_tail"] == torn_text);  // what was cut, kept in the report
+    const std::string cut_said = "cut off its end: " + std::to_string(torn_tail.size()) +
+                                 " bytes of a line cut short, \"" + torn_text + "\"";
+    CHECK(slurp(state / "killed.report.txt").find(cut_said) != std::string::npos);
+    CHECK(slurp(state / "killed.report.html")
               .find("cut off its end: " + std::to_string(torn_tail.size()) +
-                    " bytes of a line cut short, \"" + torn_tail + "\"") != std::string::npos);
+                    " bytes of a line cut short, &quot;" + torn_text + "&quot;") !=
+          std::string::npos);
     CHECK(r["log"]["lines"] == 50);
     const auto dg = run::sha256_file((state / "killed.log").string());
     REQUIRE(dg.ok());
@@ -323,6 +335,9 @@ TEST_SUITE("daemon") {
     CHECK(slurp(state / "damaged.log") == damaged);
     const auto d = nlohmann::json::parse(slurp(state / "damaged.report.json"));
     CHECK(d["log"]["torn_bytes_cut"] == 0);
+    CHECK_FALSE(d["log"].contains("torn_tail"));  // nothing cut, nothing to keep
+    CHECK_FALSE(hil::fs::exists(state / "alias.report.json"));
+    CHECK_FALSE(hil::fs::exists(state / "pipe.report.json"));
     CHECK(d["reason"].get<std::string>().find("left as it is") != std::string::npos);
     CHECK(d["reason"].get<std::string>().find("no line's end") != std::string::npos);
 
@@ -351,6 +366,10 @@ TEST_SUITE("daemon") {
     CHECK(said.find("cut the last " + std::to_string(torn_tail.size()) + " bytes of its log") !=
           std::string::npos);
     CHECK(said.find("damaged.log: its last") != std::string::npos);
+    CHECK(said.find("alias.log: a link, no run's log; left as it is") != std::string::npos);
+    CHECK(said.find("pipe.log: not a regular file, no run's log; left as it is") !=
+          std::string::npos);
+    CHECK(said.find(": \"" + torn_text + "\"") != std::string::npos);
   }
 
   TEST_CASE(

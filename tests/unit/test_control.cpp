@@ -19,6 +19,7 @@
 #include "control.hpp"
 #include "state_dir.hpp"
 #include "turncal/can/candump.hpp"
+#include "turncal/run/html.hpp"
 #include "turncal/run/report.hpp"
 
 using namespace turncal;
@@ -190,6 +191,11 @@ TEST_CASE("check_report: every field a reader takes is type-checked") {
       {"/plausibility/step_slack_s", -0.01,
        "plausibility.step_slack_s: expected a number of at least 0, not -0.01"},
       {"/plausibility/step_slack_s", nullptr, "plausibility.step_slack_s: expected a number"},
+      // an interrupted run's log: what was cut off its end
+      {"/log/torn_bytes_cut", "12", "log.torn_bytes_cut: expected an integer"},
+      {"/log/torn_bytes_cut", 1.5, "log.torn_bytes_cut: expected an integer"},
+      {"/log/torn_tail", 12, "log.torn_tail: expected a string"},
+      {"/log/lines", nullptr, "log.lines: expected an integer"},
   };
   for (const Case& c : cases) {
     CAPTURE(c.pointer);
@@ -222,6 +228,26 @@ TEST_CASE("check_report: every field a reader takes is type-checked") {
   CHECK(run::check_report(json::array()) == "not a JSON object");
 }
 
+TEST_CASE("report: a log's cut end is shown in the text and the HTML, quoted as it was kept") {
+  json r = sample_report();
+  r["log"] = {{"file", "r.log"}, {"sha256", std::string(64, '0')}, {"lines", 3}};
+  REQUIRE(run::check_report(r).empty());
+  CHECK(run::log_text(r["log"]) == "r.log");  // nothing cut: nothing said of it
+  r["log"]["torn_bytes_cut"] = 0;
+  CHECK(run::log_text(r["log"]) == "r.log");
+  r["log"]["torn_bytes_cut"] = 8;
+  r["log"]["torn_tail"] = printable_bytes("(1.0\"<&\x01");
+  REQUIRE(run::check_report(r).empty());
+  const std::string said =
+      "r.log (cut off its end: 8 bytes of a line cut short, \"(1.0\\x22<&\\x01\")";
+  CHECK(run::log_text(r["log"]) == said);
+  CHECK(run::report_text(r).find("  log: " + said + "\n") != std::string::npos);
+  // in the HTML as text, escaped: the < and & are no markup
+  const std::string html = run::report_html(r, nullptr, nullptr);
+  CHECK(html.find("<dd>r.log (cut off its end: 8 bytes of a line cut short, "
+                  "&quot;(1.0\\x22&lt;&amp;\\x01&quot;)</dd>") != std::string::npos);
+}
+
 TEST_CASE("state directory: reports indexed or unreadable; reports and history survive bad files") {
   const fs::path dir = fs::temp_directory_path() / ("turncal-state-" + std::to_string(::getpid()));
   fs::remove_all(dir);
@@ -238,7 +264,8 @@ TEST_CASE("state directory: reports indexed or unreadable; reports and history s
   CHECK(st.index().at("good").unreadable.empty());
   CHECK(st.index().at("bad").unreadable == "estimates.nu0_1.value: expected a number");
   CHECK(st.index().at("junk").unreadable == "not JSON");
-  CHECK(st.logs_without_report() == std::vector<std::string>{"orphan"});
+  CHECK(st.logs_without_report().runs == std::vector<std::string>{"orphan"});
+  CHECK(st.logs_without_report().skipped.empty());
   CHECK(!st.read_report("bad").ok());
   CHECK(st.read_report("bad").error().describe().find("unreadable") != std::string::npos);
   CHECK(st.read_report("good").ok());
@@ -286,6 +313,20 @@ int failing_close(int fd) {
   errno = EIO;
   return -1;
 }
+int g_fstats_before_fail = 1000;
+int g_fstats_before_append = 1000;  // then a byte is appended (a writer still at it)
+int failing_fstat(int fd, struct stat* st) {
+  if (g_fstats_before_fail-- <= 0) {
+    errno = EIO;
+    return -1;
+  }
+  if (g_fstats_before_append-- == 0) {
+    char path[64];
+    std::snprintf(path, sizeof path, "/proc/self/fd/%d", fd);
+    std::ofstream(path, std::ios::app) << 'x';
+  }
+  return ::fstat(fd, st);
+}
 bool g_fail_ftruncate = false;
 int failing_ftruncate(int fd, off_t length) {
   if (!g_fail_ftruncate) return ::ftruncate(fd, length);
@@ -319,7 +360,7 @@ TEST_CASE("state directory: the report's space is reserved at the start, or the 
 TEST_CASE("state directory: a write that fails says why and leaves no file, whole or half") {
   const fs::path dir = fs::temp_directory_path() / ("turncal-io-" + std::to_string(::getpid()));
   fs::remove_all(dir);
-  const FileIo io{failing_write, failing_fsync, failing_close, failing_ftruncate};
+  const FileIo io{failing_write, failing_fsync, failing_close, failing_ftruncate, failing_fstat};
   StateDir st(dir, io);
   REQUIRE(st.create().ok());
   for (const int err : {ENOSPC, EIO}) {
@@ -494,18 +535,58 @@ TEST_CASE("state directory: a killed run's log is cut after its last whole line,
   const TailCut link = st.cut_torn_tail("link");
   CHECK(link.error.find("cannot open") != std::string::npos);
   CHECK(read("target") == whole + "(1.0");
+  CHECK_FALSE(link.regular);  // no report may be made of it
   fs::create_directories(dir / "dir.log");
-  CHECK(st.cut_torn_tail("dir").error.find("not a regular file") != std::string::npos);
-  // nor are they runs a killed daemon left: only regular files are
-  const auto left = st.logs_without_report();
-  CHECK(std::count(left.begin(), left.end(), "target") == 1);
-  CHECK(std::count(left.begin(), left.end(), "link") == 0);
-  CHECK(std::count(left.begin(), left.end(), "dir") == 0);
+  const TailCut in_dir = st.cut_torn_tail("dir");
+  CHECK(in_dir.error.find("not a regular file") != std::string::npos);
+  CHECK_FALSE(in_dir.regular);
+  // a FIFO is refused without blocking: opened for reading with no writer,
+  // a blocking open would never return (and this test would hang)
+  REQUIRE(::mkfifo((dir / "fifo.log").c_str(), 0600) == 0);
+  const TailCut fifo = st.cut_torn_tail("fifo");
+  CHECK(fifo.error.find("not a regular file") != std::string::npos);
+  CHECK_FALSE(fifo.regular);
+  CHECK(st.cut_torn_tail("target").regular);
+  // nor are they runs a killed daemon left: only regular files are, and
+  // each passed over is said with why
+  const LogsWithoutReport left = st.logs_without_report();
+  CHECK(std::count(left.runs.begin(), left.runs.end(), "target") == 1);
+  for (const char* id : {"link", "dir", "fifo"})
+    CHECK(std::count(left.runs.begin(), left.runs.end(), id) == 0);
+  std::vector<std::string> skipped = left.skipped;
+  std::sort(skipped.begin(), skipped.end());
+  CHECK(skipped ==
+        std::vector<std::string>{"dir.log: not a regular file, no run's log; left as it is",
+                                 "fifo.log: not a regular file, no run's log; left as it is",
+                                 "link.log: a link, no run's log; left as it is"});
 
   // the cut, its sync and the close each fail with their reason; after the
   // cut, what was cut is said with the failure
-  const FileIo io{failing_write, failing_fsync, failing_close, failing_ftruncate};
+  const FileIo io{failing_write, failing_fsync, failing_close, failing_ftruncate, failing_fstat};
   StateDir failing(dir, io);
+  // the look before the read and the look before the cut each fail with
+  // their reason, and a file that grew between the two is left as it is
+  struct Look {
+    int fstats_before_fail;
+    int fstats_before_append;
+    const char* says;
+    bool regular;
+  };
+  for (const Look& l : {Look{0, 1000, "cannot stat: Input/output error", false},
+                        Look{1, 1000, "cannot stat it to cut its last, partial line", true},
+                        Look{1000, 1, "changed while it was read; left as it is", true}}) {
+    CAPTURE(l.says);
+    write("t", whole + "(1.0");
+    g_fstats_before_fail = l.fstats_before_fail;
+    g_fstats_before_append = l.fstats_before_append;
+    const TailCut f = failing.cut_torn_tail("t");
+    g_fstats_before_fail = 1000;
+    g_fstats_before_append = 1000;
+    CHECK(f.error.find(l.says) != std::string::npos);
+    CHECK(f.regular == l.regular);
+    CHECK(f.bytes.empty());
+    CHECK(read("t") == whole + "(1.0" + (l.fstats_before_append == 1 ? "x" : ""));
+  }
   struct Step {
     bool fail_ftruncate;
     int fsyncs_before_fail;
@@ -540,6 +621,8 @@ TEST_CASE("state directory: the bytes a kill left are kept as printable text, re
   // a backslash is doubled, so the text \x00 is not a NUL byte
   CHECK(printable_bytes("\\x00") == "\\\\x00");
   CHECK(printable_bytes("") == "");
+  // a double quote too, so the text can be quoted as it is
+  CHECK(printable_bytes("a\"b") == "a\\x22b");
 }
 
 TEST_CASE("state directory: one process holds it; a second is refused until the first lets go") {

@@ -72,6 +72,9 @@ std::string combination_terms(const nlohmann::json& combination, const nlohmann:
 /// The innovations' whiteness in words: the Ljung-Box statistics, their
 /// p-values, and "NOT white" only under the alarm's p-value.
 std::string whiteness_text(const nlohmann::json& innovations);
+/// A report's log in words: its file, and what was cut off its end (the
+/// part of a line a kill left) when anything was.
+std::string log_text(const nlohmann::json& log);
 
 /// Pass/fail of the estimates against the tolerances: {"pass": bool,
 /// "checks": [...]}; every run passes when there are none.
