@@ -5,6 +5,7 @@
 #include <charconv>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <limits>
 #include <optional>
@@ -1330,17 +1331,45 @@ Result<std::uint64_t> physical_to_raw(const Signal& sig, double value) {
   return r.raw;
 }
 
-FrameCodec::FrameCodec(const Database& db) : db_(&db) {
+FrameCodec::FrameCodec(const Database& db) : db_(&db), standard_(kStdIdMask + 1, -1) {
   index_.reserve(db.messages.size() * 2);
+  plans_.resize(db.messages.size());
   for (std::size_t i = 0; i < db.messages.size(); ++i) {
     const Message& m = db.messages[i];
+    const auto at = static_cast<std::int32_t>(i);
     index_[m.id | (m.extended ? kDbcExtendedFlag : 0u)] = static_cast<std::uint32_t>(i);
+    if (!m.extended && m.id <= kStdIdMask) standard_[m.id] = at;  // the last of an ID, as above
+    Plan& p = plans_[i];
+    p.first = static_cast<std::uint32_t>(slots_.size());
+    p.count = static_cast<std::uint32_t>(m.signals.size());
+    p.plain = true;
+    for (const Signal& sig : m.signals) {
+      p.plain = p.plain && sig.usable && sig.mux != MuxRole::Multiplexed;
+      Slot sl{};
+      sl.signal = &sig;
+      sl.mask = low_mask(sig.length);
+      sl.first_byte = sig.first_byte;
+      sl.shift = sig.shift;
+      sl.little_endian = sig.order == ByteOrder::LittleEndian;
+      // one load of 8 bytes from first_byte holds the signal's bytes, and
+      // stays inside the frame's data (whatever lies past the signal's
+      // bytes is shifted or masked off)
+      sl.direct = sig.usable && sig.span >= 1 && sig.span <= 8 && sig.first_byte + 8 <= kMaxFdLen;
+      sl.drop = sl.direct ? 64 - 8 * sig.span : 0;
+      slots_.push_back(sl);
+    }
   }
 }
 
+std::int32_t FrameCodec::index_of(const Frame& f) const {
+  if (!f.extended && f.id <= kStdIdMask) return standard_[f.id];
+  const auto it = index_.find(f.id | (f.extended ? kDbcExtendedFlag : 0u));
+  return it == index_.end() ? -1 : static_cast<std::int32_t>(it->second);
+}
+
 const Message* FrameCodec::message_for(const Frame& f) const {
-  auto it = index_.find(f.id | (f.extended ? kDbcExtendedFlag : 0u));
-  return it == index_.end() ? nullptr : &db_->messages[it->second];
+  const std::int32_t k = index_of(f);
+  return k < 0 ? nullptr : &db_->messages[static_cast<std::size_t>(k)];
 }
 
 DecodeStatus FrameCodec::check(const Frame& f, const Message** msg) const {
@@ -1353,15 +1382,33 @@ DecodeStatus FrameCodec::check(const Frame& f, const Message** msg) const {
 }
 
 DecodeStatus FrameCodec::decode(const Frame& f, std::span<double> out, const Message** msg) const {
-  const Message* m = nullptr;
-  const DecodeStatus st = check(f, &m);
-  if (st != DecodeStatus::Ok) return st;
-  if (msg != nullptr) *msg = m;
+  if (f.error || f.remote) return DecodeStatus::NotData;
+  const std::int32_t k = index_of(f);
+  if (k < 0) return DecodeStatus::UnknownId;
+  const Message& m = db_->messages[static_cast<std::size_t>(k)];
+  if (f.len != m.size) return DecodeStatus::LengthMismatch;
+  if (msg != nullptr) *msg = &m;
+  const Plan& plan = plans_[static_cast<std::size_t>(k)];
   const std::span<const std::uint8_t> payload(f.data.data(), f.len);
-  for (std::size_t i = 0; i < m->signals.size() && i < out.size(); ++i) {
-    const Signal& s = m->signals[i];
-    out[i] = m->carries(i, payload) ? raw_to_physical(s, extract_raw(s, payload))
-                                    : std::numeric_limits<double>::quiet_NaN();
+  const std::size_t n = std::min<std::size_t>(plan.count, out.size());
+  for (std::size_t i = 0; i < n; ++i) {
+    const Slot& sl = slots_[plan.first + i];
+    if (!plan.plain && !m.carries(i, payload)) {
+      out[i] = std::numeric_limits<double>::quiet_NaN();
+      continue;
+    }
+    std::uint64_t raw = 0;
+    if (sl.direct) {
+      std::uint64_t w = 0;
+      std::memcpy(&w, f.data.data() + sl.first_byte, sizeof w);
+      if constexpr (std::endian::native == std::endian::big) w = __builtin_bswap64(w);
+      // little endian now: a Motorola signal's first byte is its top
+      if (!sl.little_endian) w = __builtin_bswap64(w) >> sl.drop;
+      raw = (w >> sl.shift) & sl.mask;
+    } else {
+      raw = extract_raw(*sl.signal, payload);
+    }
+    out[i] = raw_to_physical(*sl.signal, raw);
   }
   return DecodeStatus::Ok;
 }

@@ -726,12 +726,12 @@ void Daemon::report_interrupted_runs() {
       say(LOG_WARNING, id, "interrupted", "no report: " + c.error);
       continue;
     }
-    auto dg = run::sha256_file(log_file.string());
+    auto dg = run::sha256_file(log_file.string(), run::CountLines::Yes);
     if (!dg) {
       say(LOG_WARNING, id, "interrupted", "no report: " + dg.error().describe() + torn);
       continue;
     }
-    const std::uint64_t lines = dg->lines;
+    const std::uint64_t lines = dg->lines.value_or(0);  // counted: asked for
     json log_j = {{"file", id + ".log"},
                 {"sha256", dg->sha256},
                 {"lines", lines},

@@ -1,5 +1,6 @@
 // libFuzzer target: the candump log line parser. What it accepts must
-// format and parse back to the same record.
+// format and parse back to the same record; and its fast way with the
+// usual lines must give what the careful way gives, record or error.
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
@@ -13,6 +14,16 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     const auto nl = text.find('\n');
     const std::string_view line = text.substr(0, nl);
     text = nl == std::string_view::npos ? std::string_view{} : text.substr(nl + 1);
+    turncal::can::LogRecord fast, careful;
+    const turncal::Status a = turncal::can::parse_log_line(line, fast);
+    const turncal::Status b = turncal::can::detail::parse_log_line_careful(line, careful);
+    if (a.ok() != b.ok()) std::abort();
+    if (a.ok() && (fast.time_ns != careful.time_ns || fast.interface != careful.interface ||
+                   !(fast.frame == careful.frame) || fast.frame.data != careful.frame.data))
+      std::abort();
+    if (!a.ok() && (a.error().message != b.error().message ||
+                    a.error().where.column != b.error().where.column))
+      std::abort();
     auto rec = turncal::can::parse_log_line(line);
     if (!rec.ok()) continue;
     const std::string out = turncal::can::format_log_line(*rec);

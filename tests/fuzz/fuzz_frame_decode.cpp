@@ -1,5 +1,7 @@
 // libFuzzer target: the frame decoders (signal codec by the reference
-// stand's DBC, error frames) on arbitrary frames.
+// stand's DBC, error frames) on arbitrary frames; each value the codec
+// gives is the one its signal's own extract gives, bit for bit.
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
@@ -44,6 +46,18 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   const turncal::can::Message* m = nullptr;
   const auto st = codec.decode(f, values, &m);
   if (st == turncal::can::DecodeStatus::Ok && (m == nullptr || m->size != f.len)) std::abort();
+  if (st == turncal::can::DecodeStatus::Ok) {
+    for (std::size_t i = 0; i < m->signals.size() && i < values.size(); ++i) {
+      const turncal::can::Signal& sig = m->signals[i];
+      if (!m->carries(i, f.payload())) {
+        if (!std::isnan(values[i])) std::abort();
+        continue;
+      }
+      const double want =
+          turncal::can::raw_to_physical(sig, turncal::can::extract_raw(sig, f.payload()));
+      if (std::memcmp(&want, &values[i], sizeof want) != 0) std::abort();
+    }
+  }
   (void)turncal::can::decode_error_frame(tf);
   return 0;
 }

@@ -125,6 +125,100 @@ TEST_SUITE("candump") {
     }
   }
 
+  TEST_CASE(
+      "property: the usual lines' fast parse gives what the careful one gives, or leaves it") {
+    // lines as the writer makes them, then spoilt a byte or three at a time
+    // (a digit, a hex letter, a separator, a byte no line has, one taken
+    // out or put in): whatever the parse gives, record or error with its
+    // column, is the careful parse's, into a record that held another
+    std::mt19937_64 rng(0x5eed'cafe);
+    // (and the bytes next to the hex digits' ranges: / : @ G ` g, 0x10..0x19,
+    // 0x41..0x46 and 0x61..0x66 with the top bit set)
+    const std::string alphabet =
+        std::string("0159aAfFgG#.() R_r:/\r\t\x7f\xff@`\x10\x19\xc1\xc6\xe1\xe6\xb0\xb9", 34) +
+        '\0';
+    int whole = 0, refused = 0;
+    for (int trial = 0; trial < 60000; ++trial) {
+      LogRecord r;
+      r.time_ns = static_cast<std::int64_t>(rng() % 9'000'000'000'000'000'000ull);
+      r.interface = std::string(1 + rng() % 15, 'c');
+      for (char& c : r.interface) c = "canvx019_-"[rng() % 10];
+      r.frame.extended = rng() % 4 == 0;
+      r.frame.id = static_cast<std::uint32_t>(rng() & (r.frame.extended ? kExtIdMask : kStdIdMask));
+      r.frame.len = static_cast<std::uint8_t>(rng() % 9);
+      for (std::size_t k = 0; k < r.frame.len; ++k)
+        r.frame.data[k] = static_cast<std::uint8_t>(rng());
+      std::string line = format_log_line(r);
+      line.pop_back();  // the newline
+      const int spoils = static_cast<int>(rng() % 4);
+      for (int k = 0; k < spoils && !line.empty(); ++k) {
+        const std::size_t at = rng() % line.size();
+        const char c = alphabet[rng() % alphabet.size()];
+        switch (rng() % 3) {
+          case 0:
+            line[at] = c;
+            break;
+          case 1:
+            line.erase(at, 1);
+            break;
+          default:
+            line.insert(at, 1, c);
+        }
+      }
+      CAPTURE(line);
+      LogRecord fast, careful;
+      for (LogRecord* was : {&fast, &careful}) {  // each held an FD frame of 64 bytes
+        REQUIRE(parse_log_line("(1.000000) vcan0 12345678##3" + std::string(128, 'A'), *was));
+      }
+      const turncal::Status a = parse_log_line(line, fast);
+      const turncal::Status b = detail::parse_log_line_careful(line, careful);
+      REQUIRE(a.ok() == b.ok());
+      if (a.ok()) {
+        ++whole;
+        CHECK(fast.time_ns == careful.time_ns);
+        CHECK(fast.interface == careful.interface);
+        CHECK(fast.frame == careful.frame);
+        CHECK(fast.frame.data == careful.frame.data);  // the bytes past the payload too
+        if (spoils == 0) {
+          CHECK(fast.time_ns == r.time_ns / 1000 * 1000);
+          CHECK(fast.interface == r.interface);
+          CHECK(fast.frame == r.frame);
+        }
+      } else {
+        ++refused;
+        CHECK(a.error().message == b.error().message);
+        CHECK(a.error().where.column == b.error().where.column);
+      }
+    }
+    // both ways taken often: lines read, lines refused
+    CHECK(whole > 20000);
+    CHECK(refused > 20000);
+    // every byte value in every place of the 16 digits of an 8-byte frame,
+    // and in the 3 of its identifier
+    const std::string usual = "(1767225600.250000) vcan0 1Ab#0123456789aBcDeF";
+    int read = 0;
+    for (std::size_t at = usual.find(' ', 20) + 1; at < usual.size(); ++at) {
+      if (usual[at] == '#') continue;
+      for (int b = 0; b < 256; ++b) {
+        std::string line = usual;
+        line[at] = static_cast<char>(b);
+        CAPTURE(line);
+        LogRecord fast, careful;
+        const turncal::Status a = parse_log_line(line, fast);
+        const turncal::Status c = detail::parse_log_line_careful(line, careful);
+        REQUIRE(a.ok() == c.ok());
+        if (!a.ok()) continue;
+        ++read;
+        CHECK(fast.frame == careful.frame);
+        CHECK(fast.frame.id == careful.frame.id);
+      }
+    }
+    // the 22 hex digits (0-9, a-f, A-F) in each place but the identifier's
+    // first (0-7: 0x7FF is the largest), and a second '#' after the first
+    // (an FD frame of flags 1 and 7 bytes)
+    CHECK(read == 18 * 22 + 8 + 1);
+  }
+
   TEST_CASE("malformed lines are errors with a column") {
     const char* bad[] = {
         "",

@@ -1,5 +1,6 @@
 #include <doctest/doctest.h>
 
+#include <bit>
 #include <cmath>
 #include <map>
 #include <random>
@@ -398,10 +399,18 @@ TEST_SUITE("dbc") {
       f.extended = m.extended;
       f.fd = m.fd;
       f.len = static_cast<std::uint8_t>(size);
+      // bytes past the payload hold junk: the codec reads 8 bytes at a
+      // time where they fit in the frame's data, and must drop them
+      for (auto& b : f.data) b = static_cast<std::uint8_t>(rng());
       std::copy(payload.begin(), payload.end(), f.data.begin());
       FrameCodec codec(*db);
       std::vector<double> phys(m.signals.size());
       REQUIRE(codec.decode(f, phys) == DecodeStatus::Ok);
+      for (std::size_t i = 0; i < m.signals.size(); ++i) {
+        CAPTURE(i);
+        CHECK(std::bit_cast<std::uint64_t>(phys[i]) ==
+              std::bit_cast<std::uint64_t>(raw_to_physical(m.signals[i], raws[i])));
+      }
       const Frame g = FrameCodec::encode(m, phys);
       for (std::size_t i = 0; i < m.signals.size(); ++i)
         if (m.signals[i].length <= 52) CHECK(extract_raw(m.signals[i], g.payload()) == raws[i]);

@@ -658,11 +658,15 @@ TEST_CASE("sha256: fed in pieces, and of a file read in pieces, with its line co
     std::fwrite(data.data(), 1, data.size(), f);
     std::fclose(f);
   }
-  auto d = sha256_file(path);
+  auto d = sha256_file(path, CountLines::Yes);
+  const auto uncounted = sha256_file(path);  // the digest alone, no count
   std::remove(path.c_str());
   REQUIRE(d.ok());
   CHECK(d->sha256 == whole);
   CHECK(d->lines == 30001);
+  REQUIRE(uncounted.ok());
+  CHECK(uncounted->sha256 == whole);
+  CHECK_FALSE(uncounted->lines.has_value());
   CHECK_FALSE(sha256_file(path).ok());
 }
 

@@ -220,9 +220,10 @@ struct DecodeCounts {
   [[nodiscard]] std::uint64_t malformed() const { return length_mismatch; }
 };
 
-/// Decodes frames by ID through a Database (which must outlive it). Looks an
-/// ID up in a hash map; a frame whose length differs from the message's is
-/// counted and skipped, never fatal.
+/// Decodes frames by ID through a Database (which must outlive it, and is
+/// read as it was when the codec was made). Looks an 11-bit ID up in a
+/// table, a 29-bit one in a hash map; a frame whose length differs from the
+/// message's is counted and skipped, never fatal.
 class FrameCodec {
  public:
   explicit FrameCodec(const Database& db);
@@ -247,8 +248,32 @@ class FrameCodec {
   static Frame encode(const Message& msg, std::span<const double> values);
 
  private:
+  /// A signal as decode takes it: where it lies, and whether one 8-byte
+  /// load of the frame's data holds it (`direct`), else the bytewise way.
+  struct Slot {
+    const Signal* signal;
+    std::uint64_t mask;  ///< its `length` low bits
+    std::uint32_t first_byte;
+    std::uint32_t shift;
+    std::uint32_t drop;  ///< Motorola: the bits below its bytes after the byte swap
+    bool direct;
+    bool little_endian;
+  };
+  /// A message's signals (slots_[first, first + count)); `plain`: each is
+  /// usable and none multiplexed, so each is carried in every frame.
+  struct Plan {
+    std::uint32_t first = 0;
+    std::uint32_t count = 0;
+    bool plain = false;
+  };
+  /// The index in db_->messages of the frame's message, or -1.
+  [[nodiscard]] std::int32_t index_of(const Frame& frame) const;
+
   const Database* db_;
   std::unordered_map<std::uint32_t, std::uint32_t> index_;  // key: id | extended << 31
+  std::vector<std::int32_t> standard_;                      // by 11-bit id; -1: none
+  std::vector<Slot> slots_;
+  std::vector<Plan> plans_;  // by message index
 };
 
 }  // namespace turncal::can

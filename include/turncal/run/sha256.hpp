@@ -7,6 +7,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <optional>
 #include <string>
 #include <string_view>
 
@@ -34,11 +35,14 @@ std::string sha256_hex(std::string_view data);
 
 struct FileDigest {
   std::string sha256;
-  std::uint64_t lines = 0;  ///< newlines: the frames of a candump log
+  std::optional<std::uint64_t> lines;  ///< newlines (the frames of a candump log), when asked
 };
-/// SHA-256 and line count of a file, read in 1 MiB pieces (a run's log
-/// can be far larger than the daemon's memory budget).
-Result<FileDigest> sha256_file(const std::string& path);
+/// Whether sha256_file counts the file's lines as well (a pass of memchr
+/// over every byte: a tenth of a replay's digest, for a count it has).
+enum class CountLines : std::uint8_t { No, Yes };
+/// SHA-256 of a file, and its line count when asked, read in 1 MiB pieces
+/// (a run's log can be far larger than the daemon's memory budget).
+Result<FileDigest> sha256_file(const std::string& path, CountLines count = CountLines::No);
 
 namespace detail {
 /// The compression function (FIPS 180-4, 6.2.2) over `blocks` whole
