@@ -162,6 +162,12 @@ struct StandLimits {
   }
 };
 
+/// The range of [stand] time_scale, and of a report's time_base.scale that
+/// a replay takes: a stand run at most ten thousand times faster or a
+/// thousand times slower than real time.
+inline constexpr double kMinTimeScale = 1e-3;
+inline constexpr double kMaxTimeScale = 1e4;
+
 /// The stand's mounting and limits ([stand]).
 struct StandConfig {
   double heading_offset_rad = 0;  ///< heading of z2 = heading_offset - table angle

@@ -384,7 +384,7 @@ Status read_stand(const toml::table& t, const std::string& file, StandConfig& s)
   TURNCAL_TRY(r.number("max_accel_dps2", acc, 0.01, 10000));
   TURNCAL_TRY(r.number("angle_min_deg", lo, -1e6, 1e6));
   TURNCAL_TRY(r.number("angle_max_deg", hi, -1e6, 1e6));
-  TURNCAL_TRY(r.number("time_scale", s.time_scale, 1e-3, 1e4));
+  TURNCAL_TRY(r.number("time_scale", s.time_scale, kMinTimeScale, kMaxTimeScale));
   TURNCAL_TRY(r.number("position_tolerance_deg", tol, 1e-4, 10));
   if (!(lo < hi)) {
     // name whichever of the two the file sets (one alone can cross the other's default)

@@ -199,7 +199,8 @@ class Daemon {
   std::uint64_t replaced_checked_us = 0;
   std::uint8_t heartbeat_counter = 0;
   std::optional<StateDir> state;
-  DirLock state_lock;  ///< the state directory is this daemon's alone
+  DirLock state_lock;   ///< the state directory is this daemon's alone
+  DirLock socket_lock;  ///< and the control socket's path (when it binds it itself)
   /// Frames the bus has lately carried (what a run's log grows at).
   BusRate bus_rate;
   double next_space_check_s = 0;  ///< of this run, real s from its start
@@ -733,9 +734,9 @@ void Daemon::report_interrupted_runs() {
     }
     const std::uint64_t lines = dg->lines.value_or(0);  // counted: asked for
     json log_j = {{"file", id + ".log"},
-                {"sha256", dg->sha256},
-                {"lines", lines},
-                {"torn_bytes_cut", c.bytes.size()}};
+                  {"sha256", dg->sha256},
+                  {"lines", lines},
+                  {"torn_bytes_cut", c.bytes.size()}};
     if (!c.bytes.empty()) log_j["torn_tail"] = torn_text;
     const json j = {{"format", "turncal-report-1"},
                     {"schema_version", run::kReportSchemaVersion},
@@ -1402,6 +1403,14 @@ Status Daemon::setup() {
       return make_error("socket path too long: " + path + " (bound first as " + temp +
                         ", at most " + std::to_string(sizeof a.sun_path - 1) + " characters)");
     fs::create_directories(cfg.daemon.socket.parent_path(), ec);
+    // one daemon per socket too: a second one with a state directory of
+    // its own would rename its socket over the first's and take its control
+    const std::string lock = path + ".lock";
+    TURNCAL_ASSIGN(sock_held, take_lock(lock, "the control socket " + path +
+                                                  " is another process's (another turncald?): "
+                                                  "its lock " +
+                                                  lock + " is taken; one daemon per socket"));
+    socket_lock = std::move(sock_held);
     listen_fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
     if (listen_fd < 0) return make_error(std::string("socket(AF_UNIX): ") + std::strerror(errno));
     a.sun_family = AF_UNIX;

@@ -62,8 +62,7 @@ DirLock::~DirLock() {
   if (fd_ >= 0) (void)::close(fd_);  // the lock goes with the descriptor
 }
 
-Result<DirLock> StateDir::lock() const {
-  const fs::path file = dir_ / ".lock";
+Result<DirLock> take_lock(const fs::path& file, const std::string& held_elsewhere) {
   const int fd = ::open(file.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
   if (fd < 0) return make_error("cannot open " + file.string() + ": " + std::strerror(errno));
   DirLock held(fd);
@@ -71,13 +70,17 @@ Result<DirLock> StateDir::lock() const {
   while ((rc = ::flock(fd, LOCK_EX | LOCK_NB)) != 0 && errno == EINTR) {
   }
   if (rc != 0) {
-    if (errno == EWOULDBLOCK)
-      return make_error("the state directory " + dir_.string() +
-                        " is held by another process (another turncald?): its lock " +
-                        file.string() + " is taken; one daemon per state directory");
+    if (errno == EWOULDBLOCK) return make_error(held_elsewhere);
     return make_error("cannot lock " + file.string() + ": " + std::strerror(errno));
   }
   return held;
+}
+
+Result<DirLock> StateDir::lock() const {
+  const fs::path file = dir_ / ".lock";
+  return take_lock(file, "the state directory " + dir_.string() +
+                             " is held by another process (another turncald?): its lock " +
+                             file.string() + " is taken; one daemon per state directory");
 }
 
 Status StateDir::write_atomic(const std::string& name, const std::string& data) const {

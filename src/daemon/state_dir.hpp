@@ -84,6 +84,12 @@ class DirLock {
   int fd_ = -1;
 };
 
+/// Takes `file` (made if missing) for this process: an exclusive flock,
+/// held until the DirLock goes (or the process ends, however it ends).
+/// When another process holds it, the error is `held_elsewhere`.
+[[nodiscard]] Result<DirLock> take_lock(const std::filesystem::path& file,
+                                        const std::string& held_elsewhere);
+
 /// Bytes a log of `frames` records takes at most, on interfaces whose names
 /// are at most `interface_chars` long (classic frames: a CAN FD frame's line
 /// is longer; the reference stand has none).

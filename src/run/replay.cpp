@@ -184,12 +184,15 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
 
   // the live run's bounds on what a frame can be; a run from before reports
   // carried them checked nothing, and neither does its replay
+  const json* live_pl =
+      live != nullptr && live->contains("plausibility") && (*live)["plausibility"].is_object()
+          ? &(*live)["plausibility"]
+          : nullptr;
   Plausibility pl = live != nullptr && !live->contains("plausibility") ? Plausibility::none()
                                                                        : plausibility_of(cfg);
   // a bound written as null is none (JSON has no infinity)
-  const auto bound = [live](const char* key, double otherwise) {
-    if (live != nullptr && live->contains("plausibility") && (*live)["plausibility"].is_object() &&
-        (*live)["plausibility"].contains(key) && (*live)["plausibility"][key].is_null())
+  const auto bound = [live, live_pl](const char* key, double otherwise) {
+    if (live_pl != nullptr && live_pl->contains(key) && (*live_pl)[key].is_null())
       return std::numeric_limits<double>::infinity();
     return live_number(live, "plausibility", key).value_or(otherwise);
   };
@@ -201,11 +204,10 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   // before the bounds was not. Reports say so since; before, such a
   // replay's report had no velocity bound (null), which no configuration
   // gives (its range is finite)
-  if (live != nullptr && live->contains("plausibility")) {
-    const json& p = (*live)["plausibility"];
-    if (p.contains("dbc_ranges"))
-      pl.dbc_ranges = p["dbc_ranges"].get<bool>();
-    else if (p.contains("max_velocity_mps") && p["max_velocity_mps"].is_null())
+  if (live_pl != nullptr) {
+    if (live_pl->contains("dbc_ranges"))
+      pl.dbc_ranges = (*live_pl)["dbc_ranges"].get<bool>();
+    else if (live_pl->contains("max_velocity_mps") && (*live_pl)["max_velocity_mps"].is_null())
       pl.dbc_ranges = false;
   }
   drivers::Devices dev = drivers::make_devices(cfg.can, roles, pl, tb.scale);

@@ -674,7 +674,7 @@ std::string check_report(const json& r) {
     // time stamps do: its seconds end at 9223372035); the config's range
     // of time_scale
     c.number_in(r["time_base"], "time_base.", "epoch_us", 0, 9.223372036e15);
-    c.number_in(r["time_base"], "time_base.", "scale", 1e-3, 1e4);
+    c.number_in(r["time_base"], "time_base.", "scale", kMinTimeScale, kMaxTimeScale);
   }
   if (c.field(r, "", "plausibility", Kind::Object)) {
     const json& p = r["plausibility"];

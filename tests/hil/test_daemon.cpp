@@ -357,6 +357,27 @@ TEST_SUITE("daemon") {
     CHECK(slurp(state / "live.log") == whole + torn_tail);
     CHECK_FALSE(hil::fs::exists(state / "live.report.json"));
     CHECK(ctl(dir.path, {"status"}) == 0);
+    // nor is one with a state directory of its own on the same socket: it
+    // would move its socket over the first's and take the control
+    std::string other = slurp(config);
+    const std::string state_line = "state_directory = \"" + state.string() + "\"";
+    REQUIRE(other.find(state_line) != std::string::npos);
+    other.replace(other.find(state_line), state_line.size(),
+                  "state_directory = \"" + (dir.path / "other-state").string() + "\"");
+    std::ofstream(dir.path / "other.toml") << other;
+    struct stat before {};
+    REQUIRE(::stat((dir.path / "control.sock").c_str(), &before) == 0);
+    Child third({kDaemon, "--config", (dir.path / "other.toml").string()}, dir.path, {},
+                dir.path / "third.err");
+    CHECK(third.wait(10000ms) == 1);
+    const std::string third_said = slurp(dir.path / "third.err");
+    CAPTURE(third_said);
+    CHECK(third_said.find("the control socket " + (dir.path / "control.sock").string() +
+                          " is another process's") != std::string::npos);
+    struct stat after {};
+    REQUIRE(::stat((dir.path / "control.sock").c_str(), &after) == 0);
+    CHECK(after.st_ino == before.st_ino);  // the first daemon's socket, not moved over
+    CHECK(ctl(dir.path, {"status"}) == 0);
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
     // the daemon's log says both
