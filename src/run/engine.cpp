@@ -129,21 +129,10 @@ void Engine::end_of_input(std::int64_t now_ns, std::vector<OutFrame>& out) {
 }
 
 void Engine::on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out) {
-  on_frame_decoded(f, nullptr, out);
-}
-
-void Engine::on_frame(const can::TimedFrame& f, const can::Decoding& decoded,
-                      std::vector<OutFrame>& out) {
-  on_frame_decoded(f, &decoded, out);
-}
-
-void Engine::on_frame_decoded(const can::TimedFrame& f, const can::Decoding* decoded,
-                              std::vector<OutFrame>& out) {
   can::TimedFrame scaled = f;
   const double t = stand_s(f.time_ns);
   scaled.time_ns = static_cast<std::int64_t>(std::llround(t * 1e6)) * 1000;
-  const Sample s =
-      decoded != nullptr ? ingest_.on_frame(scaled, *decoded) : ingest_.on_frame(scaled);
+  const Sample s = ingest_.on_frame(scaled);
   last_frame_s_ = t;
   stamped(f.time_ns);
   if (!implausible_fed_) check_plausible(t, out);

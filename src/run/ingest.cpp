@@ -307,17 +307,11 @@ void Ingest::clock_sample(ClockFit& fit, double device_s, double host_s) {
 }
 
 Sample Ingest::on_frame(const can::TimedFrame& f) {
-  can::Decoding d;
-  d.status = codec_.decode(f.frame, values_, &d.msg);
-  d.values = values_;
-  return on_frame(f, d);
-}
-
-Sample Ingest::on_frame(const can::TimedFrame& f, const can::Decoding& decoded) {
   ++counters_.frames;
   const double host = host_seconds(f.time_ns);
-  const can::DecodeStatus st = decoded.status;
-  const FrameView view{f, host, decoded.msg, st, decoded.values};
+  const can::Message* m = nullptr;
+  const can::DecodeStatus st = codec_.decode(f.frame, values_, &m);
+  const FrameView view{f, host, m, st, values_};
   // the INS's frames, then the table's: each driver says whether a frame
   // is its device's
   Decoded d = ins_->decode(view);

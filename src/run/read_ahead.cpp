@@ -9,11 +9,8 @@ constexpr std::size_t kBatch = 4096;  ///< records a batch holds
 constexpr std::size_t kAhead = 4;     ///< batches parsed ahead at most
 }  // namespace
 
-ReadAheadLogReader::ReadAheadLogReader(can::LogReader reader, const can::FrameCodec* codec)
-    : reader_(std::move(reader)),
-      codec_(codec),
-      width_(codec != nullptr ? codec->max_signals() : 0),
-      thread_([this] { produce(); }) {}
+ReadAheadLogReader::ReadAheadLogReader(can::LogReader reader)
+    : reader_(std::move(reader)), thread_([this] { produce(); }) {}
 
 ReadAheadLogReader::~ReadAheadLogReader() {
   {
@@ -41,8 +38,6 @@ void ReadAheadLogReader::produce() {
       }
       b.records.resize(kBatch);
       b.lines.clear();
-      b.decoded.clear();
-      b.values.resize(codec_ != nullptr ? kBatch * width_ : 0);
       b.error.reset();
       std::size_t n = 0;
       while (n < kBatch) {
@@ -53,13 +48,6 @@ void ReadAheadLogReader::produce() {
         }
         if (!*got) break;
         b.lines.push_back(reader_.line_number());
-        if (codec_ != nullptr) {
-          const std::span<double> values(b.values.data() + n * width_, width_);
-          can::Decoding d;
-          d.status = codec_->decode(b.records[n].frame, values, &d.msg);
-          d.values = values;
-          b.decoded.push_back(d);
-        }
         ++n;
       }
       b.end = n < kBatch;
@@ -101,11 +89,6 @@ Result<const can::LogRecord*> ReadAheadLogReader::next() {
   }
   line_ = cur_.lines[at_];
   return &cur_.records[at_++];
-}
-
-can::Decoding ReadAheadLogReader::decoded() const {
-  if (codec_ == nullptr || !have_cur_ || at_ == 0 || at_ > cur_.decoded.size()) return {};
-  return cur_.decoded[at_ - 1];
 }
 
 }  // namespace turncal::run

@@ -140,10 +140,7 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
       return make_error("the live report: " + why);
   TURNCAL_ASSIGN(plan, replay_plan(cfg, live, options));
   TURNCAL_ASSIGN(file, can::LogReader::open(log_path));
-  // parsed and decoded on a core of its own (by the codec of the same
-  // database the engine's drivers know the messages of)
-  const can::FrameCodec codec(db);
-  ReadAheadLogReader reader(std::move(file), &codec);
+  ReadAheadLogReader reader(std::move(file));  // parsed on a core of its own
   // the log's digest for the report, on a second core while the log replays
   // (hashing a two-hour log takes as long as replaying it)
   auto log_digest = std::async(std::launch::async, [&log_path] { return sha256_file(log_path); });
@@ -255,7 +252,7 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
                           std::to_string(reader.line_number()) +
                           " of the log is in it: the report is not this log's; replay without it");
     }
-    engine.on_frame({rec->time_ns, rec->frame}, reader.decoded(), sent);
+    engine.on_frame({rec->time_ns, rec->frame}, sent);
     const std::int64_t t = rec->time_ns;
     last_ns = std::max(last_ns, t);
     if (engine.estimation_due()) break;

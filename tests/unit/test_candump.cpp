@@ -2,7 +2,6 @@
 #include <sys/resource.h>
 #include <unistd.h>
 
-#include <bit>
 #include <csignal>
 
 #include <cstdio>
@@ -13,7 +12,6 @@
 #include <string>
 
 #include "turncal/can/candump.hpp"
-#include "turncal/can/dbc.hpp"
 
 using namespace turncal::can;
 
@@ -510,57 +508,6 @@ TEST_SUITE("a log read ahead on a thread of its own") {
     REQUIRE(want.size() == 4096 * 7 + 123 + 1);
     CHECK(want.back() == "end @" + std::to_string(4096 * 7 + 123 + (4096 * 7 + 123) / 999));
     CHECK(t.ahead == want);
-    std::filesystem::remove(path);
-  }
-
-  TEST_CASE("with a codec, each record comes decoded as the codec decodes it on its own") {
-    // IDs 0x100..0x106 in turn: one message of the log's length, one of
-    // another (a length mismatch), one of two signals, and unknown IDs
-    auto db = parse_dbc(
-        "BO_ 256 A: 1 X\n SG_ a : 0|8@1+ (0.5,-3) [0|0] \"\" X\n"
-        "BO_ 257 B: 2 X\n SG_ b : 0|16@1- (1,0) [0|0] \"\" X\n"
-        "BO_ 258 C: 1 X\n SG_ lo : 0|4@1+ (1,0) [0|0] \"\" X\n SG_ hi : 7|4@0- (2,1) [0|0] \"\" "
-        "X\n",
-        "ahead.dbc");
-    REQUIRE(db.ok());
-    const FrameCodec codec(*db);
-    REQUIRE(codec.max_signals() == 2);
-    const auto path = write_log("ahead-decoded", 4096 * 2 + 77, 0);
-    auto file = LogReader::open(path.string());
-    REQUIRE(file.ok());
-    turncal::run::ReadAheadLogReader ahead(std::move(*file), &codec);
-    std::vector<double> want(codec.max_signals());
-    int records = 0, ok = 0, mismatch = 0, unknown = 0;
-    for (;;) {
-      auto got = ahead.next();
-      REQUIRE(got.ok());
-      if (*got == nullptr) break;
-      ++records;
-      const Decoding d = ahead.decoded();
-      const Message* m = nullptr;
-      const DecodeStatus st = codec.decode((*got)->frame, want, &m);
-      CAPTURE(records);
-      REQUIRE(d.status == st);
-      ok += st == DecodeStatus::Ok;
-      mismatch += st == DecodeStatus::LengthMismatch;
-      unknown += st == DecodeStatus::UnknownId;
-      if (st != DecodeStatus::Ok) continue;
-      CHECK(d.msg == m);  // the database's own message, as the drivers know it
-      REQUIRE(d.values.size() >= m->signals.size());
-      for (std::size_t i = 0; i < m->signals.size(); ++i)
-        CHECK(std::bit_cast<std::uint64_t>(d.values[i]) == std::bit_cast<std::uint64_t>(want[i]));
-    }
-    CHECK(records == 4096 * 2 + 77);
-    CHECK(ok > 2000);
-    CHECK(mismatch > 1000);
-    CHECK(unknown > 4000);
-    // without a codec: no decode, the default
-    auto plain = LogReader::open(path.string());
-    REQUIRE(plain.ok());
-    turncal::run::ReadAheadLogReader bare(std::move(*plain));
-    REQUIRE(bare.next().ok());
-    CHECK(bare.decoded().msg == nullptr);
-    CHECK(bare.decoded().values.empty());
     std::filesystem::remove(path);
   }
 

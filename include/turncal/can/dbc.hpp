@@ -220,14 +220,6 @@ struct DecodeCounts {
   [[nodiscard]] std::uint64_t malformed() const { return length_mismatch; }
 };
 
-/// What a codec made of a frame: its status, and on Ok its message and the
-/// physical values of the message's signals (in its signal order).
-struct Decoding {
-  DecodeStatus status = DecodeStatus::UnknownId;
-  const Message* msg = nullptr;
-  std::span<const double> values;
-};
-
 /// Decodes frames by ID through a Database (which must outlive it, and is
 /// read as it was when the codec was made). Looks an 11-bit ID up in a
 /// table, a 29-bit one in a hash map; a frame whose length differs from the
@@ -254,9 +246,6 @@ class FrameCodec {
   /// device's own readings at its frame rates, test fixtures): one that
   /// does not fit is clamped to its signal's raw range.
   static Frame encode(const Message& msg, std::span<const double> values);
-  /// The most signals a message of the database has: what decode's `out`
-  /// must hold for any frame.
-  [[nodiscard]] std::size_t max_signals() const { return max_signals_; }
 
  private:
   /// A signal as decode takes it: where it lies, and whether one 8-byte
@@ -285,7 +274,6 @@ class FrameCodec {
   std::vector<std::int32_t> standard_;                      // by 11-bit id; -1: none
   std::vector<Slot> slots_;
   std::vector<Plan> plans_;  // by message index
-  std::size_t max_signals_ = 0;
 };
 
 }  // namespace turncal::can

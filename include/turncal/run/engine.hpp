@@ -89,9 +89,6 @@ class Engine {
   void end_of_input(std::int64_t now_ns, std::vector<OutFrame>& out);
   /// A received frame (or one of ours, as a recording has it).
   void on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out);
-  /// The same with the frame decoded already, by a codec of the same
-  /// Database (a replay's, on its reading thread).
-  void on_frame(const can::TimedFrame& f, const can::Decoding& decoded, std::vector<OutFrame>& out);
   /// Deadlines and lost streams; call often (10 Hz or more).
   /// `heard_until_ns`: every frame stamped before it has been given to
   /// on_frame or stamped() (a read that left frames, or lost some to a full
@@ -165,8 +162,6 @@ class Engine {
   [[nodiscard]] std::uint64_t commands_sent() const { return commands_sent_; }
 
  private:
-  void on_frame_decoded(const can::TimedFrame& f, const can::Decoding* decoded,
-                        std::vector<OutFrame>& out);
   void feed(const Event& e, std::vector<OutFrame>& out);
   /// A sample of the ingest: the record, the live view, the sequencer.
   void use(const Sample& s, double t, std::vector<OutFrame>& out);

@@ -215,9 +215,6 @@ class Ingest {
   /// to microseconds as a candump log keeps it, so that a replay of the
   /// log sees exactly what the live run saw.
   Sample on_frame(const can::TimedFrame& f);
-  /// The same with the frame decoded already, by a codec of the same
-  /// Database (a replay's, on the reading thread).
-  Sample on_frame(const can::TimedFrame& f, const can::Decoding& decoded);
   /// A sample the table driver holds beyond the frames' (a status change
   /// that came with an encoder sample, or from a timeout), at host_s;
   /// monostate when none. Call until monostate after each frame and tick.

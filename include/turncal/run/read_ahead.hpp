@@ -1,8 +1,8 @@
 // A candump log read and parsed on a thread of its own, ahead of the one
 // that takes its records: a replay's parsing (a third of its work on a
-// two-hour log) then runs beside the sequencer and the filter, and with a
-// codec the frames' decoding too. What it gives is what can::LogReader
-// gives, in the same order, its error and line numbers included.
+// two-hour log) then runs beside the sequencer and the filter. What it
+// gives is what can::LogReader gives, in the same order, its error and
+// line numbers included.
 #pragma once
 
 #include <condition_variable>
@@ -15,16 +15,13 @@
 #include <vector>
 
 #include "turncal/can/candump.hpp"
-#include "turncal/can/dbc.hpp"
 #include "turncal/result.hpp"
 
 namespace turncal::run {
 
 class ReadAheadLogReader {
  public:
-  /// With a codec (which must outlive the reader), each record's frame is
-  /// decoded on the reading thread as well: decoded() gives it.
-  explicit ReadAheadLogReader(can::LogReader reader, const can::FrameCodec* codec = nullptr);
+  explicit ReadAheadLogReader(can::LogReader reader);
   /// Stops the reading thread and waits for it: for the batch it is
   /// parsing, or for a read that blocks (a pipe whose writer is still open).
   ~ReadAheadLogReader();
@@ -41,25 +38,18 @@ class ReadAheadLogReader {
   /// The line of the record last given; after the end or an error, the
   /// reader's last line, as can::LogReader::line_number.
   [[nodiscard]] std::uint64_t line_number() const { return line_; }
-  /// What the codec made of the record last given (valid as it is); a
-  /// reader without a codec gives the default, no message.
-  [[nodiscard]] can::Decoding decoded() const;
 
  private:
   struct Batch {
     std::vector<can::LogRecord> records;
-    std::vector<std::uint64_t> lines;    ///< each record's line
-    std::vector<can::Decoding> decoded;  ///< each record's decode, with a codec
-    std::vector<double> values;          ///< their values, max_signals() a record
-    std::uint64_t last_line = 0;         ///< the reader's line at the batch's end
+    std::vector<std::uint64_t> lines;  ///< each record's line
+    std::uint64_t last_line = 0;       ///< the reader's line at the batch's end
     std::optional<Error> error;
     bool end = false;
   };
   void produce();
 
   can::LogReader reader_;
-  const can::FrameCodec* codec_;
-  std::size_t width_;  ///< values a record
   std::mutex m_;
   std::condition_variable cv_;
   std::deque<Batch> full_;   ///< parsed, in order
