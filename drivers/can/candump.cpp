@@ -187,9 +187,11 @@ bool eight_hex_digits(std::uint64_t w, std::uint32_t& out) {
 /// A line as candump and format_log_line write it: "(" 10 digits "." 6
 /// digits ") " name " " 3 or 8 hex digits "#" hex pairs, a classic data
 /// frame. True when the line is one and `out` holds it; false for anything
-/// else (`out` then half written), which the careful parse reads or
-/// refuses with its column.
-bool parse_usual(std::string_view line, LogRecord& out) {
+/// else (`out` then untouched: it is written only once the whole line has
+/// passed), which the careful parse reads or refuses with its column.
+}  // namespace
+
+bool detail::parse_usual_line(std::string_view line, LogRecord& out) {
   if constexpr (std::endian::native != std::endian::little) return false;
   const std::size_t n = line.size();
   const char* p = line.data();
@@ -257,10 +259,8 @@ bool parse_usual(std::string_view line, LogRecord& out) {
   return true;
 }
 
-}  // namespace
-
 Status parse_log_line(std::string_view line, LogRecord& out) {
-  if (parse_usual(line, out)) return Status{Ok{}};
+  if (detail::parse_usual_line(line, out)) return Status{Ok{}};
   return detail::parse_log_line_careful(line, out);
 }
 

@@ -1342,6 +1342,7 @@ FrameCodec::FrameCodec(const Database& db) : db_(&db), standard_(kStdIdMask + 1,
     Plan& p = plans_[i];
     p.first = static_cast<std::uint32_t>(slots_.size());
     p.count = static_cast<std::uint32_t>(m.signals.size());
+    max_signals_ = std::max(max_signals_, m.signals.size());
     p.plain = true;
     for (const Signal& sig : m.signals) {
       p.plain = p.plain && sig.usable && sig.mux != MuxRole::Multiplexed;

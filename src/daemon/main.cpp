@@ -271,6 +271,8 @@ class Daemon {
   void check_run_space();
   void write_report(bool with_estimates);
   void report_interrupted_runs();
+  /// Takes the control socket's path for this daemon (see setup).
+  Status claim_socket();
   void handle_request(Client& c, const std::string& line);
   void broadcast_watch();
   void reap_clients();
@@ -753,6 +755,31 @@ void Daemon::report_interrupted_runs() {
         "run " + id + " was interrupted; its log (" + std::to_string(lines) + " frames) is kept" +
             torn);
   }
+}
+
+Status Daemon::claim_socket() {
+  const std::string path = cfg.daemon.socket.string();
+  std::error_code ec;
+  fs::create_directories(cfg.daemon.socket.parent_path(), ec);
+  const std::string lock = path + ".lock";
+  TURNCAL_ASSIGN(held, take_lock(lock, "the control socket " + path +
+                                           " is another process's (another turncald?): its lock " +
+                                           lock + " is taken; one daemon per socket"));
+  socket_lock = std::move(held);
+  sockaddr_un a{};
+  if (path.size() >= sizeof a.sun_path) return Status{Ok{}};  // refused where it is bound
+  const int fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
+  if (fd < 0) return make_error(std::string("socket(AF_UNIX): ") + std::strerror(errno));
+  a.sun_family = AF_UNIX;
+  std::memcpy(a.sun_path, path.c_str(), path.size());
+  const bool answers = ::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0 ||
+                       errno == EAGAIN || errno == EINPROGRESS;
+  (void)::close(fd);  // a probe: nothing sent
+  if (answers)
+    return make_error("the control socket " + path +
+                      " has a listener already (turncald.socket, or a daemon of another "
+                      "configuration); one daemon per socket");
+  return Status{Ok{}};
 }
 
 json Daemon::status() const {
@@ -1358,6 +1385,12 @@ Status Daemon::setup() {
   TURNCAL_TRY(state->create());
   TURNCAL_ASSIGN(held, state->lock());  // before any file in it is touched
   state_lock = std::move(held);
+  // and one per control socket, before anything is done: a second daemon
+  // with a state directory of its own would rename its socket over the
+  // first's and take its control. One it binds itself is locked; none is
+  // bound over a socket something listens on (systemd's, which starts a
+  // daemon on demand and holds no lock: its directory is not ours to write)
+  if (sd_listen_fds(0) <= 0) TURNCAL_TRY(claim_socket());
   state->release_stale();
   report_interrupted_runs();
   state->load_index();
@@ -1402,15 +1435,6 @@ Status Daemon::setup() {
     if (temp.size() >= sizeof a.sun_path)
       return make_error("socket path too long: " + path + " (bound first as " + temp +
                         ", at most " + std::to_string(sizeof a.sun_path - 1) + " characters)");
-    fs::create_directories(cfg.daemon.socket.parent_path(), ec);
-    // one daemon per socket too: a second one with a state directory of
-    // its own would rename its socket over the first's and take its control
-    const std::string lock = path + ".lock";
-    TURNCAL_ASSIGN(sock_held, take_lock(lock, "the control socket " + path +
-                                                  " is another process's (another turncald?): "
-                                                  "its lock " +
-                                                  lock + " is taken; one daemon per socket"));
-    socket_lock = std::move(sock_held);
     listen_fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
     if (listen_fd < 0) return make_error(std::string("socket(AF_UNIX): ") + std::strerror(errno));
     a.sun_family = AF_UNIX;

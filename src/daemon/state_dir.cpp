@@ -63,9 +63,14 @@ DirLock::~DirLock() {
 }
 
 Result<DirLock> take_lock(const fs::path& file, const std::string& held_elsewhere) {
-  const int fd = ::open(file.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+  // never through a link another user planted, and only a regular file
+  const int fd = ::open(file.c_str(), O_RDWR | O_CREAT | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC, 0644);
   if (fd < 0) return make_error("cannot open " + file.string() + ": " + std::strerror(errno));
   DirLock held(fd);
+  struct stat st {};
+  if (::fstat(fd, &st) != 0)
+    return make_error("cannot stat " + file.string() + ": " + std::strerror(errno));
+  if (!S_ISREG(st.st_mode)) return make_error(file.string() + ": not a regular file, no lock");
   int rc = 0;
   while ((rc = ::flock(fd, LOCK_EX | LOCK_NB)) != 0 && errno == EINTR) {
   }
@@ -260,7 +265,7 @@ LogsWithoutReport StateDir::logs_without_report() const {
   }
   if (ec)
     out.skipped.push_back("the state directory " + dir_.string() +
-                          " could not be read to its end: " + ec.message());
+                          " could not be listed (all of it, or to its end): " + ec.message());
   return out;
 }
 

@@ -240,7 +240,10 @@ Ingest::Ingest(const can::Database& db, std::unique_ptr<InsDriver> ins,
       ins_(std::move(ins)),
       table_(std::move(table)),
       codec_(db),
-      values_(64) {
+      // every signal of the widest message: the drivers read a role's
+      // signal by its index in its message (an FD message may have more
+      // than 64)
+      values_(std::max<std::size_t>(codec_.max_signals(), 1)) {
   health_[kVelocity].name = "ins-velocity";
   health_[kInsStatus].name = "ins-status";
   health_[kEncoder].name = "table-encoder";

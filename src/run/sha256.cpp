@@ -1,5 +1,9 @@
 #include "turncal/run/sha256.hpp"
 
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <algorithm>
 #include <cerrno>
 #include <cstdio>
@@ -204,8 +208,24 @@ std::string sha256_hex(std::string_view data) {
 }
 
 Result<FileDigest> sha256_file(const std::string& path, CountLines count) {
-  std::FILE* f = std::fopen(path.c_str(), "rb");
-  if (f == nullptr) return make_error("cannot read " + path + ": " + std::strerror(errno));
+  // never blocking, and only a regular file: a FIFO in a log's place would
+  // hold the reader up (or take bytes another reader waits for)
+  const int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+  if (fd < 0) return make_error("cannot read " + path + ": " + std::strerror(errno));
+  struct stat st {};
+  const bool stat_ok = ::fstat(fd, &st) == 0;
+  const int stat_err = errno;
+  if (!stat_ok || !S_ISREG(st.st_mode)) {
+    (void)::close(fd);  // read only: nothing of it to lose
+    return make_error("cannot read " + path + ": " +
+                      (stat_ok ? "not a regular file" : std::strerror(stat_err)));
+  }
+  std::FILE* f = ::fdopen(fd, "rb");
+  if (f == nullptr) {
+    const int err = errno;
+    (void)::close(fd);
+    return make_error("cannot read " + path + ": " + std::strerror(err));
+  }
   Sha256 s;
   std::uint64_t lines = 0;
   std::vector<char> chunk(std::size_t{1} << 20);

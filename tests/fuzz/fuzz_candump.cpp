@@ -21,6 +21,11 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
     if (a.ok() && (fast.time_ns != careful.time_ns || fast.interface != careful.interface ||
                    !(fast.frame == careful.frame) || fast.frame.data != careful.frame.data))
       std::abort();
+    turncal::can::LogRecord usual;
+    if (turncal::can::detail::parse_usual_line(line, usual) &&
+        (!b.ok() || usual.time_ns != careful.time_ns || usual.interface != careful.interface ||
+         !(usual.frame == careful.frame) || usual.frame.data != careful.frame.data))
+      std::abort();
     if (!a.ok() && (a.error().message != b.error().message ||
                     a.error().where.column != b.error().where.column))
       std::abort();

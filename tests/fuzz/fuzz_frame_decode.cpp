@@ -40,7 +40,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   f.id = id & (f.extended || f.error ? turncal::can::kExtIdMask : turncal::can::kStdIdMask);
   const std::size_t max = f.fd ? turncal::can::kMaxFdLen : turncal::can::kMaxClassicLen;
   f.len = static_cast<std::uint8_t>(data[5] % (max + 1));
-  const std::size_t n = std::min<std::size_t>(f.len, size - 6);
+  // the input's bytes past the length too: the codec's 8-byte loads must
+  // drop whatever lies past a signal
+  const std::size_t n = std::min<std::size_t>(f.data.size(), size - 6);
   std::memcpy(f.data.data(), data + 6, n);
   std::vector<double> values(16);
   const turncal::can::Message* m = nullptr;

@@ -378,6 +378,34 @@ TEST_SUITE("daemon") {
     REQUIRE(::stat((dir.path / "control.sock").c_str(), &after) == 0);
     CHECK(after.st_ino == before.st_ino);  // the first daemon's socket, not moved over
     CHECK(ctl(dir.path, {"status"}) == 0);
+    // nor over a socket something listens on with no lock beside it (as
+    // systemd's socket unit does, for a daemon it starts on demand)
+    const hil::fs::path held_sock = dir.path / "held.sock";
+    const int listener = ::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
+    REQUIRE(listener >= 0);
+    sockaddr_un la{};
+    la.sun_family = AF_UNIX;
+    std::memcpy(la.sun_path, held_sock.c_str(), held_sock.string().size());
+    REQUIRE(::bind(listener, reinterpret_cast<sockaddr*>(&la), sizeof la) == 0);
+    REQUIRE(::listen(listener, 4) == 0);
+    const std::string sock_line = "socket = \"" + (dir.path / "control.sock").string() + "\"";
+    REQUIRE(other.find(sock_line) != std::string::npos);
+    other.replace(other.find(sock_line), sock_line.size(),
+                  "socket = \"" + held_sock.string() + "\"");
+    std::ofstream(dir.path / "held.toml") << other;
+    struct stat held_before {};
+    REQUIRE(::stat(held_sock.c_str(), &held_before) == 0);
+    Child fourth({kDaemon, "--config", (dir.path / "held.toml").string()}, dir.path, {},
+                 dir.path / "fourth.err");
+    CHECK(fourth.wait(10000ms) == 1);
+    const std::string fourth_said = slurp(dir.path / "fourth.err");
+    CAPTURE(fourth_said);
+    CHECK(fourth_said.find("the control socket " + held_sock.string() +
+                           " has a listener already") != std::string::npos);
+    struct stat held_after {};
+    REQUIRE(::stat(held_sock.c_str(), &held_after) == 0);
+    CHECK(held_after.st_ino == held_before.st_ino);
+    (void)::close(listener);
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
     // the daemon's log says both

@@ -418,6 +418,30 @@ TEST_SUITE("dbc") {
     CHECK(signals_checked > 1500);
   }
 
+  TEST_CASE("the codec knows its widest message: 70 one-bit signals of a 64-byte FD frame") {
+    std::string text =
+        "BO_ 1 A: 1 X\n SG_ a : 0|8@1+ (1,0) [0|0] \"\" X\n"
+        "BO_ 2 Wide: 64 X\n";
+    for (int k = 0; k < 70; ++k)
+      text += " SG_ s" + std::to_string(k) + " : " + std::to_string(k * 7) +
+              "|1@1+ (1,0) [0|0] \"\" X\n";
+    auto db = parse_dbc(text, "wide.dbc");
+    REQUIRE(db.ok());
+    REQUIRE(db->messages.size() == 2);
+    const FrameCodec codec(*db);
+    CHECK(codec.max_signals() == 70);
+    // and every one of them decodes into an `out` that wide
+    Frame f;
+    f.id = 2;
+    f.fd = true;
+    f.len = 64;
+    f.data[(69 * 7) / 8] = static_cast<std::uint8_t>(1u << ((69 * 7) % 8));
+    std::vector<double> out(codec.max_signals(), -1);
+    REQUIRE(codec.decode(f, out) == DecodeStatus::Ok);
+    CHECK(out[69] == 1);
+    CHECK(out[68] == 0);
+  }
+
   TEST_CASE("float signals round trip") {
     auto db = parse_dbc(kSmall, "small.dbc");
     REQUIRE(db.ok());

@@ -35,6 +35,9 @@ namespace detail {
 /// takes a line as candump writes it ("(%010d.%06d) name ID#DATA", a
 /// classic data frame) a faster way first and any other this way.
 Status parse_log_line_careful(std::string_view line, LogRecord& out);
+/// The faster way alone: true when the line is as candump writes it and
+/// `out` holds it; false (and `out` untouched) for any other.
+bool parse_usual_line(std::string_view line, LogRecord& out);
 }  // namespace detail
 
 /// Longest line format_log_line can produce (FD frame, 29-bit id, 15-char name).

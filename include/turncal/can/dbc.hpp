@@ -246,6 +246,9 @@ class FrameCodec {
   /// device's own readings at its frame rates, test fixtures): one that
   /// does not fit is clamped to its signal's raw range.
   static Frame encode(const Message& msg, std::span<const double> values);
+  /// The most signals a message of the database has: what decode's `out`
+  /// must hold for every signal of any frame.
+  [[nodiscard]] std::size_t max_signals() const { return max_signals_; }
 
  private:
   /// A signal as decode takes it: where it lies, and whether one 8-byte
@@ -274,6 +277,7 @@ class FrameCodec {
   std::vector<std::int32_t> standard_;                      // by 11-bit id; -1: none
   std::vector<Slot> slots_;
   std::vector<Plan> plans_;  // by message index
+  std::size_t max_signals_ = 0;
 };
 
 }  // namespace turncal::can
