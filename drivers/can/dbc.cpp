@@ -1349,8 +1349,6 @@ FrameCodec::FrameCodec(const Database& db) : db_(&db), standard_(kStdIdMask + 1,
       Slot sl{};
       sl.signal = &sig;
       sl.mask = low_mask(sig.length);
-      sl.first_byte = sig.first_byte;
-      sl.shift = sig.shift;
       sl.little_endian = sig.order == ByteOrder::LittleEndian;
       // one load of 8 bytes from first_byte holds the signal's bytes, and
       // stays inside the frame's data (whatever lies past the signal's
@@ -1383,13 +1381,11 @@ DecodeStatus FrameCodec::check(const Frame& f, const Message** msg) const {
 }
 
 DecodeStatus FrameCodec::decode(const Frame& f, std::span<double> out, const Message** msg) const {
-  if (f.error || f.remote) return DecodeStatus::NotData;
-  const std::int32_t k = index_of(f);
-  if (k < 0) return DecodeStatus::UnknownId;
-  const Message& m = db_->messages[static_cast<std::size_t>(k)];
-  if (f.len != m.size) return DecodeStatus::LengthMismatch;
-  if (msg != nullptr) *msg = &m;
-  const Plan& plan = plans_[static_cast<std::size_t>(k)];
+  const Message* found = nullptr;
+  if (const DecodeStatus st = check(f, &found); st != DecodeStatus::Ok) return st;
+  const Message& m = *found;
+  if (msg != nullptr) *msg = found;
+  const Plan& plan = plans_[static_cast<std::size_t>(found - db_->messages.data())];
   const std::span<const std::uint8_t> payload(f.data.data(), f.len);
   const std::size_t n = std::min<std::size_t>(plan.count, out.size());
   for (std::size_t i = 0; i < n; ++i) {
@@ -1401,11 +1397,11 @@ DecodeStatus FrameCodec::decode(const Frame& f, std::span<double> out, const Mes
     std::uint64_t raw = 0;
     if (sl.direct) {
       std::uint64_t w = 0;
-      std::memcpy(&w, f.data.data() + sl.first_byte, sizeof w);
+      std::memcpy(&w, f.data.data() + sl.signal->first_byte, sizeof w);
       if constexpr (std::endian::native == std::endian::big) w = __builtin_bswap64(w);
       // little endian now: a Motorola signal's first byte is its top
       if (!sl.little_endian) w = __builtin_bswap64(w) >> sl.drop;
-      raw = (w >> sl.shift) & sl.mask;
+      raw = (w >> sl.signal->shift) & sl.mask;
     } else {
       raw = extract_raw(*sl.signal, payload);
     }

@@ -661,7 +661,7 @@ void Daemon::write_report(bool with_estimates) {
   ctx.config_file = cfg.source.string();
   ctx.config_sha256 = config_sha256;
   ctx.log_file = log_path.filename().string();
-  if (auto dg = run::sha256_file(log_path.string())) {
+  if (auto dg = run::sha256_file(log_path.string(), run::CountLines::No, run::Links::Refuse)) {
     ctx.log_sha256 = dg->sha256;
   } else {  // a log that cannot be read back is not a log the report can stand on
     error(dg.error().describe());
@@ -729,7 +729,7 @@ void Daemon::report_interrupted_runs() {
       say(LOG_WARNING, id, "interrupted", "no report: " + c.error);
       continue;
     }
-    auto dg = run::sha256_file(log_file.string(), run::CountLines::Yes);
+    auto dg = run::sha256_file(log_file.string(), run::CountLines::Yes, run::Links::Refuse);
     if (!dg) {
       say(LOG_WARNING, id, "interrupted", "no report: " + dg.error().describe() + torn);
       continue;
@@ -757,28 +757,55 @@ void Daemon::report_interrupted_runs() {
   }
 }
 
+namespace {
+
+/// Whether something listens on the Unix socket at `path`, by a connect
+/// that sends nothing: ENOENT (no file) and ECONNREFUSED (a file no one
+/// listens on, the stale socket of a daemon that died) say no one does;
+/// any other failure (no right to connect, not a stream socket) cannot
+/// tell, and is an error. Under an idle turncald.socket the connect starts
+/// the service, the socket's owner.
+Result<bool> something_listens(const std::string& path) {
+  sockaddr_un a{};
+  if (path.size() >= sizeof a.sun_path)
+    return make_error("socket path too long: " + path + " (at most " +
+                      std::to_string(sizeof a.sun_path - 1) + " characters)");
+  const int fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
+  if (fd < 0) return make_error(std::string("socket(AF_UNIX): ") + std::strerror(errno));
+  a.sun_family = AF_UNIX;
+  std::memcpy(a.sun_path, path.c_str(), path.size());
+  const int rc = ::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a);
+  const int err = errno;
+  (void)::close(fd);  // a probe: nothing sent
+  if (rc == 0 || err == EAGAIN || err == EINPROGRESS) return true;
+  if (err == ENOENT || err == ECONNREFUSED) return false;
+  return make_error("cannot tell whether something listens on the control socket " + path + ": " +
+                    std::strerror(err) + "; not bound over it");
+}
+
+/// The refusal when something listens on `path`.
+Status refuse_listened(const std::string& path) {
+  return make_error("the control socket " + path +
+                    " has a listener already (turncald.socket, whose service this check may have "
+                    "started, or a daemon of another configuration); one daemon per socket");
+}
+
+}  // namespace
+
 Status Daemon::claim_socket() {
   const std::string path = cfg.daemon.socket.string();
   std::error_code ec;
   fs::create_directories(cfg.daemon.socket.parent_path(), ec);
+  if (ec)
+    return make_error("cannot create the control socket's directory " +
+                      cfg.daemon.socket.parent_path().string() + ": " + ec.message());
   const std::string lock = path + ".lock";
   TURNCAL_ASSIGN(held, take_lock(lock, "the control socket " + path +
                                            " is another process's (another turncald?): its lock " +
                                            lock + " is taken; one daemon per socket"));
   socket_lock = std::move(held);
-  sockaddr_un a{};
-  if (path.size() >= sizeof a.sun_path) return Status{Ok{}};  // refused where it is bound
-  const int fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
-  if (fd < 0) return make_error(std::string("socket(AF_UNIX): ") + std::strerror(errno));
-  a.sun_family = AF_UNIX;
-  std::memcpy(a.sun_path, path.c_str(), path.size());
-  const bool answers = ::connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0 ||
-                       errno == EAGAIN || errno == EINPROGRESS;
-  (void)::close(fd);  // a probe: nothing sent
-  if (answers)
-    return make_error("the control socket " + path +
-                      " has a listener already (turncald.socket, or a daemon of another "
-                      "configuration); one daemon per socket");
+  TURNCAL_ASSIGN(listened, something_listens(path));
+  if (listened) return refuse_listened(path);
   return Status{Ok{}};
 }
 
@@ -1457,6 +1484,13 @@ Status Daemon::setup() {
       }
       if (::chown(temp.c_str(), static_cast<uid_t>(-1), g->gr_gid) != 0)
         return failed("cannot give " + temp + " to group " + cfg.daemon.socket_group);
+    }
+    // asked again just before the rename: turncald.socket may have been
+    // started since the claim (a rename over it would take its path)
+    const Result<bool> listened = something_listens(path);
+    if (!listened || *listened) {
+      ::unlink(temp.c_str());
+      return listened ? refuse_listened(path) : Status{listened.error()};
     }
     if (::rename(temp.c_str(), path.c_str()) != 0)
       return failed("cannot move " + temp + " to " + path);

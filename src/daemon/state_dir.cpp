@@ -63,8 +63,11 @@ DirLock::~DirLock() {
 }
 
 Result<DirLock> take_lock(const fs::path& file, const std::string& held_elsewhere) {
-  // never through a link another user planted, and only a regular file
-  const int fd = ::open(file.c_str(), O_RDWR | O_CREAT | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC, 0644);
+  // never through a link another user planted, and only a regular file;
+  // read only, which is all flock needs: a lock file a start as root left
+  // (0644, root's) does not stop a later daemon of another user
+  const int fd =
+      ::open(file.c_str(), O_RDONLY | O_CREAT | O_NOFOLLOW | O_NONBLOCK | O_CLOEXEC, 0644);
   if (fd < 0) return make_error("cannot open " + file.string() + ": " + std::strerror(errno));
   DirLock held(fd);
   struct stat st {};

@@ -207,10 +207,11 @@ std::string sha256_hex(std::string_view data) {
   return s.hex();
 }
 
-Result<FileDigest> sha256_file(const std::string& path, CountLines count) {
+Result<FileDigest> sha256_file(const std::string& path, CountLines count, Links links) {
   // never blocking, and only a regular file: a FIFO in a log's place would
   // hold the reader up (or take bytes another reader waits for)
-  const int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC);
+  const int fd = ::open(
+      path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC | (links == Links::Refuse ? O_NOFOLLOW : 0));
   if (fd < 0) return make_error("cannot read " + path + ": " + std::strerror(errno));
   struct stat st {};
   const bool stat_ok = ::fstat(fd, &st) == 0;

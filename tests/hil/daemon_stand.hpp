@@ -242,6 +242,20 @@ inline hil::Child start_sim(const hil::fs::path& dir, const std::string& seed = 
   return sim;
 }
 
+/// A Unix socket of `type` bound at `path` (a stream one listening), close
+/// on exec.
+inline int unix_socket_at(const hil::fs::path& path, int type) {
+  const int fd = ::socket(AF_UNIX, type | SOCK_CLOEXEC, 0);
+  REQUIRE(fd >= 0);
+  sockaddr_un a{};
+  a.sun_family = AF_UNIX;
+  REQUIRE(path.string().size() < sizeof a.sun_path);
+  std::memcpy(a.sun_path, path.c_str(), path.string().size());
+  REQUIRE(::bind(fd, reinterpret_cast<sockaddr*>(&a), sizeof a) == 0);
+  if (type == SOCK_STREAM) REQUIRE(::listen(fd, 16) == 0);
+  return fd;
+}
+
 inline bool wait_for(const hil::fs::path& p, std::chrono::milliseconds t) {
   for (auto end = std::chrono::steady_clock::now() + t; std::chrono::steady_clock::now() < end;
        std::this_thread::sleep_for(20ms))

@@ -365,47 +365,51 @@ TEST_SUITE("daemon") {
     other.replace(other.find(state_line), state_line.size(),
                   "state_directory = \"" + (dir.path / "other-state").string() + "\"");
     std::ofstream(dir.path / "other.toml") << other;
-    struct stat before {};
-    REQUIRE(::stat((dir.path / "control.sock").c_str(), &before) == 0);
-    Child third({kDaemon, "--config", (dir.path / "other.toml").string()}, dir.path, {},
-                dir.path / "third.err");
-    CHECK(third.wait(10000ms) == 1);
-    const std::string third_said = slurp(dir.path / "third.err");
+    // a daemon of `toml` is refused, says so, and leaves `sock` as it was
+    const auto refused_by = [&](const std::string& toml, const hil::fs::path& sock) {
+      struct stat before {};
+      REQUIRE(::stat(sock.c_str(), &before) == 0);
+      const hil::fs::path err = dir.path / (toml + ".err");
+      Child refusing({kDaemon, "--config", (dir.path / toml).string()}, dir.path, {}, err);
+      CHECK(refusing.wait(10000ms) == 1);
+      struct stat after {};
+      REQUIRE(::stat(sock.c_str(), &after) == 0);
+      CHECK(after.st_ino == before.st_ino);  // not moved over
+      return slurp(err);
+    };
+    const std::string third_said = refused_by("other.toml", dir.path / "control.sock");
     CAPTURE(third_said);
     CHECK(third_said.find("the control socket " + (dir.path / "control.sock").string() +
                           " is another process's") != std::string::npos);
-    struct stat after {};
-    REQUIRE(::stat((dir.path / "control.sock").c_str(), &after) == 0);
-    CHECK(after.st_ino == before.st_ino);  // the first daemon's socket, not moved over
     CHECK(ctl(dir.path, {"status"}) == 0);
     // nor over a socket something listens on with no lock beside it (as
     // systemd's socket unit does, for a daemon it starts on demand)
     const hil::fs::path held_sock = dir.path / "held.sock";
-    const int listener = ::socket(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0);
-    REQUIRE(listener >= 0);
-    sockaddr_un la{};
-    la.sun_family = AF_UNIX;
-    std::memcpy(la.sun_path, held_sock.c_str(), held_sock.string().size());
-    REQUIRE(::bind(listener, reinterpret_cast<sockaddr*>(&la), sizeof la) == 0);
-    REQUIRE(::listen(listener, 4) == 0);
+    const int listener = unix_socket_at(held_sock, SOCK_STREAM);
     const std::string sock_line = "socket = \"" + (dir.path / "control.sock").string() + "\"";
     REQUIRE(other.find(sock_line) != std::string::npos);
-    other.replace(other.find(sock_line), sock_line.size(),
-                  "socket = \"" + held_sock.string() + "\"");
-    std::ofstream(dir.path / "held.toml") << other;
-    struct stat held_before {};
-    REQUIRE(::stat(held_sock.c_str(), &held_before) == 0);
-    Child fourth({kDaemon, "--config", (dir.path / "held.toml").string()}, dir.path, {},
-                 dir.path / "fourth.err");
-    CHECK(fourth.wait(10000ms) == 1);
-    const std::string fourth_said = slurp(dir.path / "fourth.err");
+    std::string held = other;
+    held.replace(held.find(sock_line), sock_line.size(), "socket = \"" + held_sock.string() + "\"");
+    std::ofstream(dir.path / "held.toml") << held;
+    const std::string fourth_said = refused_by("held.toml", held_sock);
     CAPTURE(fourth_said);
     CHECK(fourth_said.find("the control socket " + held_sock.string() +
                            " has a listener already") != std::string::npos);
-    struct stat held_after {};
-    REQUIRE(::stat(held_sock.c_str(), &held_after) == 0);
-    CHECK(held_after.st_ino == held_before.st_ino);
     (void)::close(listener);
+    // nor over a socket whose connect says neither "no one listens" nor
+    // "someone does" (here a datagram socket: EPROTOTYPE): it cannot tell
+    const hil::fs::path dgram_sock = dir.path / "dgram.sock";
+    const int dgram = unix_socket_at(dgram_sock, SOCK_DGRAM);
+    std::string dgram_toml = other;
+    dgram_toml.replace(dgram_toml.find(sock_line), sock_line.size(),
+                       "socket = \"" + dgram_sock.string() + "\"");
+    std::ofstream(dir.path / "dgram.toml") << dgram_toml;
+    const std::string fifth_said = refused_by("dgram.toml", dgram_sock);
+    CAPTURE(fifth_said);
+    CHECK(fifth_said.find("cannot tell whether something listens on the control socket " +
+                          dgram_sock.string() + ": " + std::strerror(EPROTOTYPE)) !=
+          std::string::npos);
+    (void)::close(dgram);
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
     // the daemon's log says both
@@ -421,6 +425,43 @@ TEST_SUITE("daemon") {
     CHECK(said.find(": \"" + torn_text + "\"") != std::string::npos);
   }
 
+  TEST_CASE(
+      "socket-activated, turncald serves the socket systemd passes it, as it is: no lock, no "
+      "probe, no rename") {
+    // what systemd does for turncald.socket: the listening socket at fd 3,
+    // LISTEN_FDS=1 and LISTEN_PID the daemon's own pid (a shell sets them
+    // and execs, keeping its pid). A daemon that took this for a hand start
+    // would find its own socket listened on and refuse
+    hil::TempDir dir;
+    write_stand(dir.path, hil::if0());
+    const hil::fs::path sock = dir.path / "control.sock";
+    // inherited by the daemon: above fd 3, so the shell can move it there,
+    // and one digit, as the shell's redirection takes it
+    const int made = unix_socket_at(sock, SOCK_STREAM);
+    const int listener = ::fcntl(made, F_DUPFD, 4);  // without close-on-exec
+    (void)::close(made);
+    REQUIRE(listener >= 4);
+    REQUIRE(listener <= 9);
+    struct stat before {};
+    REQUIRE(::stat(sock.c_str(), &before) == 0);
+    const std::string fd = std::to_string(listener);
+    Child daemon(
+        {"sh", "-c",
+         "LISTEN_PID=$$ LISTEN_FDS=1 exec \"$0\" --config \"$1\" 3<&" + fd + " " + fd + "<&-",
+         kDaemon, (dir.path / "turncal.toml").string()},
+        dir.path, {}, dir.path / "daemon.err");
+    hil::explain_files().push_back(dir.path / "daemon.err");
+    (void)::close(listener);  // the daemon's now
+    CHECK(ctl(dir.path, {"--json", "status"}, "status.json") == 0);
+    CHECK(nlohmann::json::parse(slurp(dir.path / "status.json"))["phase"] == "idle");
+    struct stat after {};
+    REQUIRE(::stat(sock.c_str(), &after) == 0);
+    CHECK(after.st_ino == before.st_ino);  // served as passed, not bound anew
+    CHECK_FALSE(hil::fs::exists(dir.path / "control.sock.lock"));
+    CHECK_FALSE(hil::fs::exists(dir.path / "control.sock.new"));
+    daemon.terminate();
+    CHECK(daemon.wait(10000ms) == 0);
+  }
   TEST_CASE(
       "an INS with another layout through turncald: North-West-Down in one frame, "
       "timed by its time frame") {

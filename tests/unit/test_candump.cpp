@@ -175,9 +175,18 @@ TEST_SUITE("candump") {
       REQUIRE(a.ok() == b.ok());
       // the faster way itself: it takes every line as the writer makes it,
       // and what it takes is the careful parse's record
+      // and a line it does not take leaves the record as it was
       LogRecord usual;
+      REQUIRE(parse_log_line("(2.500000) can1 1FFFFFFF##1" + std::string(96, 'C'), usual));
+      const LogRecord sentinel = usual;
       const bool took = detail::parse_usual_line(line, usual);
       if (spoils == 0) CHECK(took);
+      if (!took) {
+        CHECK(usual.time_ns == sentinel.time_ns);
+        CHECK(usual.interface == sentinel.interface);
+        CHECK(usual.frame == sentinel.frame);
+        CHECK(usual.frame.data == sentinel.frame.data);
+      }
       if (took) {
         ++taken;
         REQUIRE(b.ok());

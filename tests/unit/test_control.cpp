@@ -6,6 +6,7 @@
 
 #include <fcntl.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -643,6 +644,55 @@ TEST_CASE("state directory: one process holds it; a second is refused until the 
     CHECK_FALSE(StateDir(dir).lock().ok());
   }
   CHECK(st.lock().ok());  // let go with its holder
+  fs::remove_all(dir);
+}
+
+TEST_CASE(
+    "a lock is taken on a regular file only, never through a link, and with no right to "
+    "write it") {
+  const fs::path dir = fs::temp_directory_path() / ("turncal-lockf-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  const std::string busy = "taken elsewhere";
+  // a link to a lock file: refused, and the file it points at is not locked
+  std::ofstream(dir / "target") << "";
+  fs::create_symlink(dir / "target", dir / "link.lock");
+  auto linked = take_lock(dir / "link.lock", busy);
+  REQUIRE_FALSE(linked.ok());
+  CHECK(linked.error().describe().find("cannot open " + (dir / "link.lock").string()) !=
+        std::string::npos);
+  CHECK(take_lock(dir / "target", busy).ok());
+  // a FIFO: refused at once (a blocking open would wait for a writer)
+  REQUIRE(::mkfifo((dir / "fifo.lock").c_str(), 0600) == 0);
+  auto fifo = take_lock(dir / "fifo.lock", busy);
+  REQUIRE_FALSE(fifo.ok());
+  CHECK(fifo.error().describe() == (dir / "fifo.lock").string() + ": not a regular file, no lock");
+  // a directory
+  fs::create_directories(dir / "dir.lock");
+  CHECK_FALSE(take_lock(dir / "dir.lock", busy).ok());
+  // a lock file its taker may not write (one a start as root left behind,
+  // 0644 and root's): still taken, and held against a second taker
+  const fs::path ro = dir / "ro.lock";
+  std::ofstream(ro) << "";
+  REQUIRE(::chmod(ro.c_str(), 0444) == 0);
+  const auto taken_as = [&](uid_t uid) {
+    // the taker as another user: in a child, so this process keeps its own
+    const pid_t pid = ::fork();
+    if (pid == 0) {
+      if (uid != ::geteuid() && (::setgid(65534) != 0 || ::setuid(uid) != 0)) ::_exit(3);
+      if (::access(ro.c_str(), W_OK) == 0) ::_exit(4);  // the case is not the one meant
+      auto l = take_lock(ro, busy);
+      if (!l.ok()) ::_exit(1);
+      auto again = take_lock(ro, busy);
+      ::_exit(!again.ok() && again.error().describe() == busy ? 0 : 2);
+    }
+    int status = 0;
+    if (pid < 0 || ::waitpid(pid, &status, 0) != pid || !WIFEXITED(status)) return -1;
+    return WEXITSTATUS(status);
+  };
+  // root may write any file: it is checked as nobody then
+  REQUIRE(::chmod(dir.c_str(), 0755) == 0);
+  CHECK(taken_as(::geteuid() == 0 ? 65534 : ::geteuid()) == 0);
   fs::remove_all(dir);
 }
 

@@ -1,11 +1,17 @@
 // Frames into samples: unwrapping, clock fits, health, bad frames counted.
 #include <doctest/doctest.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
+#include <cerrno>
 #include <cmath>
+#include <cstring>
+#include <fstream>
 #include <functional>
 #include <limits>
 #include <numbers>
 #include <random>
+#include <sstream>
 
 #include "turncal/drivers/reference.hpp"
 #include "turncal/run/ingest.hpp"
@@ -237,6 +243,60 @@ TEST_SUITE("ingest") {
    private:
     std::unique_ptr<TableDriver> t_;
   };
+
+  TEST_CASE("a role past the 64th signal of a wide CAN FD message is decoded, not read past") {
+    // the reference stand's encoder in a 64-byte frame, its time tag and
+    // angle the 69th and 70th of its signals: the decode buffer holds the
+    // widest message's signals (it held 64)
+    Ref r;
+    std::ifstream in_dbc(std::string(TURNCAL_SOURCE_DIR) + "/config/reference-stand.dbc");
+    std::stringstream text;
+    text << in_dbc.rdbuf();
+    std::string dbc = text.str();
+    const std::string enc =
+        "BO_ 513 TBL_Encoder: 8 TBL\n"
+        " SG_ TimeTag : 0|32@1+ (1,0) [0|4294967295] \"us\" HOST\n"
+        " SG_ Angle : 32|32@1+ (8.381903171539306640625E-008,0) [0|360] \"deg\" HOST\n";
+    REQUIRE(dbc.find(enc) != std::string::npos);
+    std::string wide = "BO_ 513 TBL_Encoder: 64 TBL\n";
+    for (int i = 0; i < 68; ++i)
+      wide += " SG_ Pad" + std::to_string(i) + " : " + std::to_string(4 * i) +
+              "|4@1+ (1,0) [0|15] \"\" HOST\n";
+    wide +=
+        " SG_ TimeTag : 272|32@1+ (1,0) [0|4294967295] \"us\" HOST\n"
+        " SG_ Angle : 304|32@1+ (8.381903171539306640625E-008,0) [0|360] \"deg\" HOST\n";
+    dbc.replace(dbc.find(enc), enc.size(), wide);
+    const std::string path = "/tmp/turncal-unit-wide-" + std::to_string(::getpid()) + ".dbc";
+    std::ofstream(path) << dbc;
+    Config cfg = r.cfg;
+    cfg.can.dbc_files = {path};
+    cfg.can.fd = true;
+    auto d = load_databases(cfg.can);
+    std::remove(path.c_str());
+    REQUIRE(d.ok());
+    const can::Database db = std::move(*d);
+    auto ro = resolve_roles(cfg.can, db);
+    REQUIRE(ro.ok());
+    const RoleMap roles = *ro;
+    const can::Frame probe = roles.encode(Role::EncoderAngle, {});
+    REQUIRE(probe.len == 64);
+    REQUIRE(can::FrameCodec(db).max_signals() == 70);
+    Ingest in(db, roles);
+    int kept = 0;
+    for (int k = 0; k < 20; ++k) {
+      const double deg = 10.0 + 0.5 * k;
+      const can::Frame f = roles.encode(
+          Role::EncoderAngle, {{Role::EncoderAngle, deg}, {Role::EncoderTimeTag, 1e6 + 4e4 * k}});
+      const Sample smp = in.on_frame(r.at(10 + 0.04 * k, f));
+      if (const auto* e = std::get_if<EncoderSample>(&smp)) {
+        ++kept;
+        CHECK(e->angle_rad * 180 / std::numbers::pi == doctest::Approx(deg).epsilon(1e-7));
+        CHECK(e->t_table_s == doctest::Approx(1 + 0.04 * k).epsilon(1e-12));
+      }
+    }
+    CHECK(kept == 20);
+    CHECK(in.counters().malformed == 0);
+  }
 
   TEST_CASE("an encoder timed by its receive time: frames read in a burst count no drops") {
     Ref r;
@@ -668,6 +728,36 @@ TEST_CASE("sha256: fed in pieces, and of a file read in pieces, with its line co
   CHECK(uncounted->sha256 == whole);
   CHECK_FALSE(uncounted->lines.has_value());
   CHECK_FALSE(sha256_file(path).ok());
+}
+
+TEST_CASE("sha256_file reads a regular file only, at once, and through a link only when asked") {
+  const std::string dir = "/tmp/turncal-unit-sha256-" + std::to_string(::getpid());
+  REQUIRE(::mkdir(dir.c_str(), 0700) == 0);
+  const std::string file = dir + "/a.log";
+  const std::string link = dir + "/link.log";
+  const std::string fifo = dir + "/pipe.log";
+  std::ofstream(file, std::ios::binary) << "abc";
+  REQUIRE(::symlink(file.c_str(), link.c_str()) == 0);
+  REQUIRE(::mkfifo(fifo.c_str(), 0600) == 0);
+  const auto followed = sha256_file(link);
+  const auto refused = sha256_file(link, CountLines::No, Links::Refuse);
+  const auto direct = sha256_file(file, CountLines::Yes, Links::Refuse);
+  // a FIFO with no writer: a blocking open would never return
+  const auto piped = sha256_file(fifo);
+  std::remove(fifo.c_str());
+  std::remove(link.c_str());
+  std::remove(file.c_str());
+  ::rmdir(dir.c_str());
+  const std::string abc = "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad";
+  REQUIRE(followed.ok());
+  CHECK(followed->sha256 == abc);
+  REQUIRE(direct.ok());
+  CHECK(direct->sha256 == abc);
+  CHECK(direct->lines == 0);
+  REQUIRE_FALSE(refused.ok());
+  CHECK(refused.error().describe() == "cannot read " + link + ": " + std::strerror(ELOOP));
+  REQUIRE_FALSE(piped.ok());
+  CHECK(piped.error().describe() == "cannot read " + fifo + ": not a regular file");
 }
 
 TEST_CASE("sha256: the SHA extensions' compression and the portable one agree") {

@@ -251,13 +251,12 @@ class FrameCodec {
   [[nodiscard]] std::size_t max_signals() const { return max_signals_; }
 
  private:
-  /// A signal as decode takes it: where it lies, and whether one 8-byte
-  /// load of the frame's data holds it (`direct`), else the bytewise way.
+  /// A signal as decode takes it (where it lies is the signal's own), and
+  /// whether one 8-byte load of the frame's data holds it (`direct`), else
+  /// the bytewise way.
   struct Slot {
     const Signal* signal;
     std::uint64_t mask;  ///< its `length` low bits
-    std::uint32_t first_byte;
-    std::uint32_t shift;
     std::uint32_t drop;  ///< Motorola: the bits below its bytes after the byte swap
     bool direct;
     bool little_endian;

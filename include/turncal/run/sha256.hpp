@@ -40,9 +40,14 @@ struct FileDigest {
 /// Whether sha256_file counts the file's lines as well (a pass of memchr
 /// over every byte: a tenth of a replay's digest, for a count it has).
 enum class CountLines : std::uint8_t { No, Yes };
+/// Whether sha256_file reads through a symbolic link: a replay may be given
+/// one; the daemon's own logs in its state directory never are one.
+enum class Links : std::uint8_t { Follow, Refuse };
 /// SHA-256 of a file, and its line count when asked, read in 1 MiB pieces
-/// (a run's log can be far larger than the daemon's memory budget).
-Result<FileDigest> sha256_file(const std::string& path, CountLines count = CountLines::No);
+/// (a run's log can be far larger than the daemon's memory budget). Only a
+/// regular file is read, and never by a blocking open.
+Result<FileDigest> sha256_file(const std::string& path, CountLines count = CountLines::No,
+                               Links links = Links::Follow);
 
 namespace detail {
 /// The compression function (FIPS 180-4, 6.2.2) over `blocks` whole
