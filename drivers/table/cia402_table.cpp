@@ -97,7 +97,7 @@ class Cia402Table final : public TableDriver {
       : invalid_(std::move(invalid)), master_(s), s_(master_.settings()) {}
 
   Decoded decode(const FrameView& v) override {
-    const can::Frame& f = v.frame.frame;
+    const can::Frame& f = v.frame;
     now_ = std::max(now_, v.host_s);
     if (f.extended || f.error || f.remote || f.fd) return Decoded{};
     if (f.id == 0 && f.len == 2 && (f.data[1] == s_.node_id || f.data[1] == 0)) {

@@ -117,7 +117,7 @@ struct Plausibility {
 /// the stand's DBC (`msg` null and `status` UnknownId when the DBC does not
 /// describe it).
 struct FrameView {
-  const can::TimedFrame& frame;
+  const can::Frame& frame;
   double host_s;  ///< receive time, s (microseconds, as a log keeps it)
   const can::Message* msg;
   can::DecodeStatus status;

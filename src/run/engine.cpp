@@ -128,18 +128,17 @@ void Engine::end_of_input(std::int64_t now_ns, std::vector<OutFrame>& out) {
   feed(EndOfInput{stand_s(now_ns)}, out);
 }
 
-void Engine::on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out) {
-  can::TimedFrame scaled = f;
-  const double t = stand_s(f.time_ns);
-  scaled.time_ns = static_cast<std::int64_t>(std::llround(t * 1e6)) * 1000;
-  const Sample s = ingest_.on_frame(scaled);
+void Engine::on_frame(const can::Frame& frame, std::int64_t time_ns, std::vector<OutFrame>& out) {
+  const double t = stand_s(time_ns);
+  const std::int64_t scaled_ns = round_half_away(t * 1e6) * 1000;
+  const Sample s = ingest_.on_frame(frame, scaled_ns);
   last_frame_s_ = t;
-  stamped(f.time_ns);
+  stamped(time_ns);
   if (!implausible_fed_) check_plausible(t, out);
   if (t > record_end_s()) record_complete_ = true;
   use(s, t, out);
   // a protocol's answers to the frame, and the samples it held back
-  driver_output(Ingest::host_seconds(scaled.time_ns), out);
+  driver_output(Ingest::host_seconds(scaled_ns), out);
 }
 
 void Engine::driver_output(double host_s, std::vector<OutFrame>& out) {

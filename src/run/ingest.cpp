@@ -309,17 +309,15 @@ void Ingest::clock_sample(ClockFit& fit, double device_s, double host_s) {
   if (!fit.add_checked(device_s, host_s)) ++counters_.clock_outliers;
 }
 
-Sample Ingest::on_frame(const can::TimedFrame& f) {
+Sample Ingest::on_frame(const can::Frame& frame, std::int64_t time_ns) {
   ++counters_.frames;
-  const double host = host_seconds(f.time_ns);
+  const double host = host_seconds(time_ns);
   const can::Message* m = nullptr;
-  const can::DecodeStatus st = codec_.decode(f.frame, values_, &m);
-  const FrameView view{f, host, m, st, values_};
+  const can::DecodeStatus st = codec_.decode(frame, values_, &m);
+  const FrameView view{frame, host, m, st, values_};
   // the INS's frames, then the table's: each driver says whether a frame
   // is its device's
   Decoded d = ins_->decode(view);
-  counters_.half_pairs = ins_->half_pairs();
-  counters_.velocity_untimed = ins_->untimed();
   if (d.verdict == Decoded::Verdict::NotMine) d = table_->decode(view);
   switch (d.verdict) {
     case Decoded::Verdict::NotMine:

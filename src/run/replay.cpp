@@ -252,7 +252,7 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
                           std::to_string(reader.line_number()) +
                           " of the log is in it: the report is not this log's; replay without it");
     }
-    engine.on_frame({rec->time_ns, rec->frame}, sent);
+    engine.on_frame(rec->frame, rec->time_ns, sent);
     const std::int64_t t = rec->time_ns;
     last_ns = std::max(last_ns, t);
     if (engine.estimation_due()) break;

@@ -73,10 +73,9 @@ struct Bus {
   std::uint64_t malformed = 0, own = 0;
 
   void see(const can::Frame& f, double at) {
-    const can::TimedFrame tf{static_cast<std::int64_t>(std::llround(at * 1e9)), f};
     const can::Message* m = nullptr;
     const can::DecodeStatus st = codec.decode(f, values, &m);
-    const FrameView v{tf, at, m, st, values};
+    const FrameView v{f, at, m, st, values};
     Decoded d = driver->decode(v);
     if (d.verdict == Decoded::Verdict::Malformed) ++malformed;
     if (d.verdict == Decoded::Verdict::Taken && d.stream == kStreams) ++own;
@@ -240,9 +239,8 @@ TEST_SUITE("cia402 table driver") {
     can::Frame other;
     other.id = 0x182;  // node 2's TPDO1
     other.len = 6;
-    const can::TimedFrame tf{10000000, other};
     std::vector<double> v(16);
-    const FrameView view{tf, 0.01, nullptr, can::DecodeStatus::UnknownId, v};
+    const FrameView view{other, 0.01, nullptr, can::DecodeStatus::UnknownId, v};
     CHECK(b.driver->decode(view).verdict == Decoded::Verdict::NotMine);
   }
 

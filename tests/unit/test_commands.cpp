@@ -4,6 +4,7 @@
 
 #include <cmath>
 #include <numbers>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -232,4 +233,47 @@ TEST_SUITE("commands") {
     CHECK(e.sequencer().phase() != Phase::Aborted);  // a fault, not the operator's abort
     CHECK(e.sequencer().course().quick_stop_acked);
   }
+}
+
+TEST_CASE("a frame's time is rounded as std::llround rounds it, without the call") {
+  // halves either way, each side of them, the ends of the fast range and
+  // past them, and a frame's stand time in microseconds
+  std::vector<double> xs = {0.0,
+                            -0.0,
+                            0.5,
+                            -0.5,
+                            1.5,
+                            -1.5,
+                            2.5,
+                            -2.5,
+                            0.49999999999999994,
+                            -0.49999999999999994,
+                            1e-300,
+                            -1e-300,
+                            4503599627370495.5,
+                            -4503599627370495.5,
+                            0x1p52,
+                            -0x1p52,
+                            0x1p52 + 2,
+                            -0x1p53,
+                            1.7649792001234565e15,
+                            9.2e18,
+                            -9.2e18};
+  std::mt19937_64 rng(20261206);
+  std::uniform_real_distribution<double> frames(1.7e15, 1.8e15), small(-1e6, 1e6);
+  for (int k = 0; k < 200000; ++k) {
+    xs.push_back(frames(rng));
+    xs.push_back(small(rng));
+    xs.push_back(std::nextafter(std::floor(small(rng)) + 0.5, k % 2 == 0 ? 0.0 : 1e7));
+    xs.push_back(std::floor(small(rng)) + 0.5);
+  }
+  int wrong = 0;
+  for (const double x : xs) {
+    if (round_half_away(x) == std::llround(x)) continue;
+    if (++wrong <= 5) {
+      CAPTURE(x);
+      CHECK(round_half_away(x) == std::llround(x));
+    }
+  }
+  CHECK(wrong == 0);
 }

@@ -2,6 +2,7 @@
 
 #include <bit>
 #include <cmath>
+#include <iomanip>
 #include <map>
 #include <random>
 #include <sstream>
@@ -333,7 +334,7 @@ TEST_SUITE("dbc") {
 
   TEST_CASE("property: random layouts encode and decode as inverses, through DBC text") {
     std::mt19937_64 rng(0x7c0ffee);
-    int signals_checked = 0;
+    int signals_checked = 0, floats = 0, negative = 0;
     for (int trial = 0; trial < 400; ++trial) {
       const bool fd = trial % 4 == 0;
       const std::uint32_t size = fd ? 64 : 8;
@@ -341,10 +342,15 @@ TEST_SUITE("dbc") {
       std::ostringstream dbc;
       dbc << "BO_ " << (fd ? 0x80000000u + 0x1234567u : 0x123u) << " M: " << size << " A\n";
       std::vector<Signal> layout;
+      std::ostringstream valtypes;  // the 32- and 64-bit signals made IEEE floats, some of them
+      // scalings as DBC files have them, written to be read back exactly
+      constexpr double kFactors[] = {1, 0.01, 1e-6, 8.381903171539306640625e-08, -0.5, 3};
+      constexpr double kOffsets[] = {0, -40, 1234.5, -0.001};
       for (int attempt = 0; attempt < 40 && layout.size() < 12; ++attempt) {
         Signal s;
         s.name = "S" + std::to_string(layout.size());
         s.length = static_cast<std::uint32_t>(1 + rng() % 64);
+        if (rng() % 6 == 0) s.length = rng() % 2 == 0 ? 32 : 64;  // often float-sized
         s.order = (rng() % 2) ? ByteOrder::LittleEndian : ByteOrder::BigEndian;
         s.start_bit = static_cast<std::uint32_t>(rng() % (size * 8));
         s.is_signed = (rng() % 2) != 0;
@@ -364,14 +370,25 @@ TEST_SUITE("dbc") {
         if (clash) continue;
         for (std::uint32_t b = 0; b < size * 8; ++b)
           if ((static_cast<unsigned>(probe[b / 8]) >> (b % 8)) & 1u) used[b] = true;
-        dbc << " SG_ " << s.name << " : " << s.start_bit << "|" << s.length << "@"
-            << (s.order == ByteOrder::LittleEndian ? 1 : 0) << (s.is_signed ? "-" : "+")
-            << " (1,0) [0|0] \"\" B\n";
+        s.factor = kFactors[rng() % std::size(kFactors)];
+        s.offset = kOffsets[rng() % std::size(kOffsets)];
+        dbc << std::setprecision(17) << " SG_ " << s.name << " : " << s.start_bit << "|" << s.length
+            << "@" << (s.order == ByteOrder::LittleEndian ? 1 : 0) << (s.is_signed ? "-" : "+")
+            << " (" << s.factor << "," << s.offset << ") [0|0] \"\" B\n";
+        if ((s.length == 32 || s.length == 64) && rng() % 2 == 0)
+          valtypes << "SIG_VALTYPE_ " << (fd ? 0x80000000u + 0x1234567u : 0x123u) << " " << s.name
+                   << " : " << (s.length == 32 ? 1 : 2) << ";\n";
         layout.push_back(s);
       }
-      auto db = parse_dbc(dbc.str(), "random.dbc");
+      auto db = parse_dbc(dbc.str() + valtypes.str(), "random.dbc");
       REQUIRE_MESSAGE(db.ok(), (db.ok() ? "" : db.error().describe()));
       const Message& m = db->messages.at(0);
+      for (std::size_t i = 0; i < layout.size(); ++i) {
+        CHECK(m.signals[i].factor == layout[i].factor);
+        CHECK(m.signals[i].offset == layout[i].offset);
+        floats += m.signals[i].type != ValueType::Integer;
+        negative += m.signals[i].is_signed && m.signals[i].type == ValueType::Integer;
+      }
       CHECK(m.extended == fd);
       REQUIRE(m.signals.size() == layout.size());
       std::vector<std::uint64_t> raws;
@@ -388,7 +405,8 @@ TEST_SUITE("dbc") {
       for (std::size_t i = 0; i < layout.size(); ++i) {
         const Signal& s = m.signals[i];
         CHECK(extract_raw(s, payload) == raws[i]);
-        if (s.length <= 52) {  // exactly representable in a double
+        if (s.length <= 52 && s.factor == 1 && s.offset == 0 && s.type == ValueType::Integer) {
+          // exactly representable in a double
           CHECK(*physical_to_raw(s, raw_to_physical(s, raws[i])) == raws[i]);
         }
         ++signals_checked;
@@ -413,9 +431,13 @@ TEST_SUITE("dbc") {
       }
       const Frame g = FrameCodec::encode(m, phys);
       for (std::size_t i = 0; i < m.signals.size(); ++i)
-        if (m.signals[i].length <= 52) CHECK(extract_raw(m.signals[i], g.payload()) == raws[i]);
+        if (m.signals[i].length <= 52 && m.signals[i].factor == 1 && m.signals[i].offset == 0 &&
+            m.signals[i].type == ValueType::Integer)
+          CHECK(extract_raw(m.signals[i], g.payload()) == raws[i]);
     }
     CHECK(signals_checked > 1500);
+    CHECK(floats > 50);     // IEEE float and double signals among them
+    CHECK(negative > 500);  // and signed integers
   }
 
   TEST_CASE("the codec knows its widest message: 70 one-bit signals of a 64-byte FD frame") {

@@ -191,10 +191,9 @@ TEST_SUITE("INS layouts") {
     auto decode = [&](double tag_us, double ve, double vn) {
       const std::vector<double> raw = {tag_us, ve, vn};
       const can::Frame f = can::FrameCodec::encode(*db->find("INS_V"), raw);
-      const can::TimedFrame tf{1'000'000'000, f};
       const can::Message* m = nullptr;
       const auto st = codec.decode(f, values, &m);
-      return ins->decode(FrameView{tf, 1.0, m, st, values});
+      return ins->decode(FrameView{f, 1.0, m, st, values});
     };
     const Decoded d = decode(16777215.0 * 100 - 100, 0.123, -0.456);  // just before the wrap
     REQUIRE(d.verdict == Decoded::Verdict::Taken);

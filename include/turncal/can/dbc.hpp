@@ -257,6 +257,12 @@ class FrameCodec {
   struct Slot {
     const Signal* signal;
     std::uint64_t mask;  ///< its `length` low bits
+    /// An integer signal's: its sign bit (0: unsigned, or 64 bits long),
+    /// factor and offset, beside the rest (raw_to_physical's, the same way)
+    std::uint64_t sign;
+    double factor, offset;
+    bool integer;
+    bool unsigned64;     ///< 64 bits, unsigned: no int64 holds it
     std::uint32_t drop;  ///< Motorola: the bits below its bytes after the byte swap
     bool direct;
     bool little_endian;

@@ -13,6 +13,7 @@
 // exactly the times the live run saw.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 #include <deque>
 #include <limits>
@@ -37,6 +38,21 @@ struct OutFrame {
   /// its ID (a quick stop: no move queued before it may follow it).
   bool urgent = false;
 };
+
+/// std::llround(x), half away from zero, without the library call (a
+/// frame's time is rounded so, millions of times a replay): for |x| < 2^52
+/// the truncation and the fraction it leaves are exact; any other x (and
+/// NaN) goes to std::llround.
+inline std::int64_t round_half_away(double x) {
+  if (!(std::abs(x) < 0x1p52)) return std::llround(x);
+  auto i = static_cast<std::int64_t>(x);
+  const double fraction = x - static_cast<double>(i);
+  if (fraction >= 0.5)
+    ++i;
+  else if (fraction <= -0.5)
+    --i;
+  return i;
+}
 
 /// Kernel time into stand time.
 struct TimeBase {
@@ -88,7 +104,11 @@ class Engine {
   void fault(std::int64_t now_ns, const std::string& what, std::vector<OutFrame>& out);
   void end_of_input(std::int64_t now_ns, std::vector<OutFrame>& out);
   /// A received frame (or one of ours, as a recording has it).
-  void on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out);
+  void on_frame(const can::TimedFrame& f, std::vector<OutFrame>& out) {
+    on_frame(f.frame, f.time_ns, out);
+  }
+  /// The same, the frame and its receive time apart (no copy of the frame).
+  void on_frame(const can::Frame& frame, std::int64_t time_ns, std::vector<OutFrame>& out);
   /// Deadlines and lost streams; call often (10 Hz or more).
   /// `heard_until_ns`: every frame stamped before it has been given to
   /// on_frame or stamped() (a read that left frames, or lost some to a full

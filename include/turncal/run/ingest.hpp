@@ -214,13 +214,23 @@ class Ingest {
   /// One received frame; host time from its receive timestamp, truncated
   /// to microseconds as a candump log keeps it, so that a replay of the
   /// log sees exactly what the live run saw.
-  Sample on_frame(const can::TimedFrame& f);
+  Sample on_frame(const can::TimedFrame& f) { return on_frame(f.frame, f.time_ns); }
+  /// The same, the frame and its receive time apart (no copy of the frame).
+  Sample on_frame(const can::Frame& frame, std::int64_t time_ns);
   /// A sample the table driver holds beyond the frames' (a status change
   /// that came with an encoder sample, or from a timeout), at host_s;
   /// monostate when none. Call until monostate after each frame and tick.
   Sample poll(double host_s);
   [[nodiscard]] const StreamHealth& health(Stream s) const { return health_[s]; }
-  [[nodiscard]] const IngestCounters& counters() const { return counters_; }
+  /// The counts so far (the INS driver's own, of half pairs and untimed
+  /// velocity, read as asked: two virtual calls a frame for a count read
+  /// by a status or a report).
+  [[nodiscard]] IngestCounters counters() const {
+    IngestCounters c = counters_;
+    c.half_pairs = ins_->half_pairs();
+    c.velocity_untimed = ins_->untimed();
+    return c;
+  }
   /// Implausible frames of every stream so far.
   [[nodiscard]] std::uint64_t implausible_total() const { return implausible_total_; }
   [[nodiscard]] InsDriver& ins() { return *ins_; }
