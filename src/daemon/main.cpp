@@ -759,17 +759,26 @@ void Daemon::report_interrupted_runs() {
 
 namespace {
 
-/// Whether something listens on the Unix socket at `path`, by a connect
-/// that sends nothing: ENOENT (no file) and ECONNREFUSED (a file no one
-/// listens on, the stale socket of a daemon that died) say no one does;
-/// any other failure (no right to connect, not a stream socket) cannot
-/// tell, and is an error. Under an idle turncald.socket the connect starts
-/// the service, the socket's owner.
+/// Whether something listens on the Unix socket at `path`: nothing there
+/// is free; anything but a socket is never bound over (a rename would
+/// replace it: a configuration that names a file by mistake loses no file);
+/// a socket is asked by a connect that sends nothing. Its ECONNREFUSED (no
+/// one listens: the stale socket of a daemon that died) is free, its
+/// success or wait (a full backlog) a listener, and any other failure (no
+/// right to connect, not a stream socket) cannot tell: an error. Under an
+/// idle turncald.socket the connect starts the service, the socket's owner.
 Result<bool> something_listens(const std::string& path) {
   sockaddr_un a{};
   if (path.size() >= sizeof a.sun_path)
     return make_error("socket path too long: " + path + " (at most " +
                       std::to_string(sizeof a.sun_path - 1) + " characters)");
+  struct stat st {};
+  if (::lstat(path.c_str(), &st) != 0) {
+    if (errno == ENOENT) return false;
+    return make_error("cannot stat the control socket " + path + ": " + std::strerror(errno));
+  }
+  if (!S_ISSOCK(st.st_mode))
+    return make_error("the control socket " + path + " is a file that is no socket; not replaced");
   const int fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
   if (fd < 0) return make_error(std::string("socket(AF_UNIX): ") + std::strerror(errno));
   a.sun_family = AF_UNIX;
@@ -778,7 +787,7 @@ Result<bool> something_listens(const std::string& path) {
   const int err = errno;
   (void)::close(fd);  // a probe: nothing sent
   if (rc == 0 || err == EAGAIN || err == EINPROGRESS) return true;
-  if (err == ENOENT || err == ECONNREFUSED) return false;
+  if (err == ECONNREFUSED || err == ENOENT) return false;  // ENOENT: gone since the stat
   return make_error("cannot tell whether something listens on the control socket " + path + ": " +
                     std::strerror(err) + "; not bound over it");
 }
@@ -795,7 +804,9 @@ Status refuse_listened(const std::string& path) {
 Status Daemon::claim_socket() {
   const std::string path = cfg.daemon.socket.string();
   std::error_code ec;
-  fs::create_directories(cfg.daemon.socket.parent_path(), ec);
+  // (a bare name is in the working directory: nothing to create)
+  if (!cfg.daemon.socket.parent_path().empty())
+    fs::create_directories(cfg.daemon.socket.parent_path(), ec);
   if (ec)
     return make_error("cannot create the control socket's directory " +
                       cfg.daemon.socket.parent_path().string() + ": " + ec.message());

@@ -410,6 +410,19 @@ TEST_SUITE("daemon") {
                           dgram_sock.string() + ": " + std::strerror(EPROTOTYPE)) !=
           std::string::npos);
     (void)::close(dgram);
+    // nor over a file that is no socket (a configuration that names one by
+    // mistake): it would be replaced, whatever it held
+    const hil::fs::path not_sock = dir.path / "notes.txt";
+    std::ofstream(not_sock) << "kept";
+    std::string file_toml = other;
+    file_toml.replace(file_toml.find(sock_line), sock_line.size(),
+                      "socket = \"" + not_sock.string() + "\"");
+    std::ofstream(dir.path / "file.toml") << file_toml;
+    const std::string sixth_said = refused_by("file.toml", not_sock);
+    CAPTURE(sixth_said);
+    CHECK(sixth_said.find("the control socket " + not_sock.string() +
+                          " is a file that is no socket; not replaced") != std::string::npos);
+    CHECK(slurp(not_sock) == "kept");
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
     // the daemon's log says both
@@ -435,18 +448,16 @@ TEST_SUITE("daemon") {
     hil::TempDir dir;
     write_stand(dir.path, hil::if0());
     const hil::fs::path sock = dir.path / "control.sock";
-    // inherited by the daemon: above fd 3, so the shell can move it there,
-    // and one digit, as the shell's redirection takes it
+    // inherited by the daemon: above fd 3, so the shell can move it there
     const int made = unix_socket_at(sock, SOCK_STREAM);
     const int listener = ::fcntl(made, F_DUPFD, 4);  // without close-on-exec
     (void)::close(made);
     REQUIRE(listener >= 4);
-    REQUIRE(listener <= 9);
     struct stat before {};
     REQUIRE(::stat(sock.c_str(), &before) == 0);
     const std::string fd = std::to_string(listener);
     Child daemon(
-        {"sh", "-c",
+        {"bash", "-c",  // bash: a redirection of any fd number
          "LISTEN_PID=$$ LISTEN_FDS=1 exec \"$0\" --config \"$1\" 3<&" + fd + " " + fd + "<&-",
          kDaemon, (dir.path / "turncal.toml").string()},
         dir.path, {}, dir.path / "daemon.err");
@@ -461,6 +472,23 @@ TEST_SUITE("daemon") {
     CHECK_FALSE(hil::fs::exists(dir.path / "control.sock.new"));
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
+
+    // and one that binds its own by a bare name binds it in its working
+    // directory (there is no directory to make for it)
+    std::string bare = slurp(dir.path / "turncal.toml");
+    const std::string sock_line = "socket = \"" + sock.string() + "\"";
+    REQUIRE(bare.find(sock_line) != std::string::npos);
+    bare.replace(bare.find(sock_line), sock_line.size(), "socket = \"bare.sock\"");
+    std::ofstream(dir.path / "bare.toml") << bare;
+    Child by_name({kDaemon, "--config", (dir.path / "bare.toml").string()}, dir.path, {},
+                  dir.path / "bare.err");
+    hil::explain_files().push_back(dir.path / "bare.err");
+    REQUIRE(wait_for(dir.path / "bare.sock", 5000ms));
+    Child asked({kCtl, "--socket", (dir.path / "bare.sock").string(), "status"}, dir.path,
+                dir.path / "bare.out");
+    CHECK(asked.wait(30000ms) == 0);
+    by_name.terminate();
+    CHECK(by_name.wait(10000ms) == 0);
   }
   TEST_CASE(
       "an INS with another layout through turncald: North-West-Down in one frame, "

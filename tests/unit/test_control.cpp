@@ -675,24 +675,37 @@ TEST_CASE(
   const fs::path ro = dir / "ro.lock";
   std::ofstream(ro) << "";
   REQUIRE(::chmod(ro.c_str(), 0444) == 0);
-  const auto taken_as = [&](uid_t uid) {
-    // the taker as another user: in a child, so this process keeps its own
-    const pid_t pid = ::fork();
-    if (pid == 0) {
-      if (uid != ::geteuid() && (::setgid(65534) != 0 || ::setuid(uid) != 0)) ::_exit(3);
-      if (::access(ro.c_str(), W_OK) == 0) ::_exit(4);  // the case is not the one meant
-      auto l = take_lock(ro, busy);
-      if (!l.ok()) ::_exit(1);
-      auto again = take_lock(ro, busy);
-      ::_exit(!again.ok() && again.error().describe() == busy ? 0 : 2);
-    }
-    int status = 0;
-    if (pid < 0 || ::waitpid(pid, &status, 0) != pid || !WIFEXITED(status)) return -1;
-    return WEXITSTATUS(status);
-  };
-  // root may write any file: it is checked as nobody then
   REQUIRE(::chmod(dir.c_str(), 0755) == 0);
-  CHECK(taken_as(::geteuid() == 0 ? 65534 : ::geteuid()) == 0);
+  // the taker as another user (root may write any file: nobody then), in
+  // a child, so this process keeps its own. Exit 0: taken, and held
+  // against a second taker; 1 and 2: not; 3 and 5: the check cannot be
+  // set up here (no such user in a user namespace, the file out of its
+  // reach); 4: the taker may write the file after all
+  constexpr int kCannotCheck[] = {3, 5};
+  const uid_t uid = ::geteuid() == 0 ? 65534 : ::geteuid();
+  const pid_t pid = ::fork();
+  if (pid == 0) {
+    if (uid != ::geteuid() && (::setgid(65534) != 0 || ::setuid(uid) != 0)) ::_exit(3);
+    if (::access(ro.c_str(), R_OK) != 0) ::_exit(5);
+    if (::access(ro.c_str(), W_OK) == 0) ::_exit(4);
+    auto l = take_lock(ro, busy);
+    if (!l.ok()) ::_exit(1);
+    auto again = take_lock(ro, busy);
+    ::_exit(!again.ok() && again.error().describe() == busy ? 0 : 2);
+  }
+  REQUIRE(pid > 0);
+  int status = 0;
+  pid_t waited = 0;
+  while ((waited = ::waitpid(pid, &status, 0)) < 0 && errno == EINTR) {
+  }
+  REQUIRE(waited == pid);
+  REQUIRE(WIFEXITED(status));
+  const int code = WEXITSTATUS(status);
+  if (std::find(std::begin(kCannotCheck), std::end(kCannotCheck), code) != std::end(kCannotCheck))
+    MESSAGE("a lock file the taker may not write: not checked here (cannot run as uid "
+            << uid << ", exit " << code << ")");
+  else
+    CHECK(code == 0);
   fs::remove_all(dir);
 }
 

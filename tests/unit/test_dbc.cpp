@@ -334,7 +334,14 @@ TEST_SUITE("dbc") {
 
   TEST_CASE("property: random layouts encode and decode as inverses, through DBC text") {
     std::mt19937_64 rng(0x7c0ffee);
-    int signals_checked = 0, floats = 0, negative = 0;
+    int signals_checked = 0, floats = 0, negative = 0, round_trips = 0;
+    // raw to physical and back gives the raw value: an integer signal of at
+    // most 48 bits (its physical value exact in a double) scaled exactly
+    const auto exact = [](const Signal& s) {
+      return s.type == ValueType::Integer && s.length <= 48 &&
+             (s.factor == 1 || s.factor == -0.5 || s.factor == 0.25 || s.factor == 3) &&
+             (s.offset == 0 || s.offset == -40 || s.offset == 1234.5);
+    };
     for (int trial = 0; trial < 400; ++trial) {
       const bool fd = trial % 4 == 0;
       const std::uint32_t size = fd ? 64 : 8;
@@ -343,8 +350,11 @@ TEST_SUITE("dbc") {
       dbc << "BO_ " << (fd ? 0x80000000u + 0x1234567u : 0x123u) << " M: " << size << " A\n";
       std::vector<Signal> layout;
       std::ostringstream valtypes;  // the 32- and 64-bit signals made IEEE floats, some of them
-      // scalings as DBC files have them, written to be read back exactly
-      constexpr double kFactors[] = {1, 0.01, 1e-6, 8.381903171539306640625e-08, -0.5, 3};
+      // scalings as DBC files have them, written to be read back exactly;
+      // two thirds of them exact in binary (what they give turns back into
+      // the same raw value), the offsets but the last too
+      constexpr double kExactFactors[] = {1, -0.5, 0.25, 3};
+      constexpr double kFactors[] = {0.01, 1e-6, 8.381903171539306640625e-08};
       constexpr double kOffsets[] = {0, -40, 1234.5, -0.001};
       for (int attempt = 0; attempt < 40 && layout.size() < 12; ++attempt) {
         Signal s;
@@ -370,7 +380,8 @@ TEST_SUITE("dbc") {
         if (clash) continue;
         for (std::uint32_t b = 0; b < size * 8; ++b)
           if ((static_cast<unsigned>(probe[b / 8]) >> (b % 8)) & 1u) used[b] = true;
-        s.factor = kFactors[rng() % std::size(kFactors)];
+        s.factor = rng() % 3 != 0 ? kExactFactors[rng() % std::size(kExactFactors)]
+                                  : kFactors[rng() % std::size(kFactors)];
         s.offset = kOffsets[rng() % std::size(kOffsets)];
         dbc << std::setprecision(17) << " SG_ " << s.name << " : " << s.start_bit << "|" << s.length
             << "@" << (s.order == ByteOrder::LittleEndian ? 1 : 0) << (s.is_signed ? "-" : "+")
@@ -405,8 +416,8 @@ TEST_SUITE("dbc") {
       for (std::size_t i = 0; i < layout.size(); ++i) {
         const Signal& s = m.signals[i];
         CHECK(extract_raw(s, payload) == raws[i]);
-        if (s.length <= 52 && s.factor == 1 && s.offset == 0 && s.type == ValueType::Integer) {
-          // exactly representable in a double
+        if (exact(s)) {
+          ++round_trips;
           CHECK(*physical_to_raw(s, raw_to_physical(s, raws[i])) == raws[i]);
         }
         ++signals_checked;
@@ -431,13 +442,12 @@ TEST_SUITE("dbc") {
       }
       const Frame g = FrameCodec::encode(m, phys);
       for (std::size_t i = 0; i < m.signals.size(); ++i)
-        if (m.signals[i].length <= 52 && m.signals[i].factor == 1 && m.signals[i].offset == 0 &&
-            m.signals[i].type == ValueType::Integer)
-          CHECK(extract_raw(m.signals[i], g.payload()) == raws[i]);
+        if (exact(m.signals[i])) CHECK(extract_raw(m.signals[i], g.payload()) == raws[i]);
     }
     CHECK(signals_checked > 1500);
-    CHECK(floats > 50);     // IEEE float and double signals among them
-    CHECK(negative > 500);  // and signed integers
+    CHECK(floats > 50);        // IEEE float and double signals among them
+    CHECK(negative > 500);     // and signed integers
+    CHECK(round_trips > 600);  // and a good part of them back and forth
   }
 
   TEST_CASE("the codec knows its widest message: 70 one-bit signals of a 64-byte FD frame") {
