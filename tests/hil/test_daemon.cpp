@@ -388,9 +388,13 @@ TEST_SUITE("daemon") {
     const int listener = unix_socket_at(held_sock, SOCK_STREAM);
     const std::string sock_line = "socket = \"" + (dir.path / "control.sock").string() + "\"";
     REQUIRE(other.find(sock_line) != std::string::npos);
-    std::string held = other;
-    held.replace(held.find(sock_line), sock_line.size(), "socket = \"" + held_sock.string() + "\"");
-    std::ofstream(dir.path / "held.toml") << held;
+    // `toml`: the other configuration with its socket at `sock`
+    const auto socket_at = [&](const std::string& toml, const hil::fs::path& sock) {
+      std::string text = other;
+      text.replace(text.find(sock_line), sock_line.size(), "socket = \"" + sock.string() + "\"");
+      std::ofstream(dir.path / toml) << text;
+    };
+    socket_at("held.toml", held_sock);
     const std::string fourth_said = refused_by("held.toml", held_sock);
     CAPTURE(fourth_said);
     CHECK(fourth_said.find("the control socket " + held_sock.string() +
@@ -400,10 +404,7 @@ TEST_SUITE("daemon") {
     // "someone does" (here a datagram socket: EPROTOTYPE): it cannot tell
     const hil::fs::path dgram_sock = dir.path / "dgram.sock";
     const int dgram = unix_socket_at(dgram_sock, SOCK_DGRAM);
-    std::string dgram_toml = other;
-    dgram_toml.replace(dgram_toml.find(sock_line), sock_line.size(),
-                       "socket = \"" + dgram_sock.string() + "\"");
-    std::ofstream(dir.path / "dgram.toml") << dgram_toml;
+    socket_at("dgram.toml", dgram_sock);
     const std::string fifth_said = refused_by("dgram.toml", dgram_sock);
     CAPTURE(fifth_said);
     CHECK(fifth_said.find("cannot tell whether something listens on the control socket " +
@@ -414,10 +415,7 @@ TEST_SUITE("daemon") {
     // mistake): it would be replaced, whatever it held
     const hil::fs::path not_sock = dir.path / "notes.txt";
     std::ofstream(not_sock) << "kept";
-    std::string file_toml = other;
-    file_toml.replace(file_toml.find(sock_line), sock_line.size(),
-                      "socket = \"" + not_sock.string() + "\"");
-    std::ofstream(dir.path / "file.toml") << file_toml;
+    socket_at("file.toml", not_sock);
     const std::string sixth_said = refused_by("file.toml", not_sock);
     CAPTURE(sixth_said);
     CHECK(sixth_said.find("the control socket " + not_sock.string() +
