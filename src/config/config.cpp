@@ -411,6 +411,10 @@ Status read_daemon(const toml::table& t, const std::string& file, DaemonConfig& 
   std::string state = d.state_directory.string(), sock = d.socket.string(), prof, profiles;
   TURNCAL_TRY(r.string("state_directory", state));
   TURNCAL_TRY(r.string("socket", sock));
+  // a socket is a file: a name, not a folder (in the working directory
+  // when the name is relative)
+  if (t.get("socket") != nullptr && std::filesystem::path(sock).filename().empty())
+    return r.error_at(*t.get("socket"), "socket", "'" + sock + "' names no file");
   TURNCAL_TRY(r.string("socket_group", d.socket_group));
   TURNCAL_TRY(r.string("profile", prof));
   TURNCAL_TRY(r.string("profiles_directory", profiles));

@@ -759,11 +759,26 @@ void Daemon::report_interrupted_runs() {
 
 namespace {
 
+/// Whether there is a socket at `path` (false: nothing); anything else
+/// there (a file, a folder, a link) is an error: never replaced.
+Result<bool> socket_or_nothing(const std::string& path) {
+  struct stat st {};
+  if (::lstat(path.c_str(), &st) != 0) {
+    if (errno == ENOENT) return false;
+    return make_error("cannot stat the control socket " + path + ": " + std::strerror(errno));
+  }
+  if (S_ISSOCK(st.st_mode)) return true;
+  const char* what = S_ISLNK(st.st_mode)   ? "a symbolic link"
+                     : S_ISDIR(st.st_mode) ? "a directory"
+                                           : "a file that is no socket";
+  return make_error("the control socket " + path + " is " + what + "; not replaced");
+}
+
 /// Whether something listens on the Unix socket at `path`: nothing there
 /// is free; anything but a socket is never bound over (a rename would
 /// replace it: a configuration that names a file by mistake loses no file);
 /// a socket is asked by a connect that sends nothing. Its ECONNREFUSED (no
-/// one listens: the stale socket of a daemon that died) is free, its
+/// one listens: taken for a stale one, a daemon's that died) is free, its
 /// success or wait (a full backlog) a listener, and any other failure (no
 /// right to connect, not a stream socket) cannot tell: an error. Under an
 /// idle turncald.socket the connect starts the service, the socket's owner.
@@ -772,13 +787,8 @@ Result<bool> something_listens(const std::string& path) {
   if (path.size() >= sizeof a.sun_path)
     return make_error("socket path too long: " + path + " (at most " +
                       std::to_string(sizeof a.sun_path - 1) + " characters)");
-  struct stat st {};
-  if (::lstat(path.c_str(), &st) != 0) {
-    if (errno == ENOENT) return false;
-    return make_error("cannot stat the control socket " + path + ": " + std::strerror(errno));
-  }
-  if (!S_ISSOCK(st.st_mode))
-    return make_error("the control socket " + path + " is a file that is no socket; not replaced");
+  TURNCAL_ASSIGN(is_socket, socket_or_nothing(path));
+  if (!is_socket) return false;
   const int fd = ::socket(AF_UNIX, SOCK_STREAM | SOCK_NONBLOCK | SOCK_CLOEXEC, 0);
   if (fd < 0) return make_error(std::string("socket(AF_UNIX): ") + std::strerror(errno));
   a.sun_family = AF_UNIX;
@@ -810,6 +820,8 @@ Status Daemon::claim_socket() {
   if (ec)
     return make_error("cannot create the control socket's directory " +
                       cfg.daemon.socket.parent_path().string() + ": " + ec.message());
+  // what is no socket is refused before a lock file is made beside it
+  TURNCAL_TRY(socket_or_nothing(path));
   const std::string lock = path + ".lock";
   TURNCAL_ASSIGN(held, take_lock(lock, "the control socket " + path +
                                            " is another process's (another turncald?): its lock " +
@@ -1477,6 +1489,8 @@ Status Daemon::setup() {
     if (listen_fd < 0) return make_error(std::string("socket(AF_UNIX): ") + std::strerror(errno));
     a.sun_family = AF_UNIX;
     std::memcpy(a.sun_path, temp.c_str(), temp.size());
+    // a socket a daemon that died left there goes; anything else stays
+    TURNCAL_TRY(socket_or_nothing(temp));
     ::unlink(temp.c_str());
     const auto failed = [&](const std::string& what) {
       const std::string why = std::strerror(errno);
@@ -1496,15 +1510,25 @@ Status Daemon::setup() {
       if (::chown(temp.c_str(), static_cast<uid_t>(-1), g->gr_gid) != 0)
         return failed("cannot give " + temp + " to group " + cfg.daemon.socket_group);
     }
-    // asked again just before the rename: turncald.socket may have been
-    // started since the claim (a rename over it would take its path)
+    // asked again just before it is put in place: turncald.socket may have
+    // been started since the claim. A stale socket is removed, and the new
+    // one put in place only where nothing is (RENAME_NOREPLACE): what
+    // appears in between is never replaced, and refuses the start
     const Result<bool> listened = something_listens(path);
     if (!listened || *listened) {
       ::unlink(temp.c_str());
       return listened ? refuse_listened(path) : Status{listened.error()};
     }
-    if (::rename(temp.c_str(), path.c_str()) != 0)
+    if (::unlink(path.c_str()) != 0 && errno != ENOENT)
+      return failed("cannot remove the stale socket " + path);
+    if (::renameat2(AT_FDCWD, temp.c_str(), AT_FDCWD, path.c_str(), RENAME_NOREPLACE) != 0) {
+      if (errno == EEXIST) {
+        ::unlink(temp.c_str());
+        return make_error("the control socket " + path +
+                          " appeared while this daemon made its own; not replaced");
+      }
       return failed("cannot move " + temp + " to " + path);
+    }
   }
   if (::pipe2(done_pipe, O_CLOEXEC | O_NONBLOCK) != 0) return make_error("pipe failed");
 

@@ -421,6 +421,7 @@ TEST_SUITE("daemon") {
     CHECK(sixth_said.find("the control socket " + not_sock.string() +
                           " is a file that is no socket; not replaced") != std::string::npos);
     CHECK(slurp(not_sock) == "kept");
+    CHECK_FALSE(hil::fs::exists(not_sock.string() + ".lock"));  // refused before a lock is made
     daemon.terminate();
     CHECK(daemon.wait(10000ms) == 0);
     // the daemon's log says both
@@ -472,17 +473,21 @@ TEST_SUITE("daemon") {
     CHECK(daemon.wait(10000ms) == 0);
 
     // and one that binds its own by a bare name binds it in its working
-    // directory (there is no directory to make for it)
+    // directory (there is no directory to make for it), not its
+    // configuration's folder
     std::string bare = slurp(dir.path / "turncal.toml");
     const std::string sock_line = "socket = \"" + sock.string() + "\"";
     REQUIRE(bare.find(sock_line) != std::string::npos);
     bare.replace(bare.find(sock_line), sock_line.size(), "socket = \"bare.sock\"");
     std::ofstream(dir.path / "bare.toml") << bare;
-    Child by_name({kDaemon, "--config", (dir.path / "bare.toml").string()}, dir.path, {},
+    const hil::fs::path work = dir.path / "work";
+    hil::fs::create_directories(work);
+    Child by_name({kDaemon, "--config", (dir.path / "bare.toml").string()}, work, {},
                   dir.path / "bare.err");
     hil::explain_files().push_back(dir.path / "bare.err");
-    REQUIRE(wait_for(dir.path / "bare.sock", 5000ms));
-    Child asked({kCtl, "--socket", (dir.path / "bare.sock").string(), "status"}, dir.path,
+    REQUIRE(wait_for(work / "bare.sock", 5000ms));
+    CHECK_FALSE(hil::fs::exists(dir.path / "bare.sock"));
+    Child asked({kCtl, "--socket", (work / "bare.sock").string(), "status"}, dir.path,
                 dir.path / "bare.out");
     CHECK(asked.wait(30000ms) == 0);
     by_name.terminate();

@@ -90,6 +90,15 @@ TEST_SUITE("config") {
       Error e = parse_error("[can.roles]\nencoder_angel = \"A.B\"\n");
       CHECK(e.message.find("encoder_angel") != std::string::npos);
     }
+    SUBCASE("a control socket that names no file") {
+      for (const char* bad : {"", "/run/turncal/"}) {
+        CAPTURE(bad);
+        Error e = parse_error(std::string("[daemon]\n\nsocket = \"") + bad + "\"\n");
+        CHECK(e.where.line == 3);
+        CHECK(e.message.find("daemon.socket") != std::string::npos);
+        CHECK(e.message.find("names no file") != std::string::npos);
+      }
+    }
   }
 
   TEST_CASE("a role that names a missing signal is refused at its key") {

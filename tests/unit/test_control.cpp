@@ -5,6 +5,7 @@
 #include <doctest/doctest.h>
 
 #include <fcntl.h>
+#include <grp.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -650,7 +651,8 @@ TEST_CASE("state directory: one process holds it; a second is refused until the 
 TEST_CASE(
     "a lock is taken on a regular file only, never through a link, and with no right to "
     "write it") {
-  const fs::path dir = fs::temp_directory_path() / ("turncal-lockf-" + std::to_string(::getpid()));
+  // under /tmp (a $TMPDIR may be out of another user's reach)
+  const fs::path dir = fs::path("/tmp") / ("turncal-lockf-" + std::to_string(::getpid()));
   fs::remove_all(dir);
   fs::create_directories(dir);
   const std::string busy = "taken elsewhere";
@@ -685,7 +687,9 @@ TEST_CASE(
   const uid_t uid = ::geteuid() == 0 ? 65534 : ::geteuid();
   const pid_t pid = ::fork();
   if (pid == 0) {
-    if (uid != ::geteuid() && (::setgid(65534) != 0 || ::setuid(uid) != 0)) ::_exit(3);
+    if (uid != ::geteuid() &&
+        (::setgroups(0, nullptr) != 0 || ::setgid(65534) != 0 || ::setuid(uid) != 0))
+      ::_exit(3);
     if (::access(ro.c_str(), R_OK) != 0) ::_exit(5);
     if (::access(ro.c_str(), W_OK) == 0) ::_exit(4);
     auto l = take_lock(ro, busy);
