@@ -624,6 +624,14 @@ bool still_true_late(const LateTpdo& l) {
   return l.bus_read && !l.command_waiting && !(l.on_sync && l.sync_waiting);
 }
 
+bool VirtualDrive402::owed_heartbeat(const can::Frame& f, double late_s) const {
+  // CiA 301 7.2.8.3.2.2: the heartbeat, COB-ID 0x700 + node ID, one byte
+  // of NMT state; 0 is the boot-up
+  if (f.extended || f.id != 0x700u + setup_.node_id || f.len != 1 || f.data[0] == 0) return false;
+  const std::uint32_t hb_ms = u32(obj::kProducerHeartbeat) & 0xFFFF;
+  return hb_ms > 0 && late_s >= hb_ms / 1000.0;
+}
+
 bool VirtualDrive402::timed_on_the_bus(const can::Frame& f) const {
   if (f.extended) return false;
   for (const std::uint16_t comm : {obj::kTpdo1Comm, obj::kTpdo2Comm}) {

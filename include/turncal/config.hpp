@@ -175,6 +175,11 @@ struct StandConfig {
   /// Stand seconds per real second: 1 on a real stand; N for a virtual
   /// stand run N times faster than real time.
   double time_scale = 1;
+  /// On a stand faster than real time (time_scale > 1), every wait for the
+  /// stand's answer lasts this much real time longer, ms: a stall of the
+  /// host's machine (which the time scale makes N times longer in stand
+  /// time) is then no device's fault. Not applied at time_scale 1 or less.
+  double real_time_floor_ms = 1000;
   /// The INS under test when the operator names none at start (a fixture
   /// that holds one unit); empty: none. Reports are indexed by it.
   std::string unit;

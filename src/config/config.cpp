@@ -371,9 +371,9 @@ Status read_table(const toml::table& t, const std::string& file, TableProtocol& 
 
 Status read_stand(const toml::table& t, const std::string& file, StandConfig& s) {
   Reader r(t, file, "stand.");
-  TURNCAL_TRY(
-      r.no_unknown_keys({"heading_offset_deg", "max_rate_dps", "max_accel_dps2", "angle_min_deg",
-                         "angle_max_deg", "time_scale", "unit", "position_tolerance_deg"}));
+  TURNCAL_TRY(r.no_unknown_keys({"heading_offset_deg", "max_rate_dps", "max_accel_dps2",
+                                 "angle_min_deg", "angle_max_deg", "time_scale", "unit",
+                                 "position_tolerance_deg", "real_time_floor_ms"}));
   TURNCAL_TRY(r.string("unit", s.unit));
   StandLimits& l = s.limits;
   double off = s.heading_offset_rad / kDegRad, rate = l.max_rate_rps / kDegRad,
@@ -385,6 +385,7 @@ Status read_stand(const toml::table& t, const std::string& file, StandConfig& s)
   TURNCAL_TRY(r.number("angle_min_deg", lo, -1e6, 1e6));
   TURNCAL_TRY(r.number("angle_max_deg", hi, -1e6, 1e6));
   TURNCAL_TRY(r.number("time_scale", s.time_scale, kMinTimeScale, kMaxTimeScale));
+  TURNCAL_TRY(r.number("real_time_floor_ms", s.real_time_floor_ms, 0, 60000));
   TURNCAL_TRY(r.number("position_tolerance_deg", tol, 1e-4, 10));
   if (!(lo < hi)) {
     // name whichever of the two the file sets (one alone can cross the other's default)

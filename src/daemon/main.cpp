@@ -432,6 +432,7 @@ void Daemon::internal_error(const char* where, const char* what) {
 /// Our frames are logged when the kernel echoes them (on_can), never when
 /// only queued; a dropped frame is counted, not logged.
 void Daemon::send_out() {
+  const bool any = !out.empty();
   for (const run::OutFrame& o : out) {
     Port& p = port(o.ins_side);
     auto r = o.urgent ? p.sock->send_urgent(o.frame) : p.sock->send(o.frame);
@@ -443,6 +444,9 @@ void Daemon::send_out() {
     }
   }
   out.clear();
+  // the waits for what was sent run from now, not from the frames that
+  // called for it: a backlog read late (a busy host) is the host's delay
+  if (any && engine) engine->sent(clock.now_ns());
   for (Port& p : ports)
     if (p.sock) update_io(p);
 }
@@ -506,8 +510,12 @@ void Daemon::recover_ports() {
 void Daemon::on_can(Port& p) {
   rx.clear();
   const std::uint64_t dropped = p.sock->stats().rx_dropped;
+  // a read that drains the socket has heard every frame stamped before it
+  // began, and none after: the host may be preempted between this read and
+  // the tick that judges silence, while the stand sends
+  const std::int64_t read_at = clock.now_ns();
   auto n = p.sock->receive(rx, kRxBatches);
-  p.heard_until_ns = std::numeric_limits<std::int64_t>::max();
+  p.heard_until_ns = read_at;
   if (!n || !p.sock->drained() || p.sock->stats().rx_dropped != dropped) {
     std::int64_t last = std::numeric_limits<std::int64_t>::min();
     for (const can::TimedFrame& f : rx.frames) last = std::max(last, f.time_ns);
@@ -911,6 +919,7 @@ json Daemon::start(const StartRequest& req) {
   q.limits = cfg.stand.limits;
   q.observe = cfg.daemon.observe || req.observe;
   q.stale_floor_s = cfg.daemon.stale_floor_ms * 1e-3 * cfg.stand.time_scale;
+  q.real_time_floor_s = run::real_time_floor_s(cfg.stand);
   // held: a tick of the loop missed, and more than half the floor (stand
   // seconds); the journal hears of holds once every 10 s at most
   q.hold_s = std::max(2 / cfg.daemon.heartbeat_hz, q.stale_floor_s / 2);

@@ -30,6 +30,10 @@ CommandSignals command_signals(const RoleMap& roles) {
   return command_signals(*ins, *table);
 }
 
+double real_time_floor_s(const StandConfig& stand) {
+  return stand.time_scale > 1 ? stand.real_time_floor_ms * 1e-3 * stand.time_scale : 0.0;
+}
+
 Plausibility plausibility_of(const Config& cfg) {
   Plausibility p;
   p.max_velocity_mps = cfg.can.max_ins_velocity_mps;
@@ -260,17 +264,21 @@ void Engine::tick(std::int64_t now_ns, std::vector<OutFrame>& out, std::int64_t 
     note_hold(replayed_holds_[next_replayed_hold_]);
   Tick k{t};
   const double floor = seq_.settings().stale_floor_s;
-  k.velocity_stale = stale(kVelocity, t, floor);
-  k.velocity_quiet = stale(kVelocity, t, 0);
-  k.ins_status_stale = stale(kInsStatus, t, floor);
+  // a stream's silence is judged up to what has been read, never past it:
+  // frames stamped after the host's last read (it was preempted between
+  // the read and this tick, and the stand sent meanwhile) are no silence
+  const double heard = std::min(t, stand_s(heard_until_ns));
+  k.velocity_stale = stale(kVelocity, heard, floor);
+  k.velocity_quiet = stale(kVelocity, heard, 0);
+  k.ins_status_stale = stale(kInsStatus, heard, floor);
   // a table protocol still starting up (CANopen's configuration) sends no
   // stream yet; from when it runs, or when its start-up has run out of
   // time, its streams have the floor to come
   const double due = ingest_.table().streams_due_s();
   k.table_starting = !(t >= due);
   const bool table_due = t - due > floor;
-  k.encoder_stale = table_due && stale(kEncoder, t, floor);
-  k.table_status_stale = table_due && stale(kTableStatus, t, floor);
+  k.encoder_stale = table_due && stale(kEncoder, heard, floor);
+  k.table_status_stale = table_due && stale(kTableStatus, heard, floor);
   feed(k, out);
   // a protocol's timeouts and periodic frames (CANopen heartbeat, SYNC);
   // no heartbeat once the stop could not be confirmed: the table stops

@@ -382,7 +382,7 @@ std::string whiteness_text(const json& innovations) {
   if (pair("ljung_box"))
     s += fmt(" Q %.1f", i["ljung_box"][0].get<double>()) +
          fmt(", %.1f", i["ljung_box"][1].get<double>()) +
-         fmt(" (%d lags)", i.value("ljung_box_lags", 0));
+         fmt(" (%.0f lags)", i.value("ljung_box_lags", 0.0));
   const bool white = i.value("white", false);
   if (!pair("ljung_box_p")) return s + (white ? ": white" : ": NOT white");  // before p-values
   const double alarm = i.value("alarm_p", est::InnovationStats::kAlarmP);

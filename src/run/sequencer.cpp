@@ -21,6 +21,17 @@ double wrap_pi(double a) {
   return a - 2 * kPi * std::floor((a + kPi) / (2 * kPi));
 }
 
+/// Seconds as a whole number when they are one (the usual timeouts), else
+/// to a tenth.
+std::string seconds(double s) {
+  char b[32];
+  if (std::abs(s - std::round(s)) < 1e-9)
+    std::snprintf(b, sizeof b, "%.0f", s);
+  else
+    std::snprintf(b, sizeof b, "%.1f", s);
+  return b;
+}
+
 std::string deg(double rad) {
   char buf[32];
   std::snprintf(buf, sizeof buf, "%.3f deg", rad / kDeg);
@@ -146,8 +157,9 @@ void Sequencer::table(TableCode code, double t, std::vector<Command>& out, doubl
   out.emplace_back(TableCommand{code, seq_, target, rate});
   awaiting_ack_ = seq_;
   // the table's own time to answer, and the host's latency (in stand time)
-  ack_deadline_ = t + s_.ack_timeout_s + s_.stale_floor_s;
+  ack_deadline_ = t + ack_allowed_s();
   ack_set_s_ = t;
+  unsent_at_ = t;
   if (code == TableCode::MoveAbsolute || code == TableCode::MoveRelative) may_move_ = true;
 }
 
@@ -168,7 +180,8 @@ void Sequencer::fail(double t, const std::string& why, std::vector<Command>& out
     stopping_ = true;
     stop_then_ = then;
     stop_first_seq_ = seq_;
-    stop_deadline_ = t + s_.quick_stop_give_up_s;
+    stop_sent_s_ = t;
+    stop_deadline_ = t + s_.quick_stop_give_up_s + s_.real_time_floor_s;
     stop_repeat_at_ = t + s_.quick_stop_repeat_s;
     return;
   }
@@ -273,6 +286,22 @@ void Sequencer::held(double from_s, double to_s) {
   // heartbeat withheld, so the table stops itself) is safe whenever
 }
 
+void Sequencer::sent(double t_s) {
+  const double at = unsent_at_;
+  unsent_at_ = NAN;
+  if (!(t_s > at)) return;  // none waits (NaN), or sent when called for
+  const double late = t_s - at;
+  // only the deadlines set with those commands (the times are assigned,
+  // so equal exactly); a deadline set since by a later event is its own
+  if (ack_set_s_ == at) ack_deadline_ += late, ack_set_s_ = t_s;
+  if (phase_set_s_ == at) phase_deadline_ += late, phase_set_s_ = t_s;  // infinity stays
+  if (stopping_ && stop_sent_s_ == at) {
+    stop_deadline_ += late;
+    stop_repeat_at_ += late;
+    stop_sent_s_ = t_s;
+  }
+}
+
 void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
   const double t = e.t_s;
   if (stopping_) {
@@ -282,7 +311,7 @@ void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
       std::snprintf(buf, sizeof buf,
                     "; THE TABLE DID NOT REPORT STOPPED within %.1f s of the quick stop (sent %d "
                     "times): check the table",
-                    s_.quick_stop_give_up_s, course_.quick_stops_sent);
+                    s_.quick_stop_give_up_s + s_.real_time_floor_s, course_.quick_stops_sent);
       course_.reason += buf;
       course_.quick_stop_gave_up = true;
       enter(stop_then_, t);
@@ -299,16 +328,14 @@ void Sequencer::on_tick(const Tick& e, std::vector<Command>& out) {
     return;
   // the ack's time, and the enable's, run from when the table's protocol is up
   if (awaiting_ack_ && e.table_starting)
-    ack_deadline_ = std::max(ack_deadline_, t + s_.ack_timeout_s + s_.stale_floor_s),
-    ack_set_s_ = t;
+    ack_deadline_ = std::max(ack_deadline_, t + ack_allowed_s()), ack_set_s_ = t;
   if (phase_ == Phase::Prepare && deadline_is_enable_ && e.table_starting)
-    phase_deadline_ = std::max(phase_deadline_, t + s_.enable_timeout_s), phase_set_s_ = t;
+    phase_deadline_ = std::max(phase_deadline_, t + enable_allowed_s()), phase_set_s_ = t;
   if (!s_.observe && awaiting_ack_ && t > ack_deadline_) {
     fail(t,
          "the table did not acknowledge " + awaiting_what_ + " within " +
-             std::to_string(
-                 static_cast<int>(std::lround((s_.ack_timeout_s + s_.stale_floor_s) * 1000))) +
-             " ms" + (last_fault_.empty() ? "" : " (table fault: " + last_fault_ + ")"),
+             std::to_string(static_cast<int>(std::lround(ack_allowed_s() * 1000))) + " ms" +
+             (last_fault_.empty() ? "" : " (table fault: " + last_fault_ + ")"),
          out);
     return;
   }
@@ -391,7 +418,8 @@ void Sequencer::move(double t, std::vector<Command>& out, double delta, double r
   target_ = angle_ + delta;
   move_delta_ = delta;
   TableMotion m;
-  const double due = m.move_by(0, delta, rate, accel).t_end + s_.turn_margin_s;
+  const double due =
+      m.move_by(0, delta, rate, accel).t_end + s_.turn_margin_s + s_.real_time_floor_s;
   phase_deadline_ = t + due;
   phase_set_s_ = t;
   deadline_is_enable_ = false;
@@ -434,11 +462,10 @@ void Sequencer::on_table(const TableStatusEvent& e, std::vector<Command>& out) {
     enable_pending_ = false;
     awaiting_what_ = "enable";
     table(TableCode::Enable, t, out);
-    phase_deadline_ = t + s_.enable_timeout_s;
+    phase_deadline_ = t + enable_allowed_s();
     phase_set_s_ = t;
     deadline_is_enable_ = true;
-    waiting_for_ = "the table not holding within " +
-                   std::to_string(static_cast<int>(s_.enable_timeout_s)) + " s of enable";
+    waiting_for_ = "the table not holding within " + seconds(enable_allowed_s()) + " s of enable";
     return;
   }
   const bool ours_acked = !awaiting_ack_ && e.ack == seq_;
@@ -513,11 +540,12 @@ void Sequencer::begin_align(double t, std::vector<Command>& out) {
       InsCommand{InsCommandCode::StartAlignment, ins_seq_, s_.profile.align_s, heading});
   course_.heading_given_rad = heading;
   seen_aligning_ = false;
-  phase_deadline_ = t + s_.align_start_s;
+  const double allowed = s_.align_start_s + s_.real_time_floor_s;
+  phase_deadline_ = t + allowed;
   phase_set_s_ = t;
+  unsent_at_ = t;
   deadline_is_enable_ = false;
-  waiting_for_ = "the INS not aligning within " +
-                 std::to_string(static_cast<int>(s_.align_start_s)) + " s of the command";
+  waiting_for_ = "the INS not aligning within " + seconds(allowed) + " s of the command";
 }
 
 void Sequencer::on_ins(const InsModeEvent& e, std::vector<Command>& out) {
@@ -540,12 +568,12 @@ void Sequencer::on_ins(const InsModeEvent& e, std::vector<Command>& out) {
       if (e.mode == kAligning && !seen_aligning_) {
         seen_aligning_ = true;
         if (!s_.observe) {
-          phase_deadline_ = t + s_.profile.align_s + s_.align_margin_s;
+          const double allowed = s_.profile.align_s + s_.align_margin_s + s_.real_time_floor_s;
+          phase_deadline_ = t + allowed;
           phase_set_s_ = t;
           deadline_is_enable_ = false;
-          waiting_for_ = "the INS not navigating within " +
-                         std::to_string(static_cast<int>(s_.profile.align_s + s_.align_margin_s)) +
-                         " s of the alignment start";
+          waiting_for_ =
+              "the INS not navigating within " + seconds(allowed) + " s of the alignment start";
         }
       }
       if (e.mode == kNavigating && (seen_aligning_ || s_.observe)) navigating(t);

@@ -733,3 +733,14 @@ TEST_CASE("state directory: the bus's recent frame rate, and the bytes a log of 
   CHECK(log_bytes_bound(0, 5) == 0);
   CHECK(log_bytes_bound(NAN, 5) == 0);
 }
+
+TEST_CASE("the text report's whiteness line: the Ljung-Box statistics with their lag count") {
+  // the count is an integer in the report; formatted as one (a "%d" of the
+  // double the text formatter takes printed a garbage number of lags)
+  const json i = {{"ljung_box", {18.46, 31.24}},
+                  {"ljung_box_lags", 20},
+                  {"ljung_box_p", {0.5568, 0.05206}},
+                  {"white", true}};
+  const std::string s = run::whiteness_text(i);
+  CHECK_MESSAGE(s.find("Ljung-Box Q 18.5, 31.2 (20 lags), p 0.557, 0.0521") == 0, s);
+}

@@ -15,6 +15,7 @@
 #include <sstream>
 
 #include "turncal/drivers/reference.hpp"
+#include "turncal/run/engine.hpp"
 #include "turncal/run/ingest.hpp"
 #include "turncal/run/sequencer.hpp"
 
@@ -595,6 +596,99 @@ TEST_SUITE("sequencer") {
     CHECK(std::get<TableCommand>(out[1]).code == TableCode::QuickStop);
     CHECK(q.course().reason.find("the table not holding within 5 s of enable") !=
           std::string::npos);
+  }
+
+  // The demo failed so (three times of three, in user-mode Linux at 10x):
+  // the host's loop read the table's first status 170 ms of real time after
+  // the bus had it, the enable went out then, and its 1.5 s (stand) ran from
+  // the status's time: past before the table could hear it.
+  TEST_CASE("a command's waits run from when it was sent, not from the event read late") {
+    Starting st;
+    Sequencer& q = st.q;
+    std::vector<Command>& out = st.out;
+    REQUIRE(out.size() == 1);  // the enable, called for by the status at 1.05
+    REQUIRE(std::get<TableCommand>(out[0]).code == TableCode::Enable);
+    q.sent(2.8);             // the host sent it 1.75 s later
+    q.step(Tick{3.7}, out);  // 2.65 s after the status, 0.9 s after the send
+    CHECK(q.phase() == Phase::Prepare);
+    CHECK(out.size() == 1);
+    q.step(Tick{3.85}, out);  // 1.05 s after the send: the ack's 1 s is past
+    REQUIRE(out.size() == 2);
+    CHECK(std::get<TableCommand>(out[1]).code == TableCode::QuickStop);
+    CHECK(q.course().reason.find("the table did not acknowledge enable within 1000 ms") == 0);
+  }
+
+  TEST_CASE("sent() moves only the waits of the commands not yet said sent") {
+    Starting st;
+    Sequencer& q = st.q;
+    std::vector<Command>& out = st.out;
+    q.sent(1.05);  // sent at once: nothing moves
+    q.sent(2.8);   // said again later: nothing waits any more, nothing moves
+    q.step(Tick{2.0}, out);
+    CHECK(out.size() == 1);
+    q.step(Tick{2.1}, out);  // 1.05 s after the enable
+    REQUIRE(out.size() == 2);
+    CHECK(std::get<TableCommand>(out[1]).code == TableCode::QuickStop);
+    // the quick stop's give-up runs from its send too: sent 1 s late, it
+    // gives up 5 s after the send, not after the tick that called for it
+    q.sent(3.1);
+    for (double at = 2.2; at < 8.05; at += 0.1) q.step(Tick{at}, out);
+    CHECK(q.phase() != Phase::Failed);
+    q.step(Tick{8.15}, out);
+    CHECK(q.phase() == Phase::Failed);
+  }
+
+  TEST_CASE("the enable's wait to holding runs from its send too") {
+    Starting st;
+    Sequencer& q = st.q;
+    std::vector<Command>& out = st.out;
+    q.sent(3.05);                                           // 2 s late
+    q.step(TableStatusEvent{3.1, 0, 42, 0, "", 0.0}, out);  // acknowledged, not holding
+    q.step(Tick{7.95}, out);  // 6.9 s after the status that called for it
+    CHECK(out.size() == 1);
+    q.step(Tick{8.1}, out);  // 5.05 s after the send
+    REQUIRE(out.size() == 2);
+    CHECK(q.course().reason.find("the table not holding within 5 s of enable") !=
+          std::string::npos);
+  }
+
+  TEST_CASE("an accelerated stand's real-time floor lengthens every wait, and says so") {
+    SequencerSettings s;
+    s.profile = classic_profile(600, 300, std::numbers::pi, 0.5, 0.5);
+    s.table_seq_base = 41;
+    s.stale_floor_s = 0.5;       // 50 ms at 10x
+    s.real_time_floor_s = 10.0;  // 1000 ms at 10x
+    Sequencer q(s);
+    std::vector<Command> out;
+    q.step(StartRequest{1}, out);
+    q.step(TableStatusEvent{1.05, 0, 41, 0, "", 0.0}, out);
+    REQUIRE(out.size() == 1);
+    q.step(Tick{12.5}, out);  // 11.45 s: within 1 + 0.5 + 10
+    CHECK(out.size() == 1);
+    q.step(Tick{12.6}, out);
+    REQUIRE(out.size() == 2);
+    CHECK(q.course().reason.find("the table did not acknowledge enable within 11500 ms") == 0);
+    // the quick stop's give-up: 5 s and the floor
+    for (double at = 12.7; at < 27.55; at += 0.25) q.step(Tick{at}, out);
+    CHECK(q.phase() != Phase::Failed);
+    q.step(Tick{27.7}, out);
+    CHECK(q.phase() == Phase::Failed);
+    CHECK(q.course().reason.find("THE TABLE DID NOT REPORT STOPPED within 15.0 s") !=
+          std::string::npos);
+  }
+
+  TEST_CASE("the real-time floor: none at a time scale of 1, N times the floor at N") {
+    StandConfig stand;
+    stand.real_time_floor_ms = 1000;
+    stand.time_scale = 1;
+    CHECK(real_time_floor_s(stand) == 0);
+    stand.time_scale = 0.5;
+    CHECK(real_time_floor_s(stand) == 0);
+    stand.time_scale = 10;
+    CHECK(real_time_floor_s(stand) == doctest::Approx(10.0).epsilon(1e-12));
+    stand.real_time_floor_ms = 250;
+    stand.time_scale = 4;
+    CHECK(real_time_floor_s(stand) == doctest::Approx(1.0).epsilon(1e-12));
   }
 
   TEST_CASE("idle: a signal or an abort changes nothing; a start enables the table") {

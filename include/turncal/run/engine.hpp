@@ -84,6 +84,12 @@ CommandSignals command_signals(const RoleMap& roles);
 /// fraction of a stream's frames past which the run fails.
 Plausibility plausibility_of(const Config& cfg);
 
+/// SequencerSettings::real_time_floor_s for a stand: [stand]
+/// real_time_floor_ms in stand seconds where the stand runs faster than
+/// real time, and 0 on one that does not (a real stand's timeouts are as
+/// given).
+double real_time_floor_s(const StandConfig& stand);
+
 class Engine {
  public:
   /// The reference stand's devices through `roles`; `db` and `roles` must
@@ -115,6 +121,9 @@ class Engine {
   /// queue, bounds it): no silence after it is known.
   void tick(std::int64_t now_ns, std::vector<OutFrame>& out,
             std::int64_t heard_until_ns = std::numeric_limits<std::int64_t>::max());
+  /// What the last calls put in `out` went out at now_ns (the host's send):
+  /// the deadlines set with it run from then (Sequencer::sent).
+  void sent(std::int64_t now_ns) { seq_.sent(stand_s(now_ns)); }
   /// The host heartbeat's frames, rolling counter and host state.
   std::vector<OutFrame> heartbeat();
 

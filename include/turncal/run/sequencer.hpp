@@ -82,6 +82,14 @@ struct SequencerSettings {
   /// running N times faster stretches N times in stand time. The table's
   /// acknowledgement timeout has it added for the same reason.
   double stale_floor_s = 0;
+  /// Added to every wait for the stand's answer (an acknowledgement, the
+  /// enable, the INS aligning and navigating, a move in position, the quick
+  /// stop's give-up), in stand seconds: 0 on a real stand (time scale 1),
+  /// where every timeout is as given. On a virtual stand run N times faster
+  /// than real time ([stand] real_time_floor_ms times N) a stall of the
+  /// host's machine, which the time scale stretches N times in stand time,
+  /// is not taken for a device that did not answer.
+  double real_time_floor_s = 0;
   /// The host's machine was held (a paused machine, a virtual stand's
   /// whole machine stopped) when its loop did not run and no frame was
   /// stamped on any bus for longer than this (stand seconds): the time in
@@ -224,6 +232,13 @@ class Sequencer {
   /// length, since neither the host nor a device sharing its machine was
   /// running to answer. The quick stop's give-up does not.
   void held(double from_s, double to_s);
+  /// The commands of the steps since the last call went out at t_s: each
+  /// deadline set with them runs from then. The host sends what an event
+  /// called for when it has read that event, and an event read late (a
+  /// backlog the host's loop had not reached: a busy machine) dates them
+  /// earlier than the bus saw them; a deadline from the event would count
+  /// the host's own delay as the stand's.
+  void sent(double t_s);
   /// The last table angle seen (multi-turn), NaN before any.
   [[nodiscard]] double table_angle() const { return angle_; }
 
@@ -254,6 +269,15 @@ class Sequencer {
   /// with `why`; true when it went on.
   bool outcome(Phase in, double t, bool ok, const std::string& why);
 
+  /// How long a table command may go unacknowledged: the table's time,
+  /// the host's latency and, on an accelerated stand, the real-time floor.
+  [[nodiscard]] double ack_allowed_s() const {
+    return s_.ack_timeout_s + s_.stale_floor_s + s_.real_time_floor_s;
+  }
+  [[nodiscard]] double enable_allowed_s() const {
+    return s_.enable_timeout_s + s_.real_time_floor_s;
+  }
+
   SequencerSettings s_;
   Phase phase_ = Phase::Idle;
   int index_ = 0;
@@ -263,6 +287,9 @@ class Sequencer {
   std::optional<std::uint8_t> awaiting_ack_;
   double ack_deadline_ = 0;
   double ack_set_s_ = -INFINITY;  ///< when ack_deadline_ was set
+  /// The time of the event whose commands have not been said sent yet
+  /// (sent()); NaN when none waits.
+  double unsent_at_ = NAN;
   std::string awaiting_what_;
   double phase_deadline_ = INFINITY;
   double phase_set_s_ = -INFINITY;   ///< when phase_deadline_ was set
@@ -282,6 +309,7 @@ class Sequencer {
   Phase stop_then_ = Phase::Failed;
   double stop_deadline_ = 0;   ///< give up on the quick stop
   double stop_repeat_at_ = 0;  ///< send it again
+  double stop_sent_s_ = NAN;   ///< when the first quick stop was called for (sent())
   std::uint8_t stop_first_seq_ = 0;
   int ins_mode_ = -1;
   double angle_ = NAN;
