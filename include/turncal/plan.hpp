@@ -10,7 +10,7 @@
 #include <vector>
 
 #include "turncal/estimation/estimator.hpp"
-#include "turncal/profile.hpp"
+#include "turncal/physics/profile.hpp"
 #include "turncal/result.hpp"
 
 namespace turncal {

@@ -13,6 +13,7 @@
 //   dbc FILE.dbc
 //   decode FILE.dbc LOG [--json]
 #include "offline.hpp"
+#include "turncal/build_paths.hpp"
 
 #include <algorithm>
 #include <cerrno>
@@ -47,7 +48,23 @@ namespace {
 
 std::string default_config() {
   if (const char* e = std::getenv("TURNCAL_CONFIG")) return e;
-  return std::string(TURNCAL_DATA_DIR) + "/turncal.toml";
+  return std::string(turncal::build::data_dir) + "/turncal.toml";
+}
+
+/// The INS's output on a stand: the coarser step of its two velocity
+/// signals (which limits the estimate), and its rate.
+run::InsOutput ins_output_of(const RoleMap& roles, double rate_hz) {
+  run::InsOutput o;
+  for (const Role r : {Role::InsVelEast, Role::InsVelNorth}) {
+    const can::Signal& sig = *roles[r].signal;
+    const double step = std::abs(sig.factor) * velocity_unit(sig).value();
+    if (step > o.resolution_mps) {
+      o.resolution_mps = step;
+      o.signal = roles[r].message->name + "." + sig.name;
+    }
+  }
+  o.rate_hz = rate_hz;
+  return o;
 }
 
 bool read_json(const std::string& path, json& out) {
@@ -267,16 +284,7 @@ int plan(int argc, char** argv, int i, bool as_json) {
   auto roles = resolve_roles(cfg->can, *db);
   if (!or_say(roles)) return kUsage;
   // the INS's output on this stand: its velocity signals' step and its rate
-  run::InsOutput ins_output;
-  for (const Role r : {Role::InsVelEast, Role::InsVelNorth}) {
-    const can::Signal& sig = *(*roles)[r].signal;
-    const double step = std::abs(sig.factor) * velocity_unit(sig).value();
-    if (step > ins_output.resolution_mps) {
-      ins_output.resolution_mps = step;
-      ins_output.signal = (*roles)[r].message->name + "." + sig.name;
-    }
-  }
-  ins_output.rate_hz = cfg->can.ins.velocity_rate_hz;
+  const run::InsOutput ins_output = ins_output_of(*roles, cfg->can.ins.velocity_rate_hz);
   auto analysed = [&](const std::string& profile, int& rc) -> std::optional<nlohmann::json> {
     auto p = load_plan(profile, so.overrides);
     if (!or_say(p)) {
@@ -405,16 +413,7 @@ int check(int argc, char** argv, int i, bool as_json) {
     std::sort(named.begin(), named.end());
     plans.insert(plans.end(), named.begin(), named.end());
   }
-  run::InsOutput ins_output;
-  for (const Role r : {Role::InsVelEast, Role::InsVelNorth}) {
-    const can::Signal& sig = *(*roles)[r].signal;
-    const double step = std::abs(sig.factor) * velocity_unit(sig).value();
-    if (step > ins_output.resolution_mps) {
-      ins_output.resolution_mps = step;
-      ins_output.signal = (*roles)[r].message->name + "." + sig.name;
-    }
-  }
-  ins_output.rate_hz = ins.velocity_rate_hz;
+  const run::InsOutput ins_output = ins_output_of(*roles, ins.velocity_rate_hz);
   const drivers::Devices dev = drivers::make_devices(cfg->can, *roles, {}, 1);
   bool usable = true;
   out["plans"] = json::array();

@@ -53,6 +53,7 @@
 #include "control.hpp"
 #include "state_dir.hpp"
 #include "syncer.hpp"
+#include "turncal/build_paths.hpp"
 #include "turncal/can/candump.hpp"
 #include "turncal/config.hpp"
 #include "turncal/drivers/reference.hpp"
@@ -143,7 +144,7 @@ const char* link_name(socketcan::LinkState l) {
 }
 
 struct Options {
-  std::string config = std::string(TURNCAL_DATA_DIR) + "/turncal.toml";
+  std::string config = std::string(turncal::build::data_dir) + "/turncal.toml";
   std::string state_dir;
   std::string socket;
 };

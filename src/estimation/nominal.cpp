@@ -3,8 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
-#include "turncal/profile.hpp"
-#include "turncal/sim/strapdown.hpp"
+#include "turncal/physics/profile.hpp"
+#include "turncal/physics/strapdown.hpp"
 
 namespace turncal::est {
 

@@ -7,7 +7,7 @@
 
 #include "text_format.hpp"
 #include "turncal/config.hpp"
-#include "turncal/profile.hpp"
+#include "turncal/physics/profile.hpp"
 #include "turncal/run/record.hpp"
 #include "turncal/run/report.hpp"
 

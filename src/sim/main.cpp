@@ -29,15 +29,16 @@
 #include <string>
 #include <vector>
 
+#include "turncal/build_paths.hpp"
 #include "turncal/can/candump.hpp"
 #include "turncal/config.hpp"
 #include "turncal/drivers/canopen.hpp"
-#include "turncal/drivers/scripted_host.hpp"
 #include "turncal/drivers/socketcan.hpp"
-#include "turncal/drivers/virtual_stand.hpp"
 #include "turncal/earth.hpp"
 #include "turncal/estimation/state.hpp"
 #include "turncal/plan.hpp"
+#include "turncal/sim/scripted_host.hpp"
+#include "turncal/sim/virtual_stand.hpp"
 
 using namespace turncal;
 
@@ -53,8 +54,8 @@ struct Options {
   std::string ins_interface, table_interface;
   std::string out, truth;
   std::string state_out;  // the stand's own state at exit, as JSON
-  std::string profile = std::string(TURNCAL_DATA_DIR) + "/profiles/tactical.toml";
-  std::string config = std::string(TURNCAL_DATA_DIR) + "/turncal.toml";
+  std::string profile = std::string(turncal::build::data_dir) + "/profiles/tactical.toml";
+  std::string config = std::string(turncal::build::data_dir) + "/turncal.toml";
   std::uint64_t seed = 1;
   double heading_offset_deg = 0;
   double start_time_s = 1767225600;    // 2026-01-01T00:00:00Z: runs are reproducible
@@ -253,7 +254,8 @@ int usage(const char* why) {
                "        [--table-clock OFFSET_S:PPM] [--truth-in ERRORS.json]\n"
                "        [--angle-limits MIN_DEG:MAX_DEG] (the table's soft limits)\n"
                "        [--table-heartbeat-timeout S] (the table stops itself after S stand\n"
-               "        seconds without a host heartbeat while it moves; default 0.5)\n"
+               "        seconds without a host heartbeat while it moves; default 0.5, and\n"
+               "        live at --speed N above 1, N times [stand] real_time_floor_ms more)\n"
                "        [--rates VEL_HZ:ENC_HZ[:INS_STATUS_HZ:TABLE_STATUS_HZ]] (frame rates;\n"
                "        default 100:200:10:20; VEL_HZ must divide the 400 Hz IMU rate)\n"
                "        [--start-time UNIX_S] (offline only)\n%s",
@@ -514,6 +516,13 @@ extern "C" void on_signal(int) {
 int live(const Options& o) {
   auto w = load_world(o);
   if (!w) return fail(w.error());
+  // The table's own watchdog on the host's heartbeat is stand time: at N
+  // times real time a stall of this machine is N times longer to it. As the
+  // daemon's waits, it gets [stand] real_time_floor_ms of real time more
+  // (none at 1x or slower; none to a timeout --table-heartbeat-timeout
+  // gives, which is the stand's exactly).
+  if (o.heartbeat_timeout.empty() && o.speed > 1)
+    w->setup.table_limits.heartbeat_timeout_s += w->cfg.stand.real_time_floor_ms * 1e-3 * o.speed;
   auto roles = resolve_roles(w->cfg.can, w->db);
   if (!roles) return fail(roles.error());
   struct sigaction sa {};
@@ -551,9 +560,12 @@ int live(const Options& o) {
   socketcan::Socket& ins_sock = sockets.front();
   socketcan::Socket& table_sock = sockets.back();
   stand::StandLoop loop(w->setup, w->db, *roles, o.scripted_host ? &w->plan : nullptr);
-  std::fprintf(stderr, "turncal-sim: stand on %s (INS) and %s (table), speed %g%s, seed %llu\n",
+  std::fprintf(stderr,
+               "turncal-sim: stand on %s (INS) and %s (table), speed %g%s, seed %llu; the table "
+               "stops itself after %.3g s of stand time without the host's heartbeat\n",
                ins_sock.interface().c_str(), table_sock.interface().c_str(), o.speed,
-               o.scripted_host ? ", scripted host" : "", static_cast<unsigned long long>(o.seed));
+               o.scripted_host ? ", scripted host" : "", static_cast<unsigned long long>(o.seed),
+               w->setup.table_limits.heartbeat_timeout_s);
 
   using Clock = std::chrono::steady_clock;
   const auto wall0 = Clock::now();

@@ -10,6 +10,7 @@
 #include <string>
 #include <vector>
 
+#include "turncal/build_paths.hpp"
 #include "turncal/can/candump.hpp"
 #include "turncal/can/dbc.hpp"
 
@@ -56,7 +57,7 @@ std::vector<Frame> reference_mix(const Database& db, std::size_t seconds) {
 
 int main(int argc, char** argv) {
   const std::string dbc =
-      argc > 1 ? argv[1] : std::string(TURNCAL_SOURCE_DIR) + "/config/reference-stand.dbc";
+      argc > 1 ? argv[1] : std::string(turncal::build::source_dir) + "/config/reference-stand.dbc";
   auto db = load_dbc(dbc);
   if (!db.ok()) {
     std::fprintf(stderr, "%s\n", db.error().describe().c_str());

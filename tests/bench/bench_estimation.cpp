@@ -13,13 +13,14 @@
 #include <random>
 #include <string>
 
+#include "turncal/build_paths.hpp"
 #include "turncal/earth.hpp"
 #include "turncal/estimation/estimator.hpp"
 #include "turncal/estimation/model.hpp"
 #include "turncal/estimation/nominal.hpp"
+#include "turncal/physics/profile.hpp"
+#include "turncal/physics/strapdown.hpp"
 #include "turncal/plan.hpp"
-#include "turncal/profile.hpp"
-#include "turncal/sim/strapdown.hpp"
 
 using namespace turncal;
 using Clock = std::chrono::steady_clock;
@@ -67,7 +68,8 @@ double best_of(int reps, F&& f) {
 }  // namespace
 
 int main() {
-  const auto plan = load_plan(std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/tactical.toml");
+  const auto plan =
+      load_plan(std::string(turncal::build::source_dir) + "/config/profiles/tactical.toml");
   if (!plan) {
     std::fprintf(stderr, "%s\n", plan.error().describe().c_str());
     return 1;
@@ -131,8 +133,8 @@ int main() {
   // the second pass: the recommended plan's hour at one prior sigma of
   // every error (signs mixed), noise on, the nominal and the iterations
   {
-    const auto rec =
-        load_plan(std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/tactical-recommended.toml");
+    const auto rec = load_plan(std::string(turncal::build::source_dir) +
+                               "/config/profiles/tactical-recommended.toml");
     if (!rec) {
       std::fprintf(stderr, "%s\n", rec.error().describe().c_str());
       return 1;

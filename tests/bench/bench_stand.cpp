@@ -9,14 +9,15 @@
 #include <filesystem>
 #include <string>
 
+#include "turncal/build_paths.hpp"
 #include "turncal/config.hpp"
-#include "turncal/drivers/scripted_host.hpp"
 #include "turncal/plan.hpp"
+#include "turncal/sim/scripted_host.hpp"
 
 using namespace turncal;
 
 int main() {
-  const std::string src = TURNCAL_SOURCE_DIR;
+  const std::string src = turncal::build::source_dir;
   auto plan = load_plan(src + "/config/profiles/tactical.toml");
   auto cfg = load_config(src + "/config/turncal.toml");
   if (!plan || !cfg) return 1;

@@ -12,12 +12,13 @@
 #include <string>
 #include <vector>
 
+#include "turncal/build_paths.hpp"
 #include "turncal/can/bus_event.hpp"
 #include "turncal/can/dbc.hpp"
 
 namespace {
 std::unique_ptr<turncal::can::Database> load(const std::string& relative) {
-  auto r = turncal::can::load_dbc(std::string(TURNCAL_SOURCE_DIR) + "/" + relative);
+  auto r = turncal::can::load_dbc(std::string(turncal::build::source_dir) + "/" + relative);
   if (!r.ok()) std::abort();
   return std::make_unique<turncal::can::Database>(std::move(r).value());
 }

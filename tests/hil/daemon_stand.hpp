@@ -25,16 +25,17 @@
 
 #include "hil.hpp"
 #include "process.hpp"
+#include "turncal/build_paths.hpp"
 #include "turncal/can/candump.hpp"
 
 namespace hil::stand {
 
 using namespace std::chrono_literals;
 
-inline const std::string kSim = TURNCAL_SIM_BIN;
-inline const std::string kDaemon = TURNCAL_DAEMON_BIN;
-inline const std::string kCtl = TURNCAL_CTL_BIN;
-inline const std::string kSrc = TURNCAL_SOURCE_DIR;
+inline const std::string kSim = turncal::build::sim_bin;
+inline const std::string kDaemon = turncal::build::daemon_bin;
+inline const std::string kCtl = turncal::build::ctl_bin;
+inline const std::string kSrc = turncal::build::source_dir;
 // The stand at 4x with its fast streams at 25 Hz (the ICD: velocity 100 Hz,
 // encoder 200 Hz). At the ICD's rates and 4x, "stale after 10 periods" is
 // 12 ms of real time, shorter than the scheduling slack of a user-mode Linux
@@ -280,7 +281,7 @@ inline std::uint64_t log_records(const hil::fs::path& log) {
 /// Copies these files into the build's hil-artifacts/, each name prefixed,
 /// for a look after a failure.
 inline void keep_artifacts(const std::string& prefix, const std::vector<hil::fs::path>& files) {
-  const hil::fs::path keep = TURNCAL_ARTIFACTS_DIR;
+  const hil::fs::path keep = hil::fs::path(turncal::build::binary_dir) / "hil-artifacts";
   std::error_code ec;
   hil::fs::create_directories(keep, ec);
   for (const hil::fs::path& f : files)

@@ -10,6 +10,7 @@
 
 #include "hil.hpp"
 #include "process.hpp"
+#include "turncal/build_paths.hpp"
 #include "turncal/config.hpp"
 
 using namespace turncal;
@@ -19,8 +20,8 @@ using hil::TempDir;
 
 namespace {
 
-const std::string kSim = TURNCAL_SIM_BIN;
-const std::string kSrc = TURNCAL_SOURCE_DIR;
+const std::string kSim = turncal::build::sim_bin;
+const std::string kSrc = turncal::build::source_dir;
 
 struct Codec {
   can::Database db;

@@ -8,10 +8,11 @@
 #include <stdexcept>
 #include <string>
 
+#include "turncal/build_paths.hpp"
 #include "turncal/earth.hpp"
 #include "turncal/estimation/estimator.hpp"
+#include "turncal/physics/strapdown.hpp"
 #include "turncal/plan.hpp"
-#include "turncal/sim/strapdown.hpp"
 
 namespace scenario {
 
@@ -31,7 +32,7 @@ struct Scenario {
 
 /// A reference scenario from its profile file in config/profiles/.
 inline Scenario from_plan(const std::string& name) {
-  const auto plan = load_plan(std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/" + name);
+  const auto plan = load_plan(std::string(turncal::build::source_dir) + "/config/profiles/" + name);
   if (!plan) throw std::runtime_error(plan.error().describe());
   return Scenario{plan->priors, plan->arw, plan->vrw, plan->sigma_z, plan->profile, plan->site};
 }

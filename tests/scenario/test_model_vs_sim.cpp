@@ -14,7 +14,7 @@
 #include "turncal/estimation/model.hpp"
 #include "turncal/estimation/nominal.hpp"
 #include "turncal/estimation/timeline.hpp"
-#include "turncal/sim/strapdown.hpp"
+#include "turncal/physics/strapdown.hpp"
 
 using namespace turncal;
 using turncal::earth::kDeg;

@@ -15,16 +15,17 @@
 #include <sstream>
 
 #include "scenarios.hpp"
+#include "turncal/build_paths.hpp"
 #include "turncal/can/candump.hpp"
 #include "turncal/drivers/reference.hpp"
-#include "turncal/drivers/scripted_host.hpp"
+#include "turncal/physics/strapdown.hpp"
 #include "turncal/run/calibration.hpp"
 #include "turncal/run/engine.hpp"
 #include "turncal/run/html.hpp"
 #include "turncal/run/planning.hpp"
 #include "turncal/run/replay.hpp"
 #include "turncal/run/report.hpp"
-#include "turncal/sim/strapdown.hpp"
+#include "turncal/sim/scripted_host.hpp"
 
 using namespace turncal;
 using namespace scenario;
@@ -46,7 +47,7 @@ struct Stand {
 const Stand& reference_stand() {
   static const Stand s = [] {
     Stand st;
-    auto cfg = parse_config("", std::string(TURNCAL_SOURCE_DIR) + "/config/turncal.toml");
+    auto cfg = parse_config("", std::string(turncal::build::source_dir) + "/config/turncal.toml");
     REQUIRE(cfg.ok());
     st.cfg = *cfg;
     auto db = load_databases(st.cfg.can);
@@ -76,7 +77,7 @@ void load_stand(const std::string& path, Stand& st) {
 /// replayed by its first pass only (on its full tactical prior the
 /// nonlinear second pass runs, and moves the estimates by design).
 struct Golden {
-  std::string dir = std::string(TURNCAL_SOURCE_DIR) + "/tests/data/golden/";
+  std::string dir = std::string(turncal::build::source_dir) + "/tests/data/golden/";
   Stand g;
   run::ReplayOptions o;
   Golden() {
@@ -105,7 +106,8 @@ const RoleMap& stand_roles() {
 const Stand& cia402_stand() {
   static const Stand s = [] {
     Stand st;
-    auto cfg = load_config(std::string(TURNCAL_SOURCE_DIR) + "/config/stands/cia402/turncal.toml");
+    auto cfg =
+        load_config(std::string(turncal::build::source_dir) + "/config/stands/cia402/turncal.toml");
     REQUIRE_MESSAGE(cfg.ok(), (cfg.ok() ? "" : cfg.error().describe()));
     st.cfg = *cfg;
     auto db = load_databases(st.cfg.can);
@@ -144,7 +146,7 @@ const RoleMap& cia402_roles() {
 }
 
 Plan load(const std::string& name) {
-  auto p = load_plan(std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/" + name);
+  auto p = load_plan(std::string(turncal::build::source_dir) + "/config/profiles/" + name);
   REQUIRE(p.ok());
   return *p;
 }
@@ -153,7 +155,7 @@ Plan load(const std::string& name) {
 /// Set by overrides, as turncalctl does, so the plan's text and overrides
 /// (which a report keeps for the replay) are this plan.
 Plan short_plan() {
-  auto p = load_plan(std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/tactical.toml",
+  auto p = load_plan(std::string(turncal::build::source_dir) + "/config/profiles/tactical.toml",
                      std::vector<std::string>{"profile.align_s=20", "profile.duration_s=120",
                                               "profile.turn=[{start_s = 60, angle_deg = 180}]"});
   REQUIRE_MESSAGE(p.ok(), (p.ok() ? "" : p.error().describe()));
@@ -1515,7 +1517,7 @@ TEST_SUITE("run engine on the virtual stand") {
       REQUIRE(rec.ok());
       const nlohmann::json& c = (*classic)["predicted"];
       const nlohmann::json& r = (*rec)["predicted"];
-      std::ifstream in(std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/" + grade +
+      std::ifstream in(std::string(turncal::build::source_dir) + "/config/profiles/" + grade +
                        "-recommended.toml");
       std::string line;
       int rows = 0;
@@ -1813,7 +1815,8 @@ TEST_SUITE("run engine on the virtual stand") {
     // within 5% of the plan's covariance analysis (the plan given the
     // turn's start as run: see the plan test for why; df_obs about the
     // second pass's nominal within the bound below).
-    const std::string profile = std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/tactical.toml";
+    const std::string profile =
+        std::string(turncal::build::source_dir) + "/config/profiles/tactical.toml";
     const Plan plan = load("tactical.toml");
     const Stand& st = reference_stand();
     const std::array<const char*, 4> key = {"nu0_1", "nu0_2", "r1", "r2"};
@@ -1923,7 +1926,8 @@ TEST_SUITE("run engine on the virtual stand") {
     // (r1's sigma 3% smaller), which receive-time stamps, on the host's
     // clock, cannot see.
     const Plan plan = load("tactical.toml");
-    const std::string profile = std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/tactical.toml";
+    const std::string profile =
+        std::string(turncal::build::source_dir) + "/config/profiles/tactical.toml";
     stand::StandSetup setup = setup_of(plan, 21);
     setup.ins_clock.rate_ppm = 0;
     TempDir dir;
@@ -1950,7 +1954,7 @@ TEST_SUITE("run engine on the virtual stand") {
     const nlohmann::json ref =
         run(reference_stand().cfg, reference_stand().db, stand_roles(), "reference");
     const std::string path =
-        std::string(TURNCAL_SOURCE_DIR) + "/config/stands/navigation-ins/turncal.toml";
+        std::string(turncal::build::source_dir) + "/config/stands/navigation-ins/turncal.toml";
     std::ifstream in(path);
     std::stringstream text;
     text << in.rdbuf();

@@ -184,8 +184,8 @@ TEST_SUITE("simulation") {
   }
 }
 
-#include "turncal/drivers/virtual_ins.hpp"
-#include "turncal/drivers/virtual_table.hpp"
+#include "turncal/sim/virtual_ins.hpp"
+#include "turncal/sim/virtual_table.hpp"
 
 TEST_SUITE("simulation") {
   TEST_CASE("the virtual stand's INS and table, driven as a host would, give the batch run") {

@@ -5,7 +5,8 @@
 #include <map>
 
 #include "scenarios.hpp"
-#include "turncal/drivers/virtual_stand.hpp"
+#include "turncal/build_paths.hpp"
+#include "turncal/sim/virtual_stand.hpp"
 
 using namespace turncal;
 using namespace turncal::stand;
@@ -48,7 +49,7 @@ struct Host {
 };
 
 Host reference_host() {
-  auto cfg = parse_config("", std::string(TURNCAL_SOURCE_DIR) + "/config/turncal.toml");
+  auto cfg = parse_config("", std::string(turncal::build::source_dir) + "/config/turncal.toml");
   REQUIRE(cfg.ok());
   auto db = load_databases(cfg->can);
   REQUIRE(db.ok());
@@ -248,7 +249,7 @@ TEST_SUITE("virtual stand") {
 #include <fstream>
 #include <sstream>
 
-#include "turncal/drivers/scripted_host.hpp"
+#include "turncal/sim/scripted_host.hpp"
 
 TEST_SUITE("virtual stand") {
   TEST_CASE("offline run: a plan's whole experiment into a candump log, reproducibly") {
@@ -260,7 +261,7 @@ TEST_SUITE("virtual stand") {
         "short.toml");
     REQUIRE(plan.ok());
     auto cfg = parse_config("[can]\nins_interface = \"can1\"\ntable_interface = \"can2\"\n",
-                            std::string(TURNCAL_SOURCE_DIR) + "/config/turncal.toml");
+                            std::string(turncal::build::source_dir) + "/config/turncal.toml");
     REQUIRE(cfg.ok());
     StandSetup setup = short_setup();
     setup.table_angle0_rad = plan->start_angle_rad;

@@ -9,6 +9,7 @@
 #include <nlohmann/json.hpp>
 #include <sstream>
 
+#include "turncal/build_paths.hpp"
 #include "turncal/run/calibration.hpp"
 
 using nlohmann::json;
@@ -16,7 +17,8 @@ using nlohmann::json;
 namespace {
 
 json golden() {
-  std::ifstream in(std::string(TURNCAL_SOURCE_DIR) + "/tests/data/golden/golden-report.json");
+  std::ifstream in(std::string(turncal::build::source_dir) +
+                   "/tests/data/golden/golden-report.json");
   REQUIRE(in);
   return json::parse(in);
 }

@@ -13,7 +13,7 @@
 #include "turncal/can/dbc.hpp"
 #include "turncal/drivers/canopen.hpp"
 #include "turncal/drivers/cia402.hpp"
-#include "turncal/drivers/virtual_drive402.hpp"
+#include "turncal/sim/virtual_drive402.hpp"
 
 using namespace turncal;
 using cia402::FaultCode;

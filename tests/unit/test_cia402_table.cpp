@@ -9,16 +9,17 @@
 #include <string>
 #include <vector>
 
+#include "turncal/build_paths.hpp"
 #include "turncal/config.hpp"
 #include "turncal/drivers/canopen.hpp"
 #include "turncal/drivers/reference.hpp"
-#include "turncal/drivers/virtual_drive402.hpp"
+#include "turncal/sim/virtual_drive402.hpp"
 
 using namespace turncal;
 
 namespace {
 
-const std::string kSrc = TURNCAL_SOURCE_DIR;
+const std::string kSrc = turncal::build::source_dir;
 constexpr double kDeg = std::numbers::pi / 180;
 
 struct Stand402 {

@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "turncal/build_paths.hpp"
 #include "turncal/run/engine.hpp"
 #include "turncal/run/sequencer.hpp"
 
@@ -23,7 +24,7 @@ struct Stand {
   can::Database db;
   RoleMap roles;
   Stand() {
-    auto c = parse_config("", std::string(TURNCAL_SOURCE_DIR) + "/config/turncal.toml");
+    auto c = parse_config("", std::string(turncal::build::source_dir) + "/config/turncal.toml");
     REQUIRE(c.ok());
     auto d = load_databases(c->can);
     REQUIRE_MESSAGE(d.ok(), (d.ok() ? "" : d.error().describe()));

@@ -10,12 +10,13 @@
 #include <sstream>
 #include <string>
 
+#include "turncal/build_paths.hpp"
 #include "turncal/config.hpp"
 
 using namespace turncal;
 
 namespace {
-const std::string kSrc = TURNCAL_SOURCE_DIR;
+const std::string kSrc = turncal::build::source_dir;
 
 Error parse_error(const std::string& text) {
   auto r = parse_config(text, "/etc/turncal/turncal.toml");
@@ -315,7 +316,7 @@ r2 = { max_sigma = 1 }
   CHECK(limits.error().describe().find(":3:") != std::string::npos);
   CHECK(limits.error().describe().find("stand.angle_max_deg") != std::string::npos);
   // the shipped file: every key its default
-  auto shipped = load_config(std::string(TURNCAL_SOURCE_DIR) + "/config/turncal.toml");
+  auto shipped = load_config(std::string(turncal::build::source_dir) + "/config/turncal.toml");
   REQUIRE_MESSAGE(shipped.ok(), shipped.error().describe());
   CHECK(shipped->stand.heading_offset_rad == 0);
   CHECK(shipped->stand.time_scale == 1);

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include "turncal/build_paths.hpp"
 #include "turncal/can/dbc.hpp"
 
 using namespace turncal::can;
@@ -278,7 +279,7 @@ TEST_SUITE("dbc") {
   }
 
   TEST_CASE("the reference stand DBC parses") {
-    auto r = load_dbc(std::string(TURNCAL_SOURCE_DIR) + "/config/reference-stand.dbc");
+    auto r = load_dbc(std::string(turncal::build::source_dir) + "/config/reference-stand.dbc");
     REQUIRE_MESSAGE(r.ok(), (r.ok() ? "" : r.error().describe()));
     CHECK(r->messages.size() == 8);
     const Message* enc = r->find(0x201, false);

@@ -14,6 +14,7 @@
 #include <random>
 #include <sstream>
 
+#include "turncal/build_paths.hpp"
 #include "turncal/drivers/reference.hpp"
 #include "turncal/run/engine.hpp"
 #include "turncal/run/ingest.hpp"
@@ -29,7 +30,7 @@ struct Ref {
   can::Database db;
   RoleMap roles;
   Ref() {
-    auto c = parse_config("", std::string(TURNCAL_SOURCE_DIR) + "/config/turncal.toml");
+    auto c = parse_config("", std::string(turncal::build::source_dir) + "/config/turncal.toml");
     REQUIRE(c.ok());
     cfg = *c;
     auto d = load_databases(cfg.can);
@@ -251,7 +252,7 @@ TEST_SUITE("ingest") {
     // angle the 69th and 70th of its signals: the decode buffer holds the
     // widest message's signals (it held 64)
     Ref r;
-    std::ifstream in_dbc(std::string(TURNCAL_SOURCE_DIR) + "/config/reference-stand.dbc");
+    std::ifstream in_dbc(std::string(turncal::build::source_dir) + "/config/reference-stand.dbc");
     std::stringstream text;
     text << in_dbc.rdbuf();
     std::string dbc = text.str();

@@ -10,6 +10,7 @@
 #include <sstream>
 #include <string>
 
+#include "turncal/build_paths.hpp"
 #include "turncal/drivers/reference.hpp"
 #include "turncal/run/ingest.hpp"
 
@@ -19,7 +20,7 @@ using namespace turncal::run;
 namespace {
 
 const std::string kStandFile =
-    std::string(TURNCAL_SOURCE_DIR) + "/config/stands/navigation-ins/turncal.toml";
+    std::string(turncal::build::source_dir) + "/config/stands/navigation-ins/turncal.toml";
 
 std::string stand_text(const std::string& from = "", const std::string& to = "") {
   std::ifstream in(kStandFile);

@@ -4,13 +4,14 @@
 #include <string>
 #include <vector>
 
+#include "turncal/build_paths.hpp"
 #include "turncal/earth.hpp"
 #include "turncal/plan.hpp"
 
 using namespace turncal;
 
 namespace {
-const std::string kProfiles = std::string(TURNCAL_SOURCE_DIR) + "/config/profiles/";
+const std::string kProfiles = std::string(turncal::build::source_dir) + "/config/profiles/";
 
 Error plan_error(const std::string& text) {
   auto r = parse_plan(text, "lab.toml");

@@ -4,7 +4,7 @@
 #include <cmath>
 #include <vector>
 
-#include "turncal/profile.hpp"
+#include "turncal/physics/profile.hpp"
 
 using namespace turncal;
 

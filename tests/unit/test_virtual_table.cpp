@@ -2,7 +2,7 @@
 
 #include <cmath>
 
-#include "turncal/drivers/virtual_table.hpp"
+#include "turncal/sim/virtual_table.hpp"
 
 using namespace turncal::stand;
 

@@ -23,7 +23,7 @@
 #include "turncal/config.hpp"
 #include "turncal/device.hpp"
 #include "turncal/icd.hpp"
-#include "turncal/profile.hpp"
+#include "turncal/physics/profile.hpp"
 
 namespace turncal::run {
 

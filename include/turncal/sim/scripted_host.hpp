@@ -13,8 +13,8 @@
 #include "turncal/can/candump.hpp"
 #include "turncal/can/dbc.hpp"
 #include "turncal/config.hpp"
-#include "turncal/drivers/virtual_stand.hpp"
 #include "turncal/plan.hpp"
+#include "turncal/sim/virtual_stand.hpp"
 
 namespace turncal::stand {
 

@@ -1,4 +1,4 @@
-#include "turncal/drivers/virtual_stand.hpp"
+#include "turncal/sim/virtual_stand.hpp"
 
 #include <algorithm>
 #include <cmath>

@@ -12,7 +12,7 @@
 #include <limits>
 
 #include "turncal/icd.hpp"
-#include "turncal/profile.hpp"
+#include "turncal/physics/profile.hpp"
 
 namespace turncal::stand {
 

@@ -1,4 +1,4 @@
-#include "turncal/drivers/virtual_drive402.hpp"
+#include "turncal/sim/virtual_drive402.hpp"
 
 #include <algorithm>
 

@@ -1,4 +1,4 @@
-#include "turncal/drivers/virtual_table.hpp"
+#include "turncal/sim/virtual_table.hpp"
 
 #include <algorithm>
 

@@ -14,7 +14,7 @@
 #include <random>
 #include <vector>
 
-#include "turncal/profile.hpp"
+#include "turncal/physics/profile.hpp"
 
 namespace turncal::sim {
 

@@ -1,4 +1,4 @@
-#include "turncal/sim/strapdown.hpp"
+#include "turncal/physics/strapdown.hpp"
 
 #include <Eigen/Geometry>
 #include <algorithm>

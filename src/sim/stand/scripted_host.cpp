@@ -1,4 +1,4 @@
-#include "turncal/drivers/scripted_host.hpp"
+#include "turncal/sim/scripted_host.hpp"
 
 #include <algorithm>
 #include <cmath>

@@ -13,9 +13,9 @@
 
 #include "turncal/can/dbc.hpp"
 #include "turncal/config.hpp"
-#include "turncal/drivers/virtual_drive402.hpp"
-#include "turncal/drivers/virtual_ins.hpp"
-#include "turncal/drivers/virtual_table.hpp"
+#include "turncal/sim/virtual_drive402.hpp"
+#include "turncal/sim/virtual_ins.hpp"
+#include "turncal/sim/virtual_table.hpp"
 
 namespace turncal::stand {
 

@@ -1,4 +1,4 @@
-#include "turncal/profile.hpp"
+#include "turncal/physics/profile.hpp"
 
 #include <algorithm>
 #include <cmath>

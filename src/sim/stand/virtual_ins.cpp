@@ -1,4 +1,4 @@
-#include "turncal/drivers/virtual_ins.hpp"
+#include "turncal/sim/virtual_ins.hpp"
 
 #include <algorithm>
 #include <cmath>

@@ -13,8 +13,8 @@
 #include <vector>
 
 #include "turncal/icd.hpp"
-#include "turncal/profile.hpp"
-#include "turncal/sim/strapdown.hpp"
+#include "turncal/physics/profile.hpp"
+#include "turncal/physics/strapdown.hpp"
 
 namespace turncal::stand {
 

@@ -41,7 +41,7 @@
 #include "turncal/can/frame.hpp"
 #include "turncal/drivers/canopen.hpp"
 #include "turncal/drivers/cia402.hpp"
-#include "turncal/profile.hpp"
+#include "turncal/physics/profile.hpp"
 
 namespace turncal::stand {
 
