@@ -1,7 +1,8 @@
 // Where this build tree's files are, for the programs' defaults and the
-// tests. Defined in one source file that CMake generates in the build tree
-// (cmake/build_paths.cpp.in), so that no other file's compilation depends
-// on where the tree is: a compiler cache serves every clone of it.
+// tests. Defined in sources that CMake generates in the build tree
+// (cmake/data_dir.cpp.in for the programs, cmake/build_paths.cpp.in for
+// the tests alone), so that no other file's compilation depends on where
+// the tree is: a compiler cache serves every clone of it.
 #pragma once
 
 namespace turncal::build {

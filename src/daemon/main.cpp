@@ -434,6 +434,9 @@ void Daemon::internal_error(const char* where, const char* what) {
 /// only queued; a dropped frame is counted, not logged.
 void Daemon::send_out() {
   const bool any = !out.empty();
+  // before the first write: no echo of ours is stamped earlier, so a hold
+  // that starts at one still finds the waits set before it (Sequencer::held)
+  const std::int64_t sending_at = any ? clock.now_ns() : 0;
   for (const run::OutFrame& o : out) {
     Port& p = port(o.ins_side);
     auto r = o.urgent ? p.sock->send_urgent(o.frame) : p.sock->send(o.frame);
@@ -447,7 +450,7 @@ void Daemon::send_out() {
   out.clear();
   // the waits for what was sent run from now, not from the frames that
   // called for it: a backlog read late (a busy host) is the host's delay
-  if (any && engine) engine->sent(clock.now_ns());
+  if (any && engine) engine->sent(sending_at);
   for (Port& p : ports)
     if (p.sock) update_io(p);
 }
@@ -521,7 +524,10 @@ void Daemon::on_can(Port& p) {
     std::int64_t last = std::numeric_limits<std::int64_t>::min();
     for (const can::TimedFrame& f : rx.frames) last = std::max(last, f.time_ns);
     for (const can::TimedFrame& f : rx.confirmed) last = std::max(last, f.time_ns);
-    p.heard_until_ns = last;
+    // a read that failed with nothing read says nothing of the bus: heard
+    // up to its start, so a stream that has gone is found lost (never
+    // frozen in the past, which would leave every loss unnoticed)
+    p.heard_until_ns = last == std::numeric_limits<std::int64_t>::min() ? read_at : last;
   }
   if (!n) {
     warn(n.error().describe());

@@ -752,9 +752,10 @@ int live(const Options& o) {
           return stand::still_true_late(l);
         };
         // a heartbeat the stand owed while behind real time: the later
-        // one goes instead (VirtualDrive402::owed_heartbeat)
+        // one, due before the time this catch-up runs to, goes instead
+        // (VirtualDrive402::owed_heartbeat); the last one due always goes
         if (receipt_drive != nullptr && !f.ins_side &&
-            receipt_drive->owed_heartbeat(f.frame, real_s * o.speed - f.t_s)) {
+            receipt_drive->owed_heartbeat(f.frame, target - f.t_s)) {
           ++owed_heartbeats;
           continue;
         }

@@ -270,6 +270,7 @@ struct ClosedLoop {
   }
 
   void send(std::vector<run::OutFrame>& out, double t) {
+    if (!out.empty()) engine->sent(ns(t));  // as the daemon says after its writes
     for (const run::OutFrame& o : out) {
       to_stand.push_back(o.frame);
       unread.push_back({{ns(t), o.frame}, true});  // echoed at once, read at the next tick
@@ -965,6 +966,31 @@ TEST_SUITE("run engine on the virtual stand") {
     c.run_until(300);
     CHECK_MESSAGE(c.phase() == run::Phase::Done, c.course().reason);
     CHECK(c.engine->hold_count() == 0);
+  }
+
+  TEST_CASE("a stream lost while the host reads behind is found once the read has caught up") {
+    // The INS velocity stops at 70 s, while the host reads 0.3 s behind
+    // its ticks: it is lost at the first tick whose read reaches 0.1 s (10
+    // periods, and the floor) past its last frame, about 70.4 s; judged at
+    // the tick's time it would be 70.1 s, and not judged at all it would
+    // never fail.
+    const Plan plan = short_plan();
+    const stand::StandSetup s = setup_of(plan, 3);
+    ClosedLoop c(plan, s, ClosedLoop::held_settings_of(plan, s));
+    const std::uint32_t ve = reference_stand().db.find("INS_VelE")->id;
+    const std::uint32_t vn = reference_stand().db.find("INS_VelN")->id;
+    c.read_lag = [](double t) { return t > 60 && t < 80 ? 0.3 : 0.0; };
+    c.lose = [&](const stand::StandFrame& f) {
+      return (f.frame.id == ve || f.frame.id == vn) && f.t_s > 70;
+    };
+    c.run_until(300);
+    REQUIRE(c.phase() == run::Phase::Failed);
+    CHECK_MESSAGE(c.course().reason.find("INS velocity lost during hold 1") == 0,
+                  c.course().reason);
+    REQUIRE(c.sent(run::TableCode::QuickStop) >= 1);
+    const double failed = c.sent_at(run::TableCode::QuickStop).front();
+    CHECK(failed > 70.38);
+    CHECK(failed < 70.45);
   }
 
   TEST_CASE("a hold over a command's acknowledgement moves its deadline on by its length") {

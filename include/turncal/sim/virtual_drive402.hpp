@@ -180,9 +180,11 @@ class VirtualDrive402 {
   /// had lost it, the change it carried goes with the drive's next TPDO
   /// (event-driven: at its next chance; synchronous: the next SYNC's).
   void unsent(const can::Frame& f);
-  /// A heartbeat of this drive (not its boot-up) that went due `late_s`
-  /// stand seconds ago, a producer period or more: the stand fell behind
-  /// real time, and a later heartbeat is due by now. A real drive sends its
+  /// A heartbeat of this drive (not its boot-up) due `late_s` stand
+  /// seconds before the time the stand is catching up to, a producer period
+  /// or more: the stand fell behind real time, and a later heartbeat falls
+  /// due before that time, so goes out in the same catch-up (the last one
+  /// due is never owed). A real drive sends its
   /// heartbeat on its own clock, never a burst of past states (after an NMT
   /// start, a master reads an old pre-operational one as the drive leaving
   /// operational): turncal-sim leaves it unsent. A boot-up is never held
