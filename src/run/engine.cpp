@@ -61,7 +61,7 @@ Engine::Engine(const can::Database& db, std::unique_ptr<InsDriver> ins,
       plausible_(plausibility) {
   // the record runs from t0 (the first velocity sample) to t0 + duration + 1 s
   record_.expect_span(plan_.profile.duration_s + 1.0);
-  record_.set_time_scale(time_.scale);
+  record_.set_time_scale(time_.scale, seq_.settings().real_time_floor_s);
 }
 
 void Engine::feed(const Event& e, std::vector<OutFrame>& out) {

@@ -66,7 +66,8 @@ double ClockFit::gate_residual(double device_s, double host_s) const {
 }
 
 bool TagCheck::keep(const ClockFit& fit, double device_s, double host_s) {
-  const double gate = kGateS * scale_;
+  const double gate = gate_s();
+  const double late_gate = late_gate_s();
   double r = fit.gate_residual(device_s, host_s);
   // Before the fit's gate applies (10 s): against the lowest offset seen,
   // once the tags span a second (a rate within 0.1% moves it 10 ms in 10 s)
@@ -108,17 +109,31 @@ bool TagCheck::keep(const ClockFit& fit, double device_s, double host_s) {
   } else {
     late_min_s_ = std::min(late_min_s_, r);  // the least delayed frame of the late run
   }
+  if (!(r > late_gate) || std::isnan(on_floor_host_s_)) {
+    on_floor_host_s_ = host_s;
+    floor_late_min_s_ = INFINITY;
+  } else {
+    floor_late_min_s_ = std::min(floor_late_min_s_, r);
+  }
   // Frames can come late for a while (a bus busy above the device's
   // priority, a transmit backlog) with their tags right: late is a clock
-  // that fell behind after 2 s when its tags first went back, after 10 s
-  // when they did not (it stepped back in a pause of its frames, or runs
-  // slow beyond the fit's rate bound; or the bus never lets its frames out
-  // in time)
-  const double late_for = back_since_on_time_ ? kLateRunS : kLateLongS;
-  if (fault_ == Fault::None && r > gate && host_s - on_time_host_s_ >= late_for) {
-    fault_ = Fault::Late;
-    fault_s_ = late_min_s_;
-    fault_late_for_s_ = late_for;
+  // that fell behind after 2 s when its tags first went back (beyond the
+  // gate: a host's delay never sends a tag back), after 10 s when they did
+  // not (it stepped back in a pause of its frames, or runs slow beyond the
+  // fit's rate bound; or the bus never lets its frames out in time), then
+  // beyond the late gate, which a stand run faster than real time widens
+  if (fault_ == Fault::None) {
+    if (back_since_on_time_ && r > gate && host_s - on_time_host_s_ >= kLateRunS) {
+      fault_ = Fault::Late;
+      fault_s_ = late_min_s_;
+      fault_late_for_s_ = kLateRunS;
+      fault_gate_s_ = gate;
+    } else if (r > late_gate && host_s - on_floor_host_s_ >= kLateLongS) {
+      fault_ = Fault::Late;
+      fault_s_ = floor_late_min_s_;
+      fault_late_for_s_ = kLateLongS;
+      fault_gate_s_ = late_gate;
+    }
   }
   return true;
 }
@@ -141,7 +156,7 @@ std::string TagCheck::fault(const std::string& what) const {
       std::snprintf(b, sizeof b,
                     " fell behind by %.3f s: every frame for %.0f s came over %.0f ms (of real "
                     "time) later than its tag says",
-                    fault_s_, fault_late_for_s_, kGateS * 1e3);
+                    fault_s_, fault_late_for_s_, fault_gate_s_ / scale_ * 1e3);
       break;
   }
   return what + b;

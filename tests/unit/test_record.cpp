@@ -56,9 +56,9 @@ TEST_SUITE("record") {
   /// with clock_fault(). `encoder`: the table clock's samples, not the INS's.
   Record record_with(int n, const std::function<double(int)>& tag,
                      const std::function<double(int)>& delay = {}, double time_scale = 1,
-                     int* disagree = nullptr, bool encoder = false) {
+                     int* disagree = nullptr, bool encoder = false, double late_floor_s = 0) {
     Record r;
-    r.set_time_scale(time_scale);
+    r.set_time_scale(time_scale, late_floor_s);
     for (int k = 0; k < n; ++k) {
       const double host = 1.7e9 + 0.01 * k + 1e-3 + 2e-4 * (k % 3) + (delay ? delay(k) : 0.0);
       if (encoder)
@@ -173,6 +173,38 @@ TEST_SUITE("record") {
     CHECK(record_with(3000, ahead(0.1), {}, 1).velocity_tags().dropped() == 1000);
     const Record r = record_with(3000, ahead(0.3), {}, 4);
     CHECK(r.clock_fault().find("the INS clock jumped ahead by 0.3") == 0);
+  }
+
+  TEST_CASE(
+      "time tags: a stand run faster than real time may fall behind by its real-time floor, no "
+      "more") {
+    // at 5x with a 1 s floor (5 stand s): every frame from 20 s on comes
+    // 1.5 stand s (0.3 s real) late, a busy host's lag, for 30 s: kept,
+    // no fault. Without the floor the same lag is a clock that fell behind
+    // (the gate is 0.25 stand s), and 6 stand s (1.2 s real) is one even
+    // with the floor, whose message says the gate's real 1050 ms.
+    auto late = [](double by) { return [by](int k) { return k >= 2000 ? by : 0.0; }; };
+    const Record kept = record_with(5000, on_time, late(1.5), 5, nullptr, false, 5.0);
+    CHECK(kept.clock_fault().empty());
+    CHECK(kept.velocity_tags().dropped() == 0);
+    CHECK(kept.velocity().size() == 5000);
+    const Record bare = record_with(5000, on_time, late(1.5), 5, nullptr, false, 0.0);
+    CHECK(bare.clock_fault().find("the INS clock fell behind by 1.50") == 0);
+    int disagree = 0;
+    const Record far = record_with(5000, on_time, late(6.0), 5, &disagree, true, 5.0);
+    CAPTURE(far.clock_fault());
+    CHECK(far.clock_fault().find("the table clock fell behind by 6.00") == 0);
+    CHECK(far.clock_fault().find("over 1050 ms (of real time)") != std::string::npos);
+    CHECK(disagree == 0);
+    // a clock that steps 0.4 stand s back (tags before the last one kept,
+    // which no host's delay makes) is judged by the gate alone, floor or
+    // not: late beyond 0.25 stand s (50 ms real) for 2 s after it
+    const Record back = record_with(
+        5000, [](int k) { return on_time(k) + (k >= 2000 ? -0.4 : 0.0); }, {}, 5, nullptr, false,
+        5.0);
+    CAPTURE(back.clock_fault());
+    CHECK(back.clock_fault().find("the INS clock fell behind by 0.40") == 0);
+    CHECK(back.clock_fault().find("every frame for 2 s came over 50 ms") != std::string::npos);
   }
 
   TEST_CASE("without an expected span the record grows as it must") {

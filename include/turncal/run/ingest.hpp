@@ -110,8 +110,20 @@ class TagCheck {
   /// Host times are stand seconds, and a real second is `scale` of them
   /// (the stand's time_scale): the gate is real time, a frame's delay, so
   /// it scales; the runs' lengths (0.5 s, 2 s, 10 s) are stand time.
+  /// `late_floor_s` (stand seconds, SequencerSettings::real_time_floor_s)
+  /// is how far behind real time a stand run faster than real time may
+  /// fall on a busy host before its frames count as late: its tags are
+  /// the simulation's own time, right however late the host sends them,
+  /// and a clock that runs slow is a real device's fault, not a host's.
+  /// It widens the late side of the gate only, for frames late with no tag
+  /// that went back: a delay never puts a tag ahead of its receipt, nor one
+  /// before the last.
   [[nodiscard]] double gate_s() const { return kGateS * scale_; }
-  void set_time_scale(double scale) { scale_ = scale > 0 ? scale : 1.0; }
+  [[nodiscard]] double late_gate_s() const { return gate_s() + late_floor_s_; }
+  void set_time_scale(double scale, double late_floor_s = 0) {
+    scale_ = scale > 0 ? scale : 1.0;
+    late_floor_s_ = late_floor_s > 0 ? late_floor_s : 0.0;
+  }
   /// `fit` is the clock as fitted before this sample. The first fault is
   /// kept; checking goes on after it.
   bool keep(const ClockFit& fit, double device_s, double host_s);
@@ -134,7 +146,11 @@ class TagCheck {
   bool back_since_on_time_ = false;  ///< a tag went back since the last on-time frame
   double late_min_s_ = INFINITY;     ///< the least delay of the late run so far
   double fault_late_for_s_ = 0;
+  double fault_gate_s_ = 0;             ///< the gate a late fault's frames were beyond
+  double on_floor_host_s_ = NAN;        ///< the last sample within the late gate
+  double floor_late_min_s_ = INFINITY;  ///< the least delay beyond the late gate so far
   double scale_ = 1;
+  double late_floor_s_ = 0;
   std::uint64_t run_n_ = 0;
   double on_time_host_s_ = NAN;  ///< the last sample within the gate of the clock
   std::uint64_t dropped_ = 0;

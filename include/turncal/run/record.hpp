@@ -38,10 +38,11 @@ class Record {
   void use_huge_pages() { huge_pages_ = true; }
   [[nodiscard]] bool huge_pages() const { return huge_pages_; }
   /// A real second is `scale` stand seconds (the stand's time_scale): the
-  /// time tag checks' and the clock fits' gates are real time.
-  void set_time_scale(double scale) {
-    velocity_tags_.set_time_scale(scale);
-    encoder_tags_.set_time_scale(scale);
+  /// time tag checks' and the clock fits' gates are real time;
+  /// `late_floor_s` as for TagCheck::set_time_scale.
+  void set_time_scale(double scale, double late_floor_s = 0) {
+    velocity_tags_.set_time_scale(scale, late_floor_s);
+    encoder_tags_.set_time_scale(scale, late_floor_s);
   }
   void add(const Sample& s);
   /// Keeps the end of the encoder's last constant run; call before reading
