@@ -65,6 +65,16 @@ double ClockFit::gate_residual(double device_s, double host_s) const {
   return host_s - y0_ - gate_line_.a - gate_line_.b * (device_s - x0_);
 }
 
+bool TagCheck::LateRun::see(double r, double gate, double host_s) {
+  if (!(r > gate) || std::isnan(since_s)) {
+    since_s = host_s;
+    least_s = INFINITY;
+    return true;
+  }
+  least_s = std::min(least_s, r);
+  return false;
+}
+
 bool TagCheck::keep(const ClockFit& fit, double device_s, double host_s) {
   const double gate = gate_s();
   const double late_gate = late_gate_s();
@@ -102,19 +112,8 @@ bool TagCheck::keep(const ClockFit& fit, double device_s, double host_s) {
   }
   have_ = true;
   last_device_s_ = device_s;
-  if (!(r > gate) || std::isnan(on_time_host_s_)) {
-    on_time_host_s_ = host_s;
-    back_since_on_time_ = false;
-    late_min_s_ = INFINITY;
-  } else {
-    late_min_s_ = std::min(late_min_s_, r);  // the least delayed frame of the late run
-  }
-  if (!(r > late_gate) || std::isnan(on_floor_host_s_)) {
-    on_floor_host_s_ = host_s;
-    floor_late_min_s_ = INFINITY;
-  } else {
-    floor_late_min_s_ = std::min(floor_late_min_s_, r);
-  }
+  if (on_time_.see(r, gate, host_s)) back_since_on_time_ = false;
+  on_floor_.see(r, late_gate, host_s);
   // Frames can come late for a while (a bus busy above the device's
   // priority, a transmit backlog) with their tags right: late is a clock
   // that fell behind after 2 s when its tags first went back (beyond the
@@ -123,14 +122,14 @@ bool TagCheck::keep(const ClockFit& fit, double device_s, double host_s) {
   // fit's rate bound; or the bus never lets its frames out in time), then
   // beyond the late gate, which a stand run faster than real time widens
   if (fault_ == Fault::None) {
-    if (back_since_on_time_ && r > gate && host_s - on_time_host_s_ >= kLateRunS) {
+    if (back_since_on_time_ && r > gate && host_s - on_time_.since_s >= kLateRunS) {
       fault_ = Fault::Late;
-      fault_s_ = late_min_s_;
+      fault_s_ = on_time_.least_s;
       fault_late_for_s_ = kLateRunS;
       fault_gate_s_ = gate;
-    } else if (r > late_gate && host_s - on_floor_host_s_ >= kLateLongS) {
+    } else if (r > late_gate && host_s - on_floor_.since_s >= kLateLongS) {
       fault_ = Fault::Late;
-      fault_s_ = floor_late_min_s_;
+      fault_s_ = on_floor_.least_s;
       fault_late_for_s_ = kLateLongS;
       fault_gate_s_ = late_gate;
     }

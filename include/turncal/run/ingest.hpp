@@ -144,15 +144,21 @@ class TagCheck {
   double run_jump_s_ = 0;            ///< how far its tags were off, at most
   bool run_back_ = false;            ///< the run began with a tag that went back
   bool back_since_on_time_ = false;  ///< a tag went back since the last on-time frame
-  double late_min_s_ = INFINITY;     ///< the least delay of the late run so far
   double fault_late_for_s_ = 0;
-  double fault_gate_s_ = 0;             ///< the gate a late fault's frames were beyond
-  double on_floor_host_s_ = NAN;        ///< the last sample within the late gate
-  double floor_late_min_s_ = INFINITY;  ///< the least delay beyond the late gate so far
+  double fault_gate_s_ = 0;  ///< the gate a late fault's frames were beyond
   double scale_ = 1;
   double late_floor_s_ = 0;
   std::uint64_t run_n_ = 0;
-  double on_time_host_s_ = NAN;  ///< the last sample within the gate of the clock
+  /// Frames late beyond a gate: since when none was within it
+  struct LateRun {
+    double since_s = NAN;       ///< the last sample within the gate (host time)
+    double least_s = INFINITY;  ///< the least delay of the late run so far
+    /// Sees a kept sample's delay `r`; true when it is within `gate` (or
+    /// the first), which starts the run again.
+    bool see(double r, double gate, double host_s);
+  };
+  LateRun on_time_;   ///< beyond the gate
+  LateRun on_floor_;  ///< beyond the late gate (the gate and the floor)
   std::uint64_t dropped_ = 0;
   enum class Fault : std::uint8_t { None, Ahead, Back, Late } fault_ = Fault::None;
   double fault_s_ = 0;  ///< how far the clock was off, s
