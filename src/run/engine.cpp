@@ -30,8 +30,12 @@ CommandSignals command_signals(const RoleMap& roles) {
   return command_signals(*ins, *table);
 }
 
+double real_time_floor_s(double floor_ms, double time_scale) {
+  return time_scale > 1 ? floor_ms * 1e-3 * time_scale : 0.0;
+}
+
 double real_time_floor_s(const StandConfig& stand) {
-  return stand.time_scale > 1 ? stand.real_time_floor_ms * 1e-3 * stand.time_scale : 0.0;
+  return real_time_floor_s(stand.real_time_floor_ms, stand.time_scale);
 }
 
 Plausibility plausibility_of(const Config& cfg) {

@@ -181,6 +181,12 @@ Result<ReplayOutcome> replay_log(const Config& cfg, const can::Database& db, con
   q.stale_floor_s =
       live_number(live, "settings", "stale_floor_s")
           .value_or(live != nullptr ? 0.0 : cfg.daemon.stale_floor_ms * 1e-3 * tb.scale);
+  // the same of the floor a stand run faster than real time gets: its
+  // clock checks saw it live (none before reports carried it)
+  q.real_time_floor_s =
+      live_number(live, "settings", "real_time_floor_s")
+          .value_or(live != nullptr ? 0.0
+                                    : real_time_floor_s(cfg.stand.real_time_floor_ms, tb.scale));
 
   // the live run's bounds on what a frame can be; a run from before reports
   // carried them checked nothing, and neither does its replay

@@ -188,6 +188,7 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
   j["settings"] = {{"heading_offset_rad", seq.settings().heading_offset_rad},
                    {"observe", seq.settings().observe},
                    {"stale_floor_s", seq.settings().stale_floor_s},
+                   {"real_time_floor_s", seq.settings().real_time_floor_s},
                    {"two_stage", engine.build_settings().two_stage},
                    {"table_geometry", engine.ingest().table().geometry()}};
   // the host's machine held (Engine::Hold): the silences excused, and those not
@@ -690,6 +691,7 @@ std::string check_report(const json& r) {
     for (const char* k : {"two_stage", "observe"}) c.field(s, "settings.", k, Kind::Boolean);
     c.field(s, "settings.", "heading_offset_rad", Kind::Number);
     c.number_in(s, "settings.", "stale_floor_s", 0, kMaxNumber);
+    c.number_in(s, "settings.", "real_time_floor_s", 0, kMaxNumber);
     c.field(s, "settings.", "table_geometry", Kind::String);  // older reports lack it
   }
   if (c.field(r, "", "replay", Kind::Object)) {

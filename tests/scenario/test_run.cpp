@@ -1680,6 +1680,50 @@ TEST_SUITE("run engine on the virtual stand") {
     }
   }
 
+  TEST_CASE("replay of a run at 5x: the live run's real-time floor, read from its report") {
+    // The live run's log as a stand run at 5x logs it (a real second five
+    // of the stand's), its host 0.3 s of real time (1.5 stand s) behind
+    // from 40 s into the run to its end, every frame alike: within a 1 s
+    // floor (5 stand s) the clocks are right, and the run is done as it
+    // was live; with none (a report from before it carried the floor) the
+    // clocks fell behind, 10 s into the lag.
+    const LiveRun& l = LiveRun::get();
+    CHECK(l.live.written["settings"]["real_time_floor_s"].get<double>() == 0);  // at 1x
+    const std::int64_t epoch_ns =
+        l.live.written["time_base"]["epoch_us"].get<std::int64_t>() * 1000;
+    const auto from = static_cast<std::int64_t>(std::llround((l.live.course().t0_s + 40) * 1e9));
+    std::vector<Logged> log;
+    for (Logged f : l.live.log) {
+      const std::int64_t t = f.f.time_ns;
+      f.f.time_ns = epoch_ns + (t - epoch_ns) / 5 + (t > from ? 300'000'000 : 0);
+      log.push_back(f);
+    }
+    TempDir dir;
+    write_log(log, dir.path / "run.log");
+    for (const bool floor : {true, false}) {
+      CAPTURE(floor);
+      nlohmann::json live = l.live.written;
+      live["time_base"]["scale"] = 5.0;
+      if (floor)
+        live["settings"]["real_time_floor_s"] = 5.0;
+      else
+        live["settings"].erase("real_time_floor_s");
+      auto r = replay_file(dir.path / "run.log", &live);
+      REQUIRE_MESSAGE(r.ok(), (r.ok() ? "" : r.error().describe()));
+      const nlohmann::json& j = r->report;
+      const std::string reason = j.value("reason", std::string());
+      CAPTURE(reason);
+      CHECK(j["settings"]["real_time_floor_s"].get<double>() == (floor ? 5.0 : 0.0));
+      if (floor) {
+        CHECK(j["status"] == "done");
+        CHECK(j["estimates"].size() == 22);
+      } else {
+        CHECK(j["status"] == "failed");
+        CHECK(reason.find("clock fell behind by 1.5") != std::string::npos);
+      }
+    }
+  }
+
   TEST_CASE("replay of a log cut in the last hold: estimates up to the damage, and where") {
     const LiveRun& l = LiveRun::get();
     TempDir dir;

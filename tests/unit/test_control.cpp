@@ -181,6 +181,8 @@ TEST_CASE("check_report: every field a reader takes is type-checked") {
        "time_base.epoch_us: expected a number in [0, 9.22337e+15], not 1e+16"},
       {"/settings/stale_floor_s", -0.1,
        "settings.stale_floor_s: expected a number of at least 0, not -0.1"},
+      {"/settings/real_time_floor_s", -1,
+       "settings.real_time_floor_s: expected a number of at least 0, not -1"},
       {"/plausibility/dbc_ranges", 1, "plausibility.dbc_ranges: expected true or false"},
       {"/plausibility/max_fraction", -0.5,
        "plausibility.max_fraction: expected a number in [0, 1], not -0.5"},

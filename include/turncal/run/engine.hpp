@@ -87,8 +87,10 @@ Plausibility plausibility_of(const Config& cfg);
 /// SequencerSettings::real_time_floor_s for a stand: [stand]
 /// real_time_floor_ms in stand seconds where the stand runs faster than
 /// real time, and 0 on one that does not (a real stand's timeouts are as
-/// given).
+/// given). The second form for a run at `time_scale` (a replay's, from
+/// its log's report) under a floor of `floor_ms` of real time.
 double real_time_floor_s(const StandConfig& stand);
+double real_time_floor_s(double floor_ms, double time_scale);
 
 class Engine {
  public:
