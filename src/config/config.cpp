@@ -1,6 +1,7 @@
 #include "turncal/config.hpp"
 
 #include "toml_reader.hpp"
+#include "turncal/estimation/params.hpp"
 #include "turncal/icd.hpp"
 
 #include <toml++/toml.h>
@@ -461,19 +462,8 @@ Status read_tolerances(const toml::table& t, const std::string& file, std::vecto
 
 }  // namespace
 
-std::pair<std::string_view, double> display_unit(std::string_view p) {
-  constexpr double kDegPerHour = kDegRad / 3600;
-  constexpr double kMicroG = 9.80665e-6;
-  if (p == "nu0_1" || p == "nu0_2" || p == "nu0_3") return {"deg/h", 1 / kDegPerHour};
-  if (p.starts_with("theta_") && p.size() == 8 && p[6] >= '1' && p[6] <= '3' && p[7] >= '1' &&
-      p[7] <= '3')
-    return {"ppm", 1e6};
-  if (p == "df0_1" || p == "df0_2" || p == "df_eff_1" || p == "df_eff_2" || p == "df_obs_1" ||
-      p == "df_obs_2")
-    return {"ug", 1 / kMicroG};
-  if (p == "g13" || p == "g23") return {"ppm", 1e6};
-  if (p == "r1" || p == "r2") return {"mm", 1e3};
-  return {"", 0};
+std::pair<std::string_view, double> display_unit(std::string_view parameter) {
+  return est::display_unit(parameter);
 }
 
 Result<Config> parse_config(std::string_view text, const std::string& file) {

@@ -1,10 +1,12 @@
 #include "turncal/plan.hpp"
 
 #include <fstream>
+#include <span>
 #include <sstream>
 
 #include "toml_reader.hpp"
 #include "turncal/earth.hpp"
+#include "turncal/estimation/params.hpp"
 
 namespace turncal {
 namespace {
@@ -14,7 +16,6 @@ using config_detail::Reader;
 
 constexpr double kDeg = earth::kDeg;
 constexpr double kArcmin = kDeg / 60;
-constexpr double kDegPerHour = kDeg / 3600;
 constexpr double kDegPerRootHour = kDeg / 60;  // deg/sqrt(h) in rad/sqrt(s)
 constexpr double kMicroG = 1e-6 * kStandardGravity;
 
@@ -146,25 +147,19 @@ Result<Plan> parse_plan(std::string_view text, const std::string& file,
   TURNCAL_ASSIGN(pri, section(root, "priors", file));
   {
     Reader r(*pri, file, "priors.");
-    TURNCAL_TRY(r.no_unknown_keys({"gyro_bias_dph", "gyro_scale_misalignment", "accel_bias_ug",
-                                   "accel_misalignment", "proof_mass_offset_m", "v0_mps",
-                                   "heading_arcmin", "position_m"}));
-    auto& p = plan.priors.params;
-    std::span<double> nu(p.data(), 3), theta(p.data() + 3, 9), df(p.data() + 12, 2),
-        g(p.data() + 14, 2), rr(p.data() + 16, 2);
-    // defaults: the tactical reference scenario
-    for (double& v : nu) v = 1;
-    for (double& v : theta) v = 1e-3;
-    for (double& v : df) v = 1000;
-    for (double& v : g) v = 1e-3;
-    for (double& v : rr) v = 0.03;
-    TURNCAL_TRY(r.numbers("gyro_bias_dph", nu, 0, 1e4));
-    TURNCAL_TRY(r.numbers("gyro_scale_misalignment", theta, 0, 1));
-    TURNCAL_TRY(r.numbers("accel_bias_ug", df, 0, 1e6));
-    TURNCAL_TRY(r.numbers("accel_misalignment", g, 0, 1));
-    TURNCAL_TRY(r.numbers("proof_mass_offset_m", rr, 0, 10));
-    for (double& v : nu) v *= kDegPerHour;
-    for (double& v : df) v *= kMicroG;
+    std::vector<std::string_view> keys = {"v0_mps", "heading_arcmin", "position_m"};
+    for (const est::BlockInfo& b : est::kBlocks) keys.push_back(b.prior_key);
+    TURNCAL_TRY(r.no_unknown_keys(keys));
+    // each block's prior (the parameter table): its default, the plan's
+    // value in the key's unit, then SI
+    for (const est::BlockInfo& b : est::kBlocks) {
+      const std::span<double> span(plan.priors.params.data() + est::block_offset(b.block),
+                                   static_cast<std::size_t>(b.size));
+      for (double& v : span) v = b.prior_default;
+      TURNCAL_TRY(r.numbers(b.prior_key, span, 0, b.prior_max));
+      if (b.prior_si_per_key != 1)
+        for (double& v : span) v *= b.prior_si_per_key;
+    }
     plan.priors.v0_mps = 1e-3;
     plan.priors.position_m = 10;
     double heading = 10;

@@ -34,6 +34,9 @@ class Reader {
   }
   /// Unknown keys are errors: a typo must not silently fall back to a default.
   Status no_unknown_keys(std::initializer_list<std::string_view> known) const {
+    return no_unknown_keys(std::span<const std::string_view>(known.begin(), known.size()));
+  }
+  Status no_unknown_keys(std::span<const std::string_view> known) const {
     for (auto&& [k, v] : t_) {
       bool ok = false;
       for (auto kk : known) ok = ok || k.str() == kk;

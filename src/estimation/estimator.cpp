@@ -284,7 +284,8 @@ void interpret(const EstimationInput& in, EstimationResult& r) {
   std::array<ParamVec, 2> obs_dir{};
   for (int i = 0; i < 2; ++i) {
     auto named = [&](std::string_view name, const ParamVec& v) {
-      return ParameterEstimate{name, "m/s^2", v.dot(x), std::sqrt(std::max(0.0, v.dot(p * v))),
+      return ParameterEstimate{name, block_info(Block::kAccelBias).si_unit, v.dot(x),
+                               std::sqrt(std::max(0.0, v.dot(p * v))),
                                v.cwiseProduct(prior).norm()};
     };
     r.df_eff[static_cast<std::size_t>(i)] =

@@ -8,6 +8,36 @@
 
 namespace turncal::est {
 
+namespace {
+/// Each parameter's term in the strapdown's errors, in state order (Theta
+/// row-major): f(state index, the term).
+template <typename Errors, typename F>
+void each_term(Errors& e, F&& f) {
+  for (int i = 0; i < 3; ++i) f(sx::kNu0 + i, e.nu0(i));
+  for (int i = 1; i <= 3; ++i)
+    for (int j = 1; j <= 3; ++j) f(sx::theta(i, j), e.theta(i - 1, j - 1));
+  for (int i = 0; i < 2; ++i) {
+    f(sx::kDf0 + i, e.df0(i));
+    f(sx::kG + i, e.g(i));
+    f(sx::kR + i, e.r(i));
+  }
+}
+}  // namespace
+
+sim::SensorErrors sensor_errors(const ParamArray& params) {
+  sim::SensorErrors e;
+  each_term(e,
+            [&](int state, double& v) { v = params[static_cast<std::size_t>(state - sx::kNu0)]; });
+  return e;
+}
+
+ParamArray params_of(const sim::SensorErrors& e) {
+  ParamArray p{};
+  each_term(e,
+            [&](int state, const double& v) { p[static_cast<std::size_t>(state - sx::kNu0)] = v; });
+  return p;
+}
+
 Result<NominalRun> strapdown_nominal(const EstimationInput& in,
                                      const std::array<double, sx::kParams>& params) {
   const TimelineInput& tl = in.timeline;
@@ -45,14 +75,7 @@ Result<NominalRun> strapdown_nominal(const EstimationInput& in,
   c.imu_rate_hz = in.second_pass.nominal_imu_rate_hz;
   c.encoder_rate_hz = 0;  // the motion is the encoder's already
   c.nav_rate_hz = kNominalTrackRateHz;
-  c.errors.nu0 = Eigen::Vector3d(params[0], params[1], params[2]);
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j)
-      c.errors.theta(i, j) = params[static_cast<std::size_t>(sx::theta(i + 1, j + 1) - sx::kNu0)];
-  const auto at = [&](int state) { return params[static_cast<std::size_t>(state - sx::kNu0)]; };
-  c.errors.df0 = Eigen::Vector2d(at(sx::kDf0), at(sx::kDf0 + 1));
-  c.errors.g = Eigen::Vector2d(at(sx::kG), at(sx::kG + 1));
-  c.errors.r = Eigen::Vector2d(at(sx::kR), at(sx::kR + 1));
+  c.errors = sensor_errors(params);
   const sim::Run run = sim::simulate(c);
   NominalRun out;
   out.velocity.reserve(run.velocity.size());

@@ -7,6 +7,7 @@
 #include <string_view>
 
 #include "turncal/earth.hpp"
+#include "turncal/estimation/params.hpp"
 #include "turncal/run/report.hpp"
 
 namespace turncal::run {
@@ -33,32 +34,13 @@ const char* const kHowToApply =
 
 namespace {
 
-struct Group {
-  std::string_view prefix;  ///< parameter names starting so
-  const char* sensor;       ///< "gyro" or "accelerometer"
-  const char* table;        ///< the table within it
-  double display;           ///< SI to display
-  const char* display_unit;
-};
-
-constexpr double kUg = 9.80665e-6;
-constexpr double kDph = 3.14159265358979323846 / 180 / 3600;
-
-const std::array<Group, 5> kGroups = {{
-    {"nu0_", "gyro", "bias", 1 / kDph, "deg/h"},
-    {"theta_", "gyro", "scale_misalignment", 1e6, "ppm"},
-    {"df0_", "accelerometer", "bias", 1 / kUg, "ug"},
-    {"g", "accelerometer", "misalignment", 1e6, "ppm"},
-    {"r", "accelerometer", "proof_mass_offset", 1e3, "mm"},
-}};
-
-const Group* group_of(const std::string& name) {
-  for (const Group& g : kGroups)
-    if (name.rfind(g.prefix, 0) == 0) return &g;
-  return nullptr;
+/// The block of one of the 18 parameters; nullptr for a combination.
+const est::BlockInfo* group_of(const std::string& name) {
+  const int i = est::param_index(name);
+  return i < 0 ? nullptr : &est::block_info(est::kParamTable[static_cast<std::size_t>(i)].block);
 }
 
-json term(const json& e, double display, const char* display_unit) {
+json term(const json& e, double display, std::string_view display_unit) {
   const double v = e["value"].get<double>();
   const double s = e["sigma"].get<double>();
   return {{"value", v},
@@ -66,7 +48,7 @@ json term(const json& e, double display, const char* display_unit) {
           {"unit", e.value("unit", std::string())},
           {"display_value", v * display},
           {"display_sigma", s * display},
-          {"display_unit", display_unit}};
+          {"display_unit", std::string(display_unit)}};
 }
 
 std::string reason(const json& e) {
@@ -106,15 +88,15 @@ Result<json> calibration_json(const json& report) {
   json not_determined = json::object();
   std::vector<std::string> determined;
   for (const auto& [name, e] : est.items()) {
-    const Group* g = group_of(name);
+    const est::BlockInfo* g = group_of(name);
     if (g == nullptr) continue;  // df_eff_i, df_obs_i: the combinations below
     if (e.value("determined", std::string()) != "determined") {
       not_determined[name] = reason(e);
       continue;
     }
     determined.push_back(name);
-    json& sensor = std::string_view(g->sensor) == "gyro" ? gyro : accel;
-    sensor[g->table][name] = term(e, g->display, g->display_unit);
+    json& sensor = g->sensor == "gyro" ? gyro : accel;
+    sensor[std::string(g->calibration)][name] = term(e, g->display_per_si, g->display_unit);
   }
   cal["gyro"] = gyro;
   cal["accelerometer"] = accel;
@@ -131,7 +113,8 @@ Result<json> calibration_json(const json& report) {
       const std::string name = kind + std::string(i);
       if (!est.contains(name) || est[name].value("determined", std::string()) != "determined")
         continue;
-      json c = term(est[name], 1 / kUg, "ug");
+      const auto [unit, k] = display_unit(name);
+      json c = term(est[name], k, unit);
       c["name"] = name;
       const bool obs = std::string_view(kind) == "df_obs_";
       c["definition"] = "df0_" + std::string(i) + " + g G" + i + "3" +

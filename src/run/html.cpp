@@ -225,13 +225,16 @@ constexpr std::array<const char*, 6> kColors = {"#1f77b4", "#d62728", "#2ca02c",
 }  // namespace
 
 const std::vector<SigmaPlotGroup>& sigma_plot_groups() {
-  static const std::vector<SigmaPlotGroup> g = {
-      {"Gyro biases: sigma against time", {0, 1, 2}},
-      {"Gyro scale and misalignment (Theta): sigma against time", {3, 4, 5, 6, 7, 8, 9, 10, 11}},
-      {"Accelerometer biases: sigma against time", {12, 13}},
-      {"Accelerometer misalignments towards the vertical: sigma against time", {14, 15}},
-      {"Proof-mass offsets: sigma against time", {16, 17}},
-  };
+  // a plot per block of the parameter table
+  static const std::vector<SigmaPlotGroup> g = [] {
+    std::vector<SigmaPlotGroup> out;
+    for (const est::BlockInfo& b : est::kBlocks) {
+      SigmaPlotGroup p{std::string(b.title) + ": sigma against time", {}};
+      for (int i = 0; i < b.size; ++i) p.params.push_back(est::block_offset(b.block) + i);
+      out.push_back(std::move(p));
+    }
+    return out;
+  }();
   return g;
 }
 

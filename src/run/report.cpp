@@ -51,26 +51,7 @@ Determination determination(std::string_view name, double sigma, double prior_si
   const double ratio =
       prior_sigma > 0 ? sigma / prior_sigma : std::numeric_limits<double>::quiet_NaN();
   if (ratio < 0.5) return {"determined", ""};
-  const std::string n(name);
-  auto axis = [&](std::size_t at) { return n.size() > at ? n.substr(at, 1) : std::string("?"); };
-  std::string why;
-  if (n.starts_with("theta_") && n.size() == 8 && (n[7] == '1' || n[7] == '2')) {
-    why = "needs a rotation about a horizontal axis";
-  } else if (n == "theta_13" || n == "theta_23") {
-    why = "a turn about the vertical ties it to the accelerometer: only df0_" + axis(6) + " + g G" +
-          axis(6) + "3 - g Theta_" + axis(6) +
-          "3 is seen; parting them needs a rotation about a horizontal axis";
-  } else if (n == "theta_33") {
-    why = "needs net whole revolutions about the vertical (the azimuth jump)";
-  } else if (n.starts_with("df0_") || n == "g13" || n == "g23" || n.starts_with("df_eff_")) {
-    const std::string i = n.starts_with("g") ? axis(1) : n.substr(n.size() - 1);
-    why = "a turn about the vertical sees df0_" + i + " and g G" + i + "3 only as their sum, " +
-          "tied to g Theta_" + i + "3: parting them needs a rotation about a horizontal axis";
-  } else if (n == "r1" || n == "r2") {
-    why = "needs a faster turn, or more turns";
-  } else {
-    why = "the run adds little to the prior: longer holds or more turns";
-  }
+  const std::string why(est::why_undetermined(name));
   if (!(ratio <= 0.9)) return {"not determined", why};
   return {"partly", why};
 }

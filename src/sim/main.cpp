@@ -35,6 +35,7 @@
 #include "turncal/drivers/canopen.hpp"
 #include "turncal/drivers/socketcan.hpp"
 #include "turncal/earth.hpp"
+#include "turncal/estimation/nominal.hpp"
 #include "turncal/estimation/state.hpp"
 #include "turncal/plan.hpp"
 #include "turncal/sim/scripted_host.hpp"
@@ -346,14 +347,8 @@ bool parse(int argc, char** argv, Options& o, std::string& err) {
 nlohmann::json truth_json(const sim::Config& c, const Plan& plan, const Options& o) {
   using nlohmann::json;
   json e = json::object();
-  std::size_t k = 0;
-  auto put = [&](double v) { e[std::string(est::kParamNames[k++])] = v; };
-  for (int i = 0; i < 3; ++i) put(c.errors.nu0(i));
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j) put(c.errors.theta(i, j));
-  for (int i = 0; i < 2; ++i) put(c.errors.df0(i));
-  for (int i = 0; i < 2; ++i) put(c.errors.g(i));
-  for (int i = 0; i < 2; ++i) put(c.errors.r(i));
+  const est::ParamArray p = est::params_of(c.errors);
+  for (std::size_t k = 0; k < p.size(); ++k) e[std::string(est::kParamNames[k])] = p[k];
   const double g = earth::normal_gravity(c.latitude_rad, c.height_m);
   e["df_eff_1"] = c.errors.df0(0) + g * c.errors.g(0);
   e["df_eff_2"] = c.errors.df0(1) + g * c.errors.g(1);
@@ -387,27 +382,17 @@ Status read_truth(const std::string& path, sim::Config& c) {
     return make_error(e.what(), SourcePos{path, 0, 0});
   }
   const nlohmann::json e = j.value("errors", nlohmann::json::object());
+  est::ParamArray p = est::params_of(c.errors);
   for (const auto& [key, val] : e.items()) {
-    std::size_t k = 0;
-    while (k < est::kParamNames.size() && est::kParamNames[k] != key) ++k;
     if (key == "df_eff_1" || key == "df_eff_2") continue;  // derived
-    if (k == est::kParamNames.size())
+    const int k = est::param_index(key);
+    if (k < 0)
       return make_error("unknown error '" + key + "' (model.md's names)", SourcePos{path, 0, 0});
     if (!val.is_number())
       return make_error("error '" + key + "': expected a number", SourcePos{path, 0, 0});
-    const double v = val.get<double>();
-    const int i = static_cast<int>(k);
-    if (i < 3)
-      c.errors.nu0(i) = v;
-    else if (i < 12)
-      c.errors.theta((i - 3) / 3, (i - 3) % 3) = v;
-    else if (i < 14)
-      c.errors.df0(i - 12) = v;
-    else if (i < 16)
-      c.errors.g(i - 14) = v;
-    else
-      c.errors.r(i - 16) = v;
+    p[static_cast<std::size_t>(k)] = val.get<double>();
   }
+  c.errors = est::sensor_errors(p);
   const nlohmann::json st = j.value("start", nlohmann::json::object());
   c.start.v0(0) = st.value("v0_east_mps", c.start.v0(0));
   c.start.v0(1) = st.value("v0_north_mps", c.start.v0(1));

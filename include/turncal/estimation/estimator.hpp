@@ -18,11 +18,6 @@
 
 namespace turncal::est {
 
-/// SI units of the 18 parameters, in state order from sx::kNu0.
-inline constexpr std::array<std::string_view, sx::kParams> kParamUnits = {
-    "rad/s", "rad/s", "rad/s", "1",     "1",     "1", "1", "1", "1",
-    "1",     "1",     "1",     "m/s^2", "m/s^2", "1", "1", "m", "m"};
-
 /// Prior standard deviations of the independent start variables (model.md, 6).
 struct Priors {
   double v0_mps = 1e-3;                      ///< initial velocity error, per axis

@@ -9,9 +9,18 @@
 #include <vector>
 
 #include "turncal/estimation/estimator.hpp"
+#include "turncal/physics/strapdown.hpp"
 #include "turncal/result.hpp"
 
 namespace turncal::est {
+
+using ParamArray = std::array<double, sx::kParams>;
+
+/// The simulation's sensor errors of the 18 parameters (SI, state order),
+/// and back: the one place the parameter table meets the strapdown's
+/// terms.
+sim::SensorErrors sensor_errors(const ParamArray& params);
+ParamArray params_of(const sim::SensorErrors& e);
 
 /// The INS velocity over the run with the parameters `params` (SI, state
 /// order) injected and the start errors at their prior mean (zero): the

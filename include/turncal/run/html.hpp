@@ -26,7 +26,7 @@ std::string report_html(const nlohmann::json& report, const BuiltInput* input,
 /// One plot of sigma against time: parameters (indices from sx::kNu0) that
 /// share one display unit, so the plot has one unit on its axis.
 struct SigmaPlotGroup {
-  const char* title;
+  std::string title;
   std::vector<int> params;
 };
 const std::vector<SigmaPlotGroup>& sigma_plot_groups();

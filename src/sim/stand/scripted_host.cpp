@@ -4,6 +4,8 @@
 #include <cmath>
 #include <random>
 
+#include "turncal/estimation/nominal.hpp"
+
 namespace turncal::stand {
 namespace {
 constexpr double kDeg = 0.017453292519943295;
@@ -15,14 +17,10 @@ sim::Config draw_truth(const Plan& plan, std::uint64_t seed) {
   sim::Config c;
   c.latitude_rad = plan.site.latitude_rad;
   c.height_m = plan.site.height_m;
-  const auto& p = plan.priors.params;
-  for (int i = 0; i < 3; ++i) c.errors.nu0(i) = p[static_cast<std::size_t>(i)] * n(rng);
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j)
-      c.errors.theta(i, j) = p[static_cast<std::size_t>(3 + 3 * i + j)] * n(rng);
-  for (int i = 0; i < 2; ++i) c.errors.df0(i) = p[static_cast<std::size_t>(12 + i)] * n(rng);
-  for (int i = 0; i < 2; ++i) c.errors.g(i) = p[static_cast<std::size_t>(14 + i)] * n(rng);
-  for (int i = 0; i < 2; ++i) c.errors.r(i) = p[static_cast<std::size_t>(16 + i)] * n(rng);
+  // drawn in state order, each from its prior
+  est::ParamArray drawn{};
+  for (std::size_t k = 0; k < drawn.size(); ++k) drawn[k] = plan.priors.params[k] * n(rng);
+  c.errors = est::sensor_errors(drawn);
   c.start.v0 = Eigen::Vector2d(plan.priors.v0_mps * n(rng), plan.priors.v0_mps * n(rng));
   c.start.dr_e_m = plan.priors.position_m * n(rng);
   c.start.dr_n_m = plan.priors.position_m * n(rng);
