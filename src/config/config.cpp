@@ -17,65 +17,84 @@ namespace {
 using config_detail::pos_of;
 using config_detail::Reader;
 
-constexpr std::array<std::string_view, kRoleCount> kRoleKeys = {"ins_vel_east",
-                                                                "ins_vel_east_time_tag",
-                                                                "ins_vel_north",
-                                                                "ins_vel_north_time_tag",
-                                                                "ins_mode",
-                                                                "ins_status_time_tag",
-                                                                "ins_align_remaining",
-                                                                "ins_time",
-                                                                "ins_command",
-                                                                "ins_command_align_duration",
-                                                                "ins_command_heading",
-                                                                "ins_command_seq",
-                                                                "encoder_angle",
-                                                                "encoder_time_tag",
-                                                                "table_state",
-                                                                "table_ack",
-                                                                "table_fault",
-                                                                "table_rate",
-                                                                "table_command",
-                                                                "table_command_seq",
-                                                                "table_command_target",
-                                                                "table_command_rate_limit",
-                                                                "heartbeat_counter",
-                                                                "heartbeat_state",
-                                                                "table_controlword",
-                                                                "table_target_position",
-                                                                "table_statusword",
-                                                                "table_position_actual",
-                                                                "table_velocity_actual"};
+/// When a role's signal is needed.
+enum class Needed : std::uint8_t {
+  Always,
+  InsTag,          ///< the INS's samples carry time tags ([ins] time = "tag")
+  InsNorthTag,     ///< that, unless North shares East's frame and gives no tag of its own
+  InsTimeFrame,    ///< the INS's time comes in a time frame
+  ReferenceTable,  ///< the reference table's frames (can-icd.md) and its host heartbeat
+  Cia402,          ///< a CiA 402 drive's PDOs
+  Cia402Velocity,  ///< that, with velocity_pdo
+};
 
-constexpr std::array<std::string_view, kRoleCount> kReferenceRoles = {"INS_VelE.VelE",
-                                                                      "INS_VelE.TimeTag",
-                                                                      "INS_VelN.VelN",
-                                                                      "INS_VelN.TimeTag",
-                                                                      "INS_Status.Mode",
-                                                                      "INS_Status.TimeTag",
-                                                                      "INS_Status.AlignRemaining",
-                                                                      "",
-                                                                      "INS_Command.Command",
-                                                                      "INS_Command.AlignDuration",
-                                                                      "INS_Command.HeadingInit",
-                                                                      "INS_Command.Seq",
-                                                                      "TBL_Encoder.Angle",
-                                                                      "TBL_Encoder.TimeTag",
-                                                                      "TBL_Status.State",
-                                                                      "TBL_Status.AckSeq",
-                                                                      "TBL_Status.Fault",
-                                                                      "TBL_Status.Rate",
-                                                                      "TBL_Command.Command",
-                                                                      "TBL_Command.Seq",
-                                                                      "TBL_Command.Target",
-                                                                      "TBL_Command.RateLimit",
-                                                                      "HOST_Heartbeat.Counter",
-                                                                      "HOST_Heartbeat.HostState",
-                                                                      "",
-                                                                      "",
-                                                                      "",
-                                                                      "",
-                                                                      ""};
+/// Each role once: its key, the reference stand's signal, whether the
+/// host sends it, when it is needed, and whether it may then be "" (none).
+struct RoleRow {
+  Role role;
+  std::string_view key;
+  std::string_view reference;  ///< MESSAGE.SIGNAL of can-icd.md; "" none by default
+  bool output;
+  Needed needed;
+  bool optional;
+};
+
+constexpr std::array<RoleRow, kRoleCount> kRoles = {{
+    {Role::InsVelEast, "ins_vel_east", "INS_VelE.VelE", false, Needed::Always, false},
+    {Role::InsVelEastTimeTag, "ins_vel_east_time_tag", "INS_VelE.TimeTag", false, Needed::InsTag,
+     false},
+    {Role::InsVelNorth, "ins_vel_north", "INS_VelN.VelN", false, Needed::Always, false},
+    {Role::InsVelNorthTimeTag, "ins_vel_north_time_tag", "INS_VelN.TimeTag", false,
+     Needed::InsNorthTag, false},
+    {Role::InsMode, "ins_mode", "INS_Status.Mode", false, Needed::Always, false},
+    {Role::InsStatusTimeTag, "ins_status_time_tag", "INS_Status.TimeTag", false, Needed::InsTag,
+     true},
+    {Role::InsAlignRemaining, "ins_align_remaining", "INS_Status.AlignRemaining", false,
+     Needed::Always, true},
+    {Role::InsTime, "ins_time", "", false, Needed::InsTimeFrame, false},
+    {Role::InsCommand, "ins_command", "INS_Command.Command", true, Needed::Always, false},
+    {Role::InsCommandAlignDuration, "ins_command_align_duration", "INS_Command.AlignDuration", true,
+     Needed::Always, false},
+    {Role::InsCommandHeading, "ins_command_heading", "INS_Command.HeadingInit", true,
+     Needed::Always, false},
+    {Role::InsCommandSeq, "ins_command_seq", "INS_Command.Seq", true, Needed::Always, false},
+    {Role::EncoderAngle, "encoder_angle", "TBL_Encoder.Angle", false, Needed::ReferenceTable,
+     false},
+    {Role::EncoderTimeTag, "encoder_time_tag", "TBL_Encoder.TimeTag", false, Needed::ReferenceTable,
+     false},
+    {Role::TableState, "table_state", "TBL_Status.State", false, Needed::ReferenceTable, false},
+    {Role::TableAck, "table_ack", "TBL_Status.AckSeq", false, Needed::ReferenceTable, false},
+    {Role::TableFault, "table_fault", "TBL_Status.Fault", false, Needed::ReferenceTable, false},
+    {Role::TableRate, "table_rate", "TBL_Status.Rate", false, Needed::ReferenceTable, false},
+    {Role::TableCommand, "table_command", "TBL_Command.Command", true, Needed::ReferenceTable,
+     false},
+    {Role::TableCommandSeq, "table_command_seq", "TBL_Command.Seq", true, Needed::ReferenceTable,
+     false},
+    {Role::TableCommandTarget, "table_command_target", "TBL_Command.Target", true,
+     Needed::ReferenceTable, false},
+    {Role::TableCommandRateLimit, "table_command_rate_limit", "TBL_Command.RateLimit", true,
+     Needed::ReferenceTable, false},
+    {Role::HeartbeatCounter, "heartbeat_counter", "HOST_Heartbeat.Counter", true,
+     Needed::ReferenceTable, false},
+    {Role::HeartbeatState, "heartbeat_state", "HOST_Heartbeat.HostState", true,
+     Needed::ReferenceTable, false},
+    {Role::TableControlword, "table_controlword", "", true, Needed::Cia402, false},
+    {Role::TableTargetPosition, "table_target_position", "", true, Needed::Cia402, false},
+    {Role::TableStatusword, "table_statusword", "", false, Needed::Cia402, false},
+    {Role::TablePositionActual, "table_position_actual", "", false, Needed::Cia402, false},
+    {Role::TableVelocityActual, "table_velocity_actual", "", false, Needed::Cia402Velocity, false},
+}};
+
+constexpr bool roles_in_order() {
+  for (std::size_t i = 0; i < kRoles.size(); ++i)
+    if (static_cast<std::size_t>(kRoles[i].role) != i) return false;
+  return true;
+}
+static_assert(roles_in_order(), "kRoles' rows are not in the order of enum Role");
+
+constexpr const RoleRow& role_row(Role r) {
+  return kRoles[static_cast<std::size_t>(r)];
+}
 
 Status check_interface(const Reader& r, std::string_view key, const std::string& name) {
   const toml::node* n = r.table().get(key);
@@ -94,7 +113,7 @@ Status read_roles(const toml::table& t, const std::string& file, CanConfig& can)
   for (auto&& [k, v] : t) {
     std::size_t idx = kRoleCount;
     for (std::size_t i = 0; i < kRoleCount; ++i)
-      if (k.str() == kRoleKeys[i]) idx = i;
+      if (k.str() == kRoles[i].key) idx = i;
     if (idx == kRoleCount)
       return make_error("unknown role 'can.roles." + std::string(k.str()) + "'",
                         pos_of(k.source(), file));
@@ -158,27 +177,11 @@ Result<CanConfig> read_can(const toml::table& t, const std::string& file) {
 }  // namespace
 
 std::string_view role_key(Role role) {
-  return kRoleKeys[static_cast<std::size_t>(role)];
+  return role_row(role).key;
 }
 
 bool role_is_output(Role role) {
-  switch (role) {
-    case Role::InsCommand:
-    case Role::InsCommandAlignDuration:
-    case Role::InsCommandHeading:
-    case Role::InsCommandSeq:
-    case Role::TableCommand:
-    case Role::TableCommandSeq:
-    case Role::TableCommandTarget:
-    case Role::TableCommandRateLimit:
-    case Role::HeartbeatCounter:
-    case Role::HeartbeatState:
-    case Role::TableControlword:
-    case Role::TableTargetPosition:
-      return true;
-    default:
-      return false;
-  }
+  return role_row(role).output;
 }
 
 bool role_is_ins(Role role) {
@@ -188,7 +191,7 @@ bool role_is_ins(Role role) {
 std::array<SignalRef, kRoleCount> reference_roles() {
   std::array<SignalRef, kRoleCount> out;
   for (std::size_t i = 0; i < kRoleCount; ++i) {
-    const std::string_view s = kReferenceRoles[i];
+    const std::string_view s = kRoles[i].reference;
     const auto dot = s.find('.');
     if (dot == std::string_view::npos) continue;  // none by default
     out[i] = SignalRef{std::string(s.substr(0, dot)), std::string(s.substr(dot + 1)), {}};
@@ -709,51 +712,28 @@ std::vector<std::string> unitless_role_warnings(const RoleMap& roles) {
 }
 
 bool role_used(const CanConfig& cfg, Role role) {
-  switch (role) {
-    case Role::InsVelEastTimeTag:
-    case Role::InsStatusTimeTag:
+  switch (role_row(role).needed) {
+    case Needed::Always:
+      return true;
+    case Needed::InsTag:
       return cfg.ins.time == InsTimeSource::Tag;
-    case Role::InsVelNorthTimeTag:
+    case Needed::InsNorthTag:
       // one tag serves both components of one frame
       return cfg.ins.time == InsTimeSource::Tag &&
              !(cfg.roles[static_cast<std::size_t>(Role::InsVelNorth)].message ==
                    cfg.roles[static_cast<std::size_t>(Role::InsVelEast)].message &&
                cfg.roles[static_cast<std::size_t>(Role::InsVelNorthTimeTag)].empty());
-    case Role::InsTime:
+    case Needed::InsTimeFrame:
       return cfg.ins.time == InsTimeSource::TimeFrame;
-    // the reference table's frames (can-icd.md), and its host heartbeat
-    case Role::EncoderAngle:
-    case Role::EncoderTimeTag:
-    case Role::TableState:
-    case Role::TableAck:
-    case Role::TableFault:
-    case Role::TableRate:
-    case Role::TableCommand:
-    case Role::TableCommandSeq:
-    case Role::TableCommandTarget:
-    case Role::TableCommandRateLimit:
-    case Role::HeartbeatCounter:
-    case Role::HeartbeatState:
+    case Needed::ReferenceTable:
       return !cfg.table.is_cia402();
-    // a CiA 402 drive's PDOs
-    case Role::TableControlword:
-    case Role::TableTargetPosition:
-    case Role::TableStatusword:
-    case Role::TablePositionActual:
+    case Needed::Cia402:
       return cfg.table.is_cia402();
-    case Role::TableVelocityActual:
+    case Needed::Cia402Velocity:
       return cfg.table.is_cia402() && cfg.table.cia402.velocity_pdo;
-    default:
-      return true;
   }
+  return true;
 }
-
-namespace {
-/// Roles that may be given as "" (none) where their layout uses them.
-bool role_optional(Role role) {
-  return role == Role::InsStatusTimeTag || role == Role::InsAlignRemaining;
-}
-}  // namespace
 
 Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
   // " (turncal.toml:12)": where the configuration names the role
@@ -766,9 +746,9 @@ Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
     const Role role = static_cast<Role>(i);
     if (!role_used(cfg, role)) continue;
     const SignalRef& ref = cfg.roles[i];
-    const std::string key = "can.roles." + std::string(kRoleKeys[i]);
+    const std::string key = "can.roles." + std::string(kRoles[i].key);
     if (ref.empty()) {
-      if (role_optional(role)) continue;
+      if (role_row(role).optional) continue;
       return make_error(
           "key '" + key + "': needed by the INS layout and the table protocol, but none is given",
           ref.where);
@@ -811,7 +791,7 @@ Result<RoleMap> resolve_roles(const CanConfig& cfg, const can::Database& db) {
     for (std::size_t j = 0; j < kRoleCount; ++j)
       if (map.roles[i].message != nullptr && map.roles[i].message == map.roles[j].message &&
           role_is_output(static_cast<Role>(i)) != role_is_output(static_cast<Role>(j)))
-        return make_error("key 'can.roles." + std::string(kRoleKeys[i]) + "': message '" +
+        return make_error("key 'can.roles." + std::string(kRoles[i].key) + "': message '" +
                               map.roles[i].message->name + "' is used both to send and to receive",
                           cfg.roles[i].where);
   const ResolvedRole& east = map[Role::InsVelEast];

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 
+#include "turncal/sim/earliest.hpp"
+
 namespace turncal::stand {
 
 using canopen::get_le;
@@ -231,14 +233,8 @@ void VirtualDrive402::reset_communication(double t) {
 void VirtualDrive402::advance(double t, std::vector<DriveFrame>& out) {
   constexpr double kInf = std::numeric_limits<double>::infinity();
   for (;;) {
-    double when = t;
-    int which = -1;
-    auto consider = [&](double at, int id) {
-      if (!std::isnan(at) && at <= when) {
-        when = at;
-        which = id;
-      }
-    };
+    Earliest next(t);
+    const auto consider = [&](double at, int id) { next.consider(at, id); };
     if (booting_) consider(boot_at_, 0);
     if (!booting_) consider(next_hb_, 1);
     const std::uint32_t consumer = u32(obj::kConsumerHeartbeat, 1);
@@ -252,7 +248,8 @@ void VirtualDrive402::advance(double t, std::vector<DriveFrame>& out) {
     consider(next_cycle_, 7);
     consider(mode_at_, 8);
     const std::uint16_t hb_ms = static_cast<std::uint16_t>(u32(obj::kProducerHeartbeat));
-    switch (which) {
+    const double when = next.when();
+    switch (next.which()) {
       case 0:
         booting_ = false;
         nmt_ = canopen::NmtState::PreOperational;

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 
+#include "turncal/sim/earliest.hpp"
+
 namespace turncal::stand {
 
 VirtualTable::VirtualTable(const TableLimits& limits, double angle0_rad, const TableFaults& faults)
@@ -98,14 +100,8 @@ void VirtualTable::heartbeat(double t) {
 void VirtualTable::advance(double t) {
   for (;;) {
     // the earliest pending event at or before t
-    double when = t;
-    int which = -1;
-    auto consider = [&](double at, int id) {
-      if (!std::isnan(at) && at <= when) {
-        when = at;
-        which = id;
-      }
-    };
+    Earliest next(t);
+    const auto consider = [&](double at, int id) { next.consider(at, id); };
     if (state_ == TableState::Moving) {
       consider(std::max(last_heartbeat_ + lim_.heartbeat_timeout_s, move_started_), 0);
       consider(stall_at_, 1);
@@ -113,9 +109,10 @@ void VirtualTable::advance(double t) {
       consider(rest_at_, 3);
     } else {
       consider(faults_.drive_fault_at_s, 2);
-      if (when >= rest_at_) consider(faults_.drift_at_s, 4);
+      if (next.when() >= rest_at_) consider(faults_.drift_at_s, 4);
     }
-    switch (which) {
+    const double when = next.when();
+    switch (next.which()) {
       case 0:
         halt(when, lim_.quick_decel_rps2, TableState::QuickStopped, TableFault::HeartbeatLost);
         break;
