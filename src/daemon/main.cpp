@@ -1,8 +1,9 @@
 // turncald: the calibration experiment as a service. An sd-event loop runs
 // the CAN sockets, the heartbeat and tick timer, the control socket (Unix
 // stream, JSON lines) and the signals; the run engine (src/run) does the
-// experiment; a worker thread runs the estimation so that the loop and the
-// watchdog keep going; the recorder keeps every frame of a run, both
+// experiment; a worker thread runs the estimation and another writes the
+// report (report_writer.hpp), so that the loop and the watchdog keep going
+// and the heartbeat never waits for a disk; the recorder keeps every frame of a run, both
 // directions, in a candump log in the state directory (state_dir.hpp); the
 // control protocol is a pure function (control.hpp). This file is the
 // loop's wiring.
@@ -51,6 +52,8 @@
 #include <vector>
 
 #include "control.hpp"
+#include "event_source.hpp"
+#include "report_writer.hpp"
 #include "state_dir.hpp"
 #include "syncer.hpp"
 #include "turncal/build_paths.hpp"
@@ -78,6 +81,7 @@ constexpr std::size_t kMaxQueued = 4 << 20;     ///< bytes of replies a client m
 constexpr std::size_t kRxBatches = 4;
 constexpr std::uint64_t kTxRetryUs = 5000;           ///< retry of a full device queue (ENOBUFS)
 constexpr std::uint64_t kAcceptBackoffUs = 1000000;  ///< out of descriptors: accept again after
+constexpr std::uint64_t kReportSlowUs = 10'000'000;  ///< a report's writing said to be slow after
 constexpr int64_t kPrioTimers = SD_EVENT_PRIORITY_IMPORTANT;
 
 bool g_journal = false;  // under systemd: structured journal entries
@@ -155,14 +159,16 @@ class Daemon;
 struct Port {
   Daemon* owner = nullptr;
   std::optional<socketcan::Socket> sock;
-  sd_event_source* src = nullptr;
+  EventSource src;
   int registered_fd = -1;
   std::uint64_t registered_generation = 0;  ///< the socket's recoveries when registered
   socketcan::Stats at_run_start;
   /// Every frame stamped before this (host ns) has been read: the last
   /// read's latest stamp when it left frames (a flood past one budget's
-  /// worth) or the kernel dropped some (a full queue); else no bound.
+  /// worth) or the kernel dropped some (a full queue); else when the read
+  /// that drained it began. No bound before the first read.
   std::int64_t heard_until_ns = std::numeric_limits<std::int64_t>::max();
+  bool io_fault_told = false;  ///< that its events could not be set, said
 };
 
 struct Client;
@@ -182,9 +188,10 @@ class Daemon {
   std::uint64_t clock_steps_told = 0;
   sd_event* ev = nullptr;
   std::array<Port, 2> ports;  ///< INS side, table side (empty: one interface)
-  sd_event_source* tx_retry = nullptr;
-  sd_event_source* listen_src = nullptr;
-  sd_event_source* accept_again = nullptr;
+  EventSource timer;
+  EventSource tx_retry;
+  EventSource listen_src;
+  EventSource accept_again;
   int listen_fd = -1;
   std::vector<std::unique_ptr<Client>> clients;
   bool stopping = false;
@@ -231,12 +238,25 @@ class Daemon {
   std::string est_error;
   std::atomic<bool> worker_busy{false};
   std::atomic<int> estimate_nice_errno{0};  ///< the worker's setpriority, failed
+  /// The run's report being written off the loop (report_writer.hpp): the
+  /// job is the thread's until it writes to report_pipe.
+  std::unique_ptr<ReportJob> report_job;
+  std::thread report_thread;
+  bool report_busy = false;
+  std::uint64_t report_since_us = 0;  ///< monotonic: when it began
+  bool report_slow_told = false;
+  int report_pipe[2] = {-1, -1};
   std::vector<run::OutFrame> out;
   socketcan::RxBatch rx;
 
+  /// The run's phase; "report" while its report is being written: a run
+  /// that ended has its report on disk before a client hears it ended.
   [[nodiscard]] const char* phase_name() const {
+    if (report_busy) return run::to_string(run::Phase::Report);
     return engine ? run::to_string(engine->sequencer().phase()) : "idle";
   }
+  /// A thread of the last run's still at work (its estimate, its report).
+  [[nodiscard]] bool busy() const { return worker_busy || report_busy; }
   [[nodiscard]] bool running() const {
     return engine && !run::finished(engine->sequencer().phase());
   }
@@ -271,6 +291,8 @@ class Daemon {
                                             double real_s, std::uint64_t also) const;
   void check_run_space();
   void write_report(bool with_estimates);
+  void start_report(bool with_estimates);
+  void report_written();
   void report_interrupted_runs();
   /// Takes the control socket's path for this daemon (see setup).
   Status claim_socket();
@@ -282,7 +304,7 @@ class Daemon {
 struct Client {
   Daemon* d;
   int fd;
-  sd_event_source* src = nullptr;
+  EventSource src;
   std::string in;
   bool watching = false;
   std::uint64_t last_request_us = 0;  ///< monotonic
@@ -291,7 +313,7 @@ struct Client {
   /// byte read); 0 while `in` is empty
   std::uint64_t partial_since_us = 0;
   ~Client() {
-    sd_event_source_unref(src);
+    src.reset();  // no callback for a closed descriptor
     ::close(fd);
   }
   std::string out;           ///< replies the socket has not taken yet
@@ -322,10 +344,11 @@ struct Client {
       unread_since_us = 0;
     else if (unread_since_us == 0)
       unread_since_us = monotonic_us();
-    // a client being closed is not read any more (EPOLLIN would fire forever)
-    if (src != nullptr)
-      sd_event_source_set_io_events(
-          src, (close_after || broken ? 0U : EPOLLIN) | (out.empty() || broken ? 0U : EPOLLOUT));
+    // a client being closed is not read any more (EPOLLIN would fire
+    // forever); one whose events cannot be set is dropped (reap_clients)
+    if (src && src.set_io_events((close_after || broken ? 0U : EPOLLIN) |
+                                 (out.empty() || broken ? 0U : EPOLLOUT)) < 0)
+      broken = true;
   }
   [[nodiscard]] bool done() const { return broken || (close_after && out.empty()); }
 };
@@ -471,19 +494,35 @@ void Daemon::link_back(Port& p) {
 /// EPOLLOUT while the socket's buffer holds frames back; the retry timer
 /// while the device's queue does (ENOBUFS shows in no poll).
 void Daemon::update_io(Port& p) {
-  if (p.src != nullptr)
-    sd_event_source_set_io_events(
-        p.src, EPOLLIN | (p.sock->tx_wait() == socketcan::TxWait::Writable ? EPOLLOUT : 0U));
-  if (p.sock->tx_wait() == socketcan::TxWait::Retry && tx_retry != nullptr) {
+  // frames that cannot be sent when the socket or the device takes them
+  // again wait for ever: the run fails (and the table, unheard from, stops)
+  const auto cannot = [&](const char* what, int rc) {
+    if (p.io_fault_told) return;  // said once, until a call succeeds again
+    p.io_fault_told = true;
+    const std::string why = p.sock->interface() + ": cannot " + what +
+                            " (sd-event: " + std::strerror(-rc) + "); frames to send would wait";
+    if (running())
+      host_fault(why);
+    else
+      error(why);
+  };
+  if (p.src) {
+    const int rc = p.src.set_io_events(
+        EPOLLIN | (p.sock->tx_wait() == socketcan::TxWait::Writable ? EPOLLOUT : 0U));
+    if (rc < 0) return cannot("watch the socket for room to send", rc);
+  }
+  if (p.sock->tx_wait() == socketcan::TxWait::Retry && tx_retry) {
     int enabled = SD_EVENT_OFF;
-    sd_event_source_get_enabled(tx_retry, &enabled);
+    if (const int rc = tx_retry.enabled(enabled); rc < 0) return cannot("read the retry timer", rc);
     if (enabled == SD_EVENT_OFF) {
       std::uint64_t now = 0;
-      sd_event_now(ev, CLOCK_MONOTONIC, &now);
-      sd_event_source_set_time(tx_retry, now + kTxRetryUs);
-      sd_event_source_set_enabled(tx_retry, SD_EVENT_ONESHOT);
+      int rc = sd_event_now(ev, CLOCK_MONOTONIC, &now);
+      if (rc >= 0) rc = tx_retry.set_time(now + kTxRetryUs);
+      if (rc >= 0) rc = tx_retry.set_enabled(SD_EVENT_ONESHOT);
+      if (rc < 0) return cannot("arm the retry of a full device queue", rc);
     }
   }
+  p.io_fault_told = false;
 }
 
 int on_can_io(sd_event_source*, int, uint32_t revents, void* u);
@@ -497,12 +536,12 @@ void Daemon::recover_ports() {
     for (const auto& e : rx.events) warn(p.sock->interface() + ": " + can::describe(e));
     if (p.sock->fd() != p.registered_fd || p.sock->stats().recoveries != p.registered_generation) {
       p.registered_generation = p.sock->stats().recoveries;
-      p.src = sd_event_source_unref(p.src);
+      p.src.reset();
       p.registered_fd = p.sock->fd();
       if (p.registered_fd >= 0 &&
-          sd_event_add_io(ev, &p.src, p.registered_fd, EPOLLIN, on_can_io, &p) < 0) {
+          sd_event_add_io(ev, p.src.out(), p.registered_fd, EPOLLIN, on_can_io, &p) < 0) {
         warn(p.sock->interface() + ": cannot watch the re-opened socket; trying again");
-        p.src = nullptr;
+        p.src.reset();
         p.registered_fd = -1;  // tried again on the next tick
         continue;
       }
@@ -553,8 +592,8 @@ void Daemon::on_can(Port& p) {
   if (log) {
     if (auto st = log->flush(); !st) log_fault(st.error().describe());
   }
-  if (p.sock->link() != socketcan::LinkState::Up && p.src != nullptr && p.sock->fd() < 0) {
-    p.src = sd_event_source_unref(p.src);  // gone: recovered on the timer
+  if (p.sock->link() != socketcan::LinkState::Up && p.src && p.sock->fd() < 0) {
+    p.src.reset();  // gone: recovered on the timer
     p.registered_fd = -1;
   }
   after_engine();
@@ -599,7 +638,8 @@ void Daemon::after_engine() {
               : " (" + engine->sequencer().course().reason + ")"));
     sd_notifyf(0, "STATUS=%s %s", run_id.c_str(), run::to_string(p));
     log_sync();  // each phase end is on disk
-    // a run that ended has its report on disk before a watcher hears it ended
+    // a run that ended has its report on disk before a watcher hears it
+    // ended (broadcast_watch waits for the report being written)
     if (run::finished(p) && !report_done) write_report(false);
     broadcast_watch();
   }
@@ -641,33 +681,38 @@ void Daemon::after_engine() {
       return after_engine();
     }
   }
-  if (engine->report_due()) {
-    write_report(true);
-    engine->report_written(clock.now_ns(), log_error.empty(), log_error, out);
-    return after_engine();
-  }
+  if (engine->report_due() && !report_done) write_report(true);  // report_written() goes on
   if (run::finished(p) && !report_done) write_report(false);
 }
 
 /// The report, on disk before the run is called done: a report that cannot
-/// be written leaves log_error set, and the run ends failed with it.
+/// be written leaves log_error set, and the run ends failed with it. What
+/// needs the run is taken here, on the loop; the disk's part is the report
+/// thread's (report_writer.hpp), and report_written() ends it.
 void Daemon::write_report(bool with_estimates) {
   report_done = true;
+  report_busy = true;  // until report_written(), whatever happens here
+  report_since_us = monotonic_us();
+  report_slow_told = false;
+  const auto inline_or_none = [&](const char* what) {
+    error(std::string("the report: ") + what +
+          (report_job ? "; it is written on the loop" : "; no report is written"));
+    if (report_job) write_report_job(*report_job, syncer, *state);
+    report_written();
+  };
+  try {
+    start_report(with_estimates);
+  } catch (const std::exception& e) {  // no thread (TasksMax, memory), or no memory
+    inline_or_none(e.what());
+  } catch (...) {
+    inline_or_none("unknown exception");
+  }
+}
+
+void Daemon::start_report(bool with_estimates) {
   tell_holds(engine->hold_count(), true);  // the run's last ones, said before its end
   state->release(run_id);                  // the space the report was kept
-  // the last phase-end fsync done (and heard of) before the file closes
-  syncer.wait_idle();
-  take_syncer_error();
-  if (retired_log) {
-    (void)retired_log->close();  // its fault is the run's reason already
-    retired_log.reset();
-  }
-  if (log) {
-    auto st = log->sync();
-    auto cl = log->close();
-    log.reset();
-    if (!st || !cl) log_error = (!st ? st : cl).error().describe();
-  }
+  auto job = std::make_unique<ReportJob>();
   run::ReportContext ctx;
   ctx.run_id = run_id;
   ctx.start_unix_s = static_cast<double>(run_start_ns) * 1e-9;
@@ -676,36 +721,67 @@ void Daemon::write_report(bool with_estimates) {
   ctx.config_file = cfg.source.string();
   ctx.config_sha256 = config_sha256;
   ctx.log_file = log_path.filename().string();
-  if (auto dg = run::sha256_file(log_path.string(), run::CountLines::No, run::Links::Refuse)) {
-    ctx.log_sha256 = dg->sha256;
-  } else {  // a log that cannot be read back is not a log the report can stand on
-    error(dg.error().describe());
-    if (log_error.empty()) log_error = dg.error().describe();
-  }
   ctx.tolerances = cfg.tolerances;
   ctx.mode = engine->sequencer().settings().observe ? "observe" : "command";
   ctx.unit = unit;
   ctx.can = can_json(true);
+  // the estimate is done when the report is due after it
   const bool est = with_estimates && result && input && log_error.empty();
-  json j = run::report_json(ctx, *engine, est ? &*input : nullptr, est ? &*result : nullptr);
+  if (est) job->with = run::report_json(ctx, *engine, &*input, &*result);
+  job->without = run::report_json(ctx, *engine, nullptr, nullptr);
   // the run's times are the realtime clock at its start plus monotonic time
-  j["host_clock"] = {{"realtime_steps", clock.steps()},
+  job->host_clock = {{"realtime_steps", clock.steps()},
                      {"realtime_offset_s", static_cast<double>(clock.realtime_offset_ns()) * 1e-9},
                      {"unknown_stamps", clock.unknown_stamps()}};
-  if (!log_error.empty() && with_estimates) {
-    // the run was to be done, but its log is not whole: it is not done
-    j["status"] = "failed";
-    j["reason"] = "log not written whole: " + log_error;
+  job->run_id = run_id;
+  job->log_path = log_path.string();
+  job->with_estimates = with_estimates;
+  job->log_error = log_error;
+  job->log = std::move(log);  // no more of the run goes into it
+  log.reset();
+  job->retired_log = std::move(retired_log);
+  retired_log.reset();
+  if (est) {  // the job's now: the HTML report draws them
+    job->input = std::move(input);
+    job->result = std::move(result);
+    input.reset();
+    result.reset();
   }
-  if (auto w = state->write_report(
-          run_id, j, run::report_text(j),
-          run::report_html(j, est ? &*input : nullptr, est ? &*result : nullptr));
-      !w) {
-    const std::string why = w.error().describe();
-    error("report not written: " + why);
-    if (log_error.empty()) log_error = "report not written: " + why;
+  report_job = std::move(job);
+  report_thread = std::thread([this, job = report_job.get()] {
+    write_report_job(*job, syncer, *state);
+    const char c = 1;
+    while (::write(report_pipe[1], &c, 1) < 0 && errno == EINTR) {
+    }
+  });
+}
+
+/// The report thread's end, on the loop: the index, the journal, and the
+/// run's end.
+void Daemon::report_written() {
+  if (report_thread.joinable()) report_thread.join();
+  std::unique_ptr<ReportJob> job = std::move(report_job);
+  report_busy = false;
+  // the report phase's end (the engine waits for it), or a finished run's report
+  const bool with_estimates =
+      job ? job->with_estimates : engine && engine->sequencer().phase() == run::Phase::Report;
+  if (!job) {  // none could be made: the run ends failed, its log kept as it stands
+    if (log_error.empty())
+      log_error = "report not written: it could not be made (the journal says why)";
+    syncer.wait_idle();
+    if (log) (void)log->close();
+    log.reset();
+    if (retired_log) (void)retired_log->close();
+    retired_log.reset();
   } else {
-    info("report written: " + (state->path() / (run_id + ".report.json")).string());
+    log_error = job->log_error;
+    for (const std::string& e : job->errors) error(e);
+    if (job->report_error.empty()) {
+      state->index_report(job->run_id, job->written);
+      info("report written: " + (state->path() / (job->run_id + ".report.json")).string());
+    } else {
+      error("report not written: " + job->report_error);
+    }
   }
   // the run's samples (most of its memory) are in the report now, or the
   // run failed: a service that idles between runs need not hold them (but
@@ -714,6 +790,13 @@ void Daemon::write_report(bool with_estimates) {
     input.reset();
     result.reset();
   }
+  job.reset();
+  if (!engine) return;
+  if (with_estimates)
+    engine->report_written(clock.now_ns(), log_error.empty(), log_error, out);
+  else
+    broadcast_watch();  // the run's end, its report on disk now
+  after_engine();
 }
 
 /// A log with no report: a run that was killed. Its log replays up to that
@@ -883,6 +966,8 @@ json Daemon::start(const StartRequest& req) {
   if (stopping) return {{"ok", false}, {"error", "turncald is stopping: no new run"}};
   if (running()) return {{"ok", false}, {"error", "a run is in progress: " + run_id}};
   if (worker_busy) return {{"ok", false}, {"error", "the last run's estimation is still running"}};
+  if (report_busy)
+    return {{"ok", false}, {"error", "the last run's report is still being written"}};
   if (engine && engine->sequencer().course().quick_stop_gave_up) {
     // the last run never saw its quick stop confirmed: no new run until the
     // table itself says it is at rest
@@ -1079,6 +1164,7 @@ void Daemon::check_run_space() {
 // ---- control clients ----
 
 void Daemon::broadcast_watch() {
+  if (report_busy) return;  // a run's end is heard once its report is on disk
   if (std::none_of(clients.begin(), clients.end(), [](const auto& c) { return c->watching; }))
     return;
   const json s = status();
@@ -1126,7 +1212,10 @@ void Daemon::handle_request(Client& c, const std::string& line) {
   if (o.action) {
     if (const auto* s = std::get_if<StartRequest>(&*o.action)) {
       o.reply = start(*s);
-    } else if (const auto* a = std::get_if<AbortRequest>(&*o.action)) {
+    } else if (const auto* a = std::get_if<AbortRequest>(&*o.action); a != nullptr && report_busy) {
+      o.reply = {{"ok", false},
+                 {"error", "run " + run_id + " has ended; its report is being written"}};
+    } else if (a != nullptr) {
       engine->abort(clock.now_ns(), a->reason, out);
       after_engine();
       o.reply = {{"ok", true}, {"run_id", run_id}};
@@ -1204,7 +1293,20 @@ int on_client(sd_event_source*, int fd, uint32_t revents, void* u) {
 
 int on_accept_again(sd_event_source*, uint64_t, void* u) {
   auto* d = static_cast<Daemon*>(u);
-  sd_event_source_set_enabled(d->listen_src, SD_EVENT_ON);
+  if (const int rc = d->listen_src.set_enabled(SD_EVENT_ON); rc < 0) {
+    // tried again in a second; a run goes on meanwhile. Only with no way
+    // to try again, and no run, does the daemon exit (its socket starts it
+    // anew on the next request)
+    d->warn(std::string("cannot listen for control connections again (sd-event: ") +
+            std::strerror(-rc) + "); trying again in 1 s");
+    std::uint64_t now = 0;
+    if (sd_event_now(d->ev, CLOCK_MONOTONIC, &now) < 0 ||
+        d->accept_again.set_time(now + kAcceptBackoffUs) < 0 ||
+        d->accept_again.set_enabled(SD_EVENT_ONESHOT) < 0) {
+      d->error("cannot arm the retry of the control socket's listener");
+      if (!d->running() && !d->busy()) sd_event_exit(d->ev, 1);
+    }
+  }
   return 0;
 }
 
@@ -1218,11 +1320,13 @@ int on_accept(sd_event_source*, int fd, uint32_t, void* u) {
         d->warn(std::string("cannot accept a control connection: ") + std::strerror(errno) +
                 "; accepting again in 1 s");
         std::uint64_t now = 0;
-        sd_event_now(d->ev, CLOCK_MONOTONIC, &now);
         // the listener is paused only when the timer that resumes it is set
-        if (sd_event_source_set_time(d->accept_again, now + kAcceptBackoffUs) >= 0 &&
-            sd_event_source_set_enabled(d->accept_again, SD_EVENT_ONESHOT) >= 0)
-          sd_event_source_set_enabled(d->listen_src, SD_EVENT_OFF);
+        // (else the accept is tried again at once: a busy loop, not a deaf one)
+        if (sd_event_now(d->ev, CLOCK_MONOTONIC, &now) >= 0 &&
+            d->accept_again.set_time(now + kAcceptBackoffUs) >= 0 &&
+            d->accept_again.set_enabled(SD_EVENT_ONESHOT) >= 0 &&
+            d->listen_src.set_enabled(SD_EVENT_OFF) < 0)
+          d->warn("cannot pause the control socket's listener");
       }
       return;
     }
@@ -1243,7 +1347,7 @@ int on_accept(sd_event_source*, int fd, uint32_t, void* u) {
     c->d = d;
     c->fd = cfd;
     c->last_request_us = monotonic_us();
-    if (sd_event_add_io(d->ev, &c->src, cfd, EPOLLIN, on_client, c.get()) < 0) {
+    if (sd_event_add_io(d->ev, c->src.out(), cfd, EPOLLIN, on_client, c.get()) < 0) {
       d->warn("cannot watch a control connection");
       return;  // the destructor closes it
     }
@@ -1282,7 +1386,7 @@ void Daemon::ask_reload() {
     return;
   }
   exit_when_idle = true;
-  if (running() || worker_busy)
+  if (running() || busy())
     info(
         "reload asked: turncald exits when this run has ended, and its socket starts it anew "
         "on the next request");
@@ -1298,7 +1402,7 @@ void Daemon::ask_reload() {
 /// reload asked for, a program replaced on disk (an upgrade whose reload
 /// did not come) is said once.
 void Daemon::exit_if_reloading() {
-  if (stopping || running() || worker_busy) return;
+  if (stopping || running() || busy()) return;
   const std::uint64_t now = monotonic_us();
   if (!exit_when_idle) {
     if (replaced_told || now - replaced_checked_us < 10'000'000) return;
@@ -1364,7 +1468,14 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
     }
     d->recover_ports();
     d->tell_clock_steps();
-    d->take_syncer_error();
+    if (!d->report_busy) d->take_syncer_error();  // else the report's thread takes it
+    if (d->report_busy && !d->report_slow_told &&
+        monotonic_us() - d->report_since_us > kReportSlowUs) {
+      d->report_slow_told = true;
+      d->warn("the report has been written for " + std::to_string(kReportSlowUs / 1'000'000) +
+              " s and is not done: the state directory's disk is slow or hung; no new run "
+              "until it is (a stop now leaves the run's log to be reported as interrupted)");
+    }
     d->bus_rate.add(monotonic_us(), d->frames_seen());
     d->check_run_space();
     if (d->engine) {
@@ -1381,7 +1492,7 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
       d->tell_holds(holds);
     }
     d->after_engine();
-    if (d->stopping && !d->running() && !d->worker_busy) sd_event_exit(d->ev, 0);
+    if (d->stopping && !d->running() && !d->busy()) sd_event_exit(d->ev, 0);
     d->exit_if_reloading();
     if (++d->timer_ticks % 5 == 0) d->broadcast_watch();
     d->reap_clients();
@@ -1400,7 +1511,7 @@ int on_signal(sd_event_source*, const struct signalfd_siginfo* si, void* u) {
       d->engine->signal(d->clock.now_ns(), name, d->out);
       d->after_engine();
     }
-    if (!d->running() && !d->worker_busy) sd_event_exit(d->ev, 0);
+    if (!d->running() && !d->busy()) sd_event_exit(d->ev, 0);
   });
 }
 
@@ -1423,6 +1534,16 @@ int on_worker_done(sd_event_source*, int fd, uint32_t, void* u) {
     if (d->engine)
       d->engine->estimation_done(d->clock.now_ns(), d->result.has_value(), d->est_error, d->out);
     d->after_engine();
+  });
+}
+
+int on_report_done(sd_event_source*, int fd, uint32_t, void* u) {
+  auto* d = static_cast<Daemon*>(u);
+  return guarded(d, "the report's end", [&] {
+    char c;
+    (void)!::read(fd, &c, 1);
+    d->report_written();
+    if (d->stopping && !d->running() && !d->busy()) sd_event_exit(d->ev, 0);
   });
 }
 
@@ -1546,7 +1667,9 @@ Status Daemon::setup() {
       return failed("cannot move " + temp + " to " + path);
     }
   }
-  if (::pipe2(done_pipe, O_CLOEXEC | O_NONBLOCK) != 0) return make_error("pipe failed");
+  if (::pipe2(done_pipe, O_CLOEXEC | O_NONBLOCK) != 0 ||
+      ::pipe2(report_pipe, O_CLOEXEC | O_NONBLOCK) != 0)
+    return make_error(std::string("pipe failed: ") + std::strerror(errno));
 
   auto check = [](int rc, const char* what) -> Status {
     if (rc < 0) return make_error(std::string("sd-event: ") + what + ": " + std::strerror(-rc));
@@ -1566,28 +1689,32 @@ Status Daemon::setup() {
     p.owner = this;
     if (!p.sock) continue;
     p.registered_fd = p.sock->fd();
-    TURNCAL_TRY(check(sd_event_add_io(ev, &p.src, p.registered_fd, EPOLLIN, on_can_io, &p), "CAN"));
+    TURNCAL_TRY(
+        check(sd_event_add_io(ev, p.src.out(), p.registered_fd, EPOLLIN, on_can_io, &p), "CAN"));
   }
   TURNCAL_TRY(
-      check(sd_event_add_io(ev, &listen_src, listen_fd, EPOLLIN, on_accept, this), "listen"));
+      check(sd_event_add_io(ev, listen_src.out(), listen_fd, EPOLLIN, on_accept, this), "listen"));
   TURNCAL_TRY(
       check(sd_event_add_io(ev, nullptr, done_pipe[0], EPOLLIN, on_worker_done, this), "worker"));
+  TURNCAL_TRY(
+      check(sd_event_add_io(ev, nullptr, report_pipe[0], EPOLLIN, on_report_done, this), "report"));
   uint64_t now = 0;
-  sd_event_now(ev, CLOCK_MONOTONIC, &now);
-  sd_event_source* timer = nullptr;
-  TURNCAL_TRY(
-      check(sd_event_add_time(ev, &timer, CLOCK_MONOTONIC, now, 1000, on_timer, this), "timer"));
+  TURNCAL_TRY(check(sd_event_now(ev, CLOCK_MONOTONIC, &now), "the loop's clock"));
+  TURNCAL_TRY(check(sd_event_add_time(ev, timer.out(), CLOCK_MONOTONIC, now, 1000, on_timer, this),
+                    "timer"));
   // the heartbeat, the ticks and the watchdog before any socket
-  sd_event_source_set_priority(timer, kPrioTimers);
-  TURNCAL_TRY(check(sd_event_add_time(ev, &tx_retry, CLOCK_MONOTONIC, now, 1000, on_tx_retry, this),
-                    "retry timer"));
-  sd_event_source_set_priority(tx_retry, kPrioTimers);
-  sd_event_source_set_enabled(tx_retry, SD_EVENT_OFF);
+  TURNCAL_TRY(check(timer.set_priority(kPrioTimers), "timer priority"));
   TURNCAL_TRY(
-      check(sd_event_add_time(ev, &accept_again, CLOCK_MONOTONIC, now, 1000, on_accept_again, this),
-            "accept timer"));
-  sd_event_source_set_enabled(accept_again, SD_EVENT_OFF);
-  sd_event_set_watchdog(ev, 1);  // WATCHDOG=1 from the loop itself, when WatchdogSec= asks
+      check(sd_event_add_time(ev, tx_retry.out(), CLOCK_MONOTONIC, now, 1000, on_tx_retry, this),
+            "retry timer"));
+  TURNCAL_TRY(check(tx_retry.set_priority(kPrioTimers), "retry timer priority"));
+  TURNCAL_TRY(check(tx_retry.set_enabled(SD_EVENT_OFF), "retry timer"));
+  TURNCAL_TRY(check(
+      sd_event_add_time(ev, accept_again.out(), CLOCK_MONOTONIC, now, 1000, on_accept_again, this),
+      "accept timer"));
+  TURNCAL_TRY(check(accept_again.set_enabled(SD_EVENT_OFF), "accept timer"));
+  // WATCHDOG=1 from the loop itself, when WatchdogSec= asks
+  TURNCAL_TRY(check(sd_event_set_watchdog(ev, 1), "watchdog"));
   return Status{Ok{}};
 }
 
@@ -1637,8 +1764,13 @@ int main(int argc, char** argv) {
   sd_notify(0, "READY=1\nSTATUS=idle");
   const int r = sd_event_loop(d.ev);
   if (d.worker.joinable()) d.worker.join();
+  if (d.report_thread.joinable()) d.report_thread.join();
   d.clients.clear();
-  for (Port& p : d.ports) p.src = sd_event_source_unref(p.src);
+  for (Port& p : d.ports) p.src.reset();
+  d.timer.reset();
+  d.tx_retry.reset();
+  d.listen_src.reset();
+  d.accept_again.reset();
   sd_event_unref(d.ev);
   return r < 0 ? 1 : 0;
 }

@@ -130,13 +130,19 @@ Status StateDir::write_atomic(const std::string& name, const std::string& data) 
   return Status{Ok{}};
 }
 
-Status StateDir::write_report(const std::string& run_id, const json& report,
-                              const std::string& text, const std::string& html) {
+Result<json> StateDir::write_report_files(const std::string& run_id, const json& report,
+                                          const std::string& text, const std::string& html) const {
   TURNCAL_TRY(write_atomic(run_id + ".report.txt", text));
   TURNCAL_TRY(write_atomic(run_id + ".report.html", html));
   const std::string data = report.dump(2, ' ', false, json::error_handler_t::replace) + "\n";
   TURNCAL_TRY(write_atomic(run_id + kReportSuffix, data));
-  index_report(run_id, json::parse(data, nullptr, false));  // what a reader will find
+  return json::parse(data, nullptr, false);  // what a reader will find
+}
+
+Status StateDir::write_report(const std::string& run_id, const json& report,
+                              const std::string& text, const std::string& html) {
+  TURNCAL_ASSIGN(written, write_report_files(run_id, report, text, html));
+  index_report(run_id, written);
   return Status{Ok{}};
 }
 

@@ -135,6 +135,10 @@ class StateDir {
   /// there only when all three are; indexed as the file reads back.
   Status write_report(const std::string& run_id, const nlohmann::json& report,
                       const std::string& text, const std::string& html);
+  /// The three files alone, as write_report writes them, not indexed (off
+  /// the loop, which indexes it); the report as a reader will find it.
+  Result<nlohmann::json> write_report_files(const std::string& run_id, const nlohmann::json& report,
+                                            const std::string& text, const std::string& html) const;
   /// Space for a run's report, taken when the run starts (a file of `bytes`,
   /// allocated), so a disk that fills during the run can still say why;
   /// released just before the report is written. An error when the disk
