@@ -103,14 +103,6 @@ class ReferenceTable final : public TableDriver {
 
 }  // namespace
 
-Devices make_devices(const CanConfig& can, const RoleMap& roles, Plausibility plausibility,
-                     double time_scale) {
-  // [table] protocol
-  return {make_ins(can.ins, roles, plausibility, time_scale),
-          can.table.is_cia402() ? make_cia402_table(can.table.cia402, roles)
-                                : make_reference_table(roles, plausibility)};
-}
-
 std::unique_ptr<TableDriver> make_reference_table(const RoleMap& roles, Plausibility plausibility) {
   return std::make_unique<ReferenceTable>(roles, plausibility);
 }

@@ -118,6 +118,17 @@ struct Cia402Settings {
   double boot_timeout_s = 2.0;  ///< from the NMT reset to the drive's boot-up
 };
 
+/// The turntable protocols [table] protocol may name, each once: the
+/// configuration reads its [table.NAME] section by this table's row
+/// (config.cpp), and the devices' factory makes its driver by its own row
+/// of the same name (drivers/table/protocols.cpp); static_asserts hold both
+/// to this order. A new protocol is its driver's file and a row in each.
+/// (Two tables, not one: the configuration is below the drivers.)
+inline constexpr std::array<std::string_view, 2> kTableProtocols = {
+    "reference",  ///< can-icd.md's TBL_* frames
+    "cia402",     ///< a CiA 402 drive, its CANopen master ours
+};
+
 /// The turntable's protocol ([table]).
 struct TableProtocol {
   /// "reference": can-icd.md's TBL_* frames; "cia402": a CiA 402 drive.

@@ -8,6 +8,7 @@
 #include <algorithm>
 #include <cctype>
 #include <fstream>
+#include <span>
 #include <sstream>
 #include <tuple>
 
@@ -215,14 +216,18 @@ const toml::table* section(const toml::table& root, std::string_view key, Status
 }
 
 /// One of `choices` for `key`, or an error listing them.
-Status choice(const Reader& r, std::string_view key,
-              std::initializer_list<std::string_view> choices, std::string& out) {
+Status choice(const Reader& r, std::string_view key, std::span<const std::string_view> choices,
+              std::string& out) {
   TURNCAL_TRY(r.string(key, out));
   for (std::string_view c : choices)
     if (out == c) return Status{Ok{}};
   std::string list;
   for (std::string_view c : choices) list += (list.empty() ? "\"" : ", \"") + std::string(c) + "\"";
   return r.error_at(*r.table().get(key), key, "'" + out + "' is none of " + list);
+}
+Status choice(const Reader& r, std::string_view key,
+              std::initializer_list<std::string_view> choices, std::string& out) {
+  return choice(r, key, std::span<const std::string_view>(choices.begin(), choices.size()), out);
 }
 
 Status read_ins(const toml::table& t, const std::string& file, InsLayout& ins) {
@@ -358,17 +363,43 @@ Status read_cia402(const toml::table& t, const std::string& file, Cia402Settings
   return Status{Ok{}};
 }
 
+/// Each table protocol's [table.NAME] section (kTableProtocols' rows, in
+/// their order): its reader, or none for a protocol that has none.
+struct TableSection {
+  std::string_view name;
+  Status (*read)(const toml::table& t, const std::string& file, TableProtocol& table);
+};
+
+constexpr std::array<TableSection, kTableProtocols.size()> kTableSections = {{
+    {"reference", nullptr},
+    {"cia402", [](const toml::table& t, const std::string& file,
+                  TableProtocol& table) { return read_cia402(t, file, table.cia402); }},
+}};
+
+constexpr bool table_sections_match() {
+  for (std::size_t i = 0; i < kTableProtocols.size(); ++i)
+    if (kTableSections[i].name != kTableProtocols[i]) return false;
+  return true;
+}
+static_assert(table_sections_match(), "kTableSections' rows are not kTableProtocols'");
+
 Status read_table(const toml::table& t, const std::string& file, TableProtocol& table) {
   Reader r(t, file, "table.");
-  TURNCAL_TRY(r.no_unknown_keys({"protocol", "cia402"}));
-  TURNCAL_TRY(choice(r, "protocol", {"reference", "cia402"}, table.name));
-  if (const toml::node* n = t.get("cia402")) {
-    if (!n->is_table()) return r.error_at(*n, "cia402", "expected a table");
-    if (!table.is_cia402())
-      return r.error_at(
-          *n, "cia402",
-          "[table.cia402] is for protocol = \"cia402\", and protocol is \"" + table.name + "\"");
-    TURNCAL_TRY(read_cia402(*n->as_table(), file, table.cia402));
+  std::vector<std::string_view> keys = {"protocol"};
+  for (const TableSection& s : kTableSections)
+    if (s.read != nullptr) keys.push_back(s.name);
+  TURNCAL_TRY(r.no_unknown_keys(keys));
+  TURNCAL_TRY(choice(r, "protocol", kTableProtocols, table.name));
+  for (const TableSection& s : kTableSections) {
+    const toml::node* n = s.read != nullptr ? t.get(s.name) : nullptr;
+    if (n == nullptr) continue;
+    const std::string name(s.name);
+    if (!n->is_table()) return r.error_at(*n, name, "expected a table");
+    if (table.name != s.name)
+      return r.error_at(*n, name,
+                        "[table." + name + "] is for protocol = \"" + name +
+                            "\", and protocol is \"" + table.name + "\"");
+    TURNCAL_TRY(s.read(*n->as_table(), file, table));
   }
   return Status{Ok{}};
 }

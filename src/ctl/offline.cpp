@@ -367,7 +367,7 @@ int check(int argc, char** argv, int i, bool as_json) {
   auto roles = resolve_roles(cfg->can, *db);
   if (!or_say(roles)) return kUsage;
   // a CiA 402 drive's PDO layouts, as the daemon checks them at start-up
-  if (auto layouts = drivers::check_cia402_table(cfg->can, *roles); !or_say(layouts)) return kUsage;
+  if (auto layouts = drivers::check_table(cfg->can, *roles); !or_say(layouts)) return kUsage;
   json out;
   out["config"] = so.config;
   out["dbc"] = json::array();

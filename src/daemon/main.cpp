@@ -1560,7 +1560,7 @@ Status Daemon::setup() {
   TURNCAL_ASSIGN(r, resolve_roles(cfg.can, db));
   roles = r;
   // a CiA 402 drive's PDO layouts from the DBC: refused now, not at a run
-  TURNCAL_TRY(drivers::check_cia402_table(cfg.can, roles));
+  TURNCAL_TRY(drivers::check_table(cfg.can, roles));
   idle_table =
       drivers::make_devices(cfg.can, roles, run::plausibility_of(cfg), cfg.stand.time_scale).table;
   // what the DBC files say that was read with a warning or skipped

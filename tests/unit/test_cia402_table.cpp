@@ -337,6 +337,45 @@ TEST_SUITE("cia402 table driver") {
     CHECK(nothing.empty());
   }
 
+  TEST_CASE("the protocol table: [table] protocol makes its own driver, checked by its own row") {
+    const Stand402& s = stand402();
+    auto roles = resolve_roles(s.cfg.can, s.db);
+    REQUIRE(roles.ok());
+    CHECK(drivers::check_table(s.cfg.can, *roles).ok());
+    // the CiA 402 drive's table: its geometry is the drive's counts
+    const drivers::Devices d = drivers::make_devices(s.cfg.can, *roles, Plausibility{}, 1);
+    REQUIRE(d.table != nullptr);
+    CHECK(d.table->geometry().find("counts_per_revolution ") == 0);
+    // its check is the CiA 402 one: a layout that does not fit is refused
+    Config bad = s.cfg;
+    bad.can.roles[static_cast<std::size_t>(Role::TableTargetPosition)] =
+        SignalRef{"DRV_RPDO1", "Controlword", {}};
+    auto bad_roles = resolve_roles(bad.can, s.db);
+    REQUIRE(bad_roles.ok());
+    const Status st = drivers::check_table(bad.can, *bad_roles);
+    REQUIRE_FALSE(st.ok());
+    CHECK(st.error().message.find("can.roles.table_controlword") != std::string::npos);
+    // the reference table (the shipped turncal.toml): its own driver, no
+    // CiA 402 check
+    auto ref = load_config(kSrc + "/config/turncal.toml");
+    REQUIRE(ref.ok());
+    auto ref_db = load_databases(ref->can);
+    REQUIRE(ref_db.ok());
+    auto ref_roles = resolve_roles(ref->can, *ref_db);
+    REQUIRE(ref_roles.ok());
+    CHECK(drivers::check_table(ref->can, *ref_roles).ok());
+    const drivers::Devices r = drivers::make_devices(ref->can, *ref_roles, Plausibility{}, 1);
+    REQUIRE(r.table != nullptr);
+    CHECK(r.table->geometry().find("counts_per_revolution") == std::string::npos);
+    // a name no row has (set past the configuration reader) is refused, not
+    // taken for another protocol
+    Config none = ref.value();
+    none.can.table.name = "canopen";
+    const Status no = drivers::check_table(none.can, *ref_roles);
+    REQUIRE_FALSE(no.ok());
+    CHECK(no.error().message == "[table] protocol = \"canopen\": no driver of that protocol");
+  }
+
   TEST_CASE("settings the DBC's layout does not fit leave the driver inert with the reason") {
     Config cfg = stand402().cfg;
     cfg.can.roles[static_cast<std::size_t>(Role::TableTargetPosition)] =

@@ -44,6 +44,33 @@ TEST_SUITE("config") {
     CHECK(tbl_ids.size() == 2);  // TBL_Encoder, TBL_Status
   }
 
+  TEST_CASE("[table] protocol: one of the protocol table's names, its section its own") {
+    const std::string file = "/etc/turncal/turncal.toml";
+    for (std::string_view name : kTableProtocols) {
+      CAPTURE(name);
+      auto c = parse_config("[table]\nprotocol = \"" + std::string(name) + "\"\n", file);
+      REQUIRE_MESSAGE(c.ok(), (c.ok() ? "" : c.error().describe()));
+      CHECK(c->can.table.name == name);
+    }
+    auto unknown = parse_config("[table]\nprotocol = \"canopen\"\n", file);
+    REQUIRE_FALSE(unknown.ok());
+    CHECK(unknown.error().describe() ==
+          "/etc/turncal/turncal.toml:2:12: key 'table.protocol': 'canopen' is none of "
+          "\"reference\", \"cia402\"");
+    auto other =
+        parse_config("[table]\nprotocol = \"reference\"\n[table.cia402]\nnode_id = 2\n", file);
+    REQUIRE_FALSE(other.ok());
+    CHECK(other.error().message ==
+          "key 'table.cia402': [table.cia402] is for protocol = \"cia402\", and protocol is "
+          "\"reference\"");
+    auto key = parse_config("[table]\nprotocol = \"cia402\"\nreference = 1\n", file);
+    REQUIRE_FALSE(key.ok());
+    CHECK(key.error().message == "unknown key 'table.reference'");
+    auto cia = parse_config("[table]\nprotocol = \"cia402\"\n[table.cia402]\nnode_id = 5\n", file);
+    REQUIRE_MESSAGE(cia.ok(), (cia.ok() ? "" : cia.error().describe()));
+    CHECK(cia->can.table.cia402.node_id == 5);
+  }
+
   TEST_CASE("an empty file gives the reference stand") {
     auto cfg = parse_config("", "/x/turncal.toml");
     REQUIRE(cfg.ok());

@@ -15,7 +15,8 @@ namespace turncal::drivers {
 /// The INS of `layout`; `time_scale`: stand seconds per real second.
 std::unique_ptr<InsDriver> make_ins(const InsLayout& layout, const RoleMap& roles,
                                     Plausibility plausibility, double time_scale);
-/// The devices a configuration names.
+/// The devices a configuration names: the INS of its layout, the table
+/// of its [table] protocol (drivers/table/protocols.cpp, a row each).
 struct Devices {
   std::unique_ptr<InsDriver> ins;
   std::unique_ptr<TableDriver> table;
@@ -34,5 +35,8 @@ std::unique_ptr<TableDriver> make_cia402_table(const Cia402Settings& settings,
 /// Whether the settings and the DBC's PDO layouts fit a CiA 402 drive, or
 /// why not (the configuration key where one is to blame).
 Status check_cia402_table(const CanConfig& can, const RoleMap& roles);
+/// Whether the configuration and the DBC fit the table's protocol (its
+/// row's check), or why not: before a run, and in turncalctl check.
+Status check_table(const CanConfig& can, const RoleMap& roles);
 
 }  // namespace turncal::drivers
