@@ -2,6 +2,7 @@
 // configuration's kTableProtocols (config.hpp): what [table] protocol
 // names is made, and checked before a run, by its row here.
 #include <array>
+#include <stdexcept>
 #include <string_view>
 
 #include "turncal/drivers/reference.hpp"
@@ -39,12 +40,14 @@ constexpr bool factories_match() {
 }
 static_assert(factories_match(), "kTableFactories' rows are not kTableProtocols'");
 
-/// The row of the configured protocol; the configuration reader accepts
-/// no other name, so there is one.
+/// The row of the configured protocol. The configuration reader accepts no
+/// other name; a configuration made otherwise with one is a program's
+/// error, thrown, never a table of another protocol.
 const TableFactory& factory_of(const CanConfig& can) {
   for (const TableFactory& f : kTableFactories)
     if (f.name == can.table.name) return f;
-  return kTableFactories[0];  // unreachable: check_table refuses the name first
+  throw std::invalid_argument("[table] protocol = \"" + can.table.name +
+                              "\": no driver of that protocol");
 }
 
 }  // namespace

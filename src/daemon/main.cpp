@@ -245,6 +245,7 @@ class Daemon {
   bool report_busy = false;
   std::uint64_t report_since_us = 0;  ///< monotonic: when it began
   bool report_slow_told = false;
+  bool listener_lost = false;  ///< the control socket can be listened to no more
   int report_pipe[2] = {-1, -1};
   std::vector<run::OutFrame> out;
   socketcan::RxBatch rx;
@@ -674,7 +675,7 @@ void Daemon::after_engine() {
         while (::write(done_pipe[1], &c, 1) < 0 && errno == EINTR) {
         }
       });
-    } catch (const std::system_error& e) {  // no thread (TasksMax, memory)
+    } catch (const std::exception& e) {  // no thread (TasksMax, memory)
       worker_busy = false;
       engine->estimation_done(clock.now_ns(), false,
                               std::string("cannot start the estimation: ") + e.what(), out);
@@ -695,9 +696,12 @@ void Daemon::write_report(bool with_estimates) {
   report_since_us = monotonic_us();
   report_slow_told = false;
   const auto inline_or_none = [&](const char* what) {
-    error(std::string("the report: ") + what +
-          (report_job ? "; it is written on the loop" : "; no report is written"));
-    if (report_job) write_report_job(*report_job, syncer, *state);
+    try {
+      error(std::string("the report: ") + what +
+            (report_job ? "; it is written on the loop" : "; no report is written"));
+    } catch (...) {  // no memory to say it: the report still ends the run
+    }
+    if (report_job) write_report_job(*report_job, syncer, *state);  // noexcept
     report_written();
   };
   try {
@@ -769,18 +773,24 @@ void Daemon::report_written() {
     if (log_error.empty())
       log_error = "report not written: it could not be made (the journal says why)";
     syncer.wait_idle();
+    (void)syncer.take_error();  // this run's, failed already: not the next run's
     if (log) (void)log->close();
     log.reset();
     if (retired_log) (void)retired_log->close();
     retired_log.reset();
   } else {
     log_error = job->log_error;
-    for (const std::string& e : job->errors) error(e);
-    if (job->report_error.empty()) {
-      state->index_report(job->run_id, job->written);
-      info("report written: " + (state->path() / (job->run_id + ".report.json")).string());
-    } else {
-      error("report not written: " + job->report_error);
+    try {  // the index and the journal; nothing here may keep the run from its end
+      for (const std::string& e : job->errors) error(e);
+      if (job->report_error.empty()) {
+        state->index_report(job->run_id, job->written);
+        info("report written: " + (state->path() / (job->run_id + ".report.json")).string());
+      } else {
+        error("report not written: " + job->report_error);
+      }
+    } catch (const std::exception& e) {
+      warn(std::string("the report is on disk, not yet in the index: ") + e.what());
+    } catch (...) {
     }
   }
   // the run's samples (most of its memory) are in the report now, or the
@@ -1303,8 +1313,10 @@ int on_accept_again(sd_event_source*, uint64_t, void* u) {
     if (sd_event_now(d->ev, CLOCK_MONOTONIC, &now) < 0 ||
         d->accept_again.set_time(now + kAcceptBackoffUs) < 0 ||
         d->accept_again.set_enabled(SD_EVENT_ONESHOT) < 0) {
-      d->error("cannot arm the retry of the control socket's listener");
-      if (!d->running() && !d->busy()) sd_event_exit(d->ev, 1);
+      // no way to listen again: the daemon exits once idle (on_timer), and
+      // its socket starts it anew on the next request
+      d->error("cannot arm the retry of the control socket's listener: turncald exits once idle");
+      d->listener_lost = true;
     }
   }
   return 0;
@@ -1474,7 +1486,8 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
       d->report_slow_told = true;
       d->warn("the report has been written for " + std::to_string(kReportSlowUs / 1'000'000) +
               " s and is not done: the state directory's disk is slow or hung; no new run "
-              "until it is (a stop now leaves the run's log to be reported as interrupted)");
+              "until it is (a stop waits for it; a kill leaves the run's log to be reported "
+              "as interrupted at the next start)");
     }
     d->bus_rate.add(monotonic_us(), d->frames_seen());
     d->check_run_space();
@@ -1494,6 +1507,10 @@ int on_timer(sd_event_source* s, uint64_t usec, void* u) {
     d->after_engine();
     if (d->stopping && !d->running() && !d->busy()) sd_event_exit(d->ev, 0);
     d->exit_if_reloading();
+    if (d->listener_lost && !d->running() && !d->busy()) {
+      d->error("exiting: the control socket is not listened to");
+      sd_event_exit(d->ev, 1);
+    }
     if (++d->timer_ticks % 5 == 0) d->broadcast_watch();
     d->reap_clients();
   });
@@ -1772,5 +1789,7 @@ int main(int argc, char** argv) {
   d.listen_src.reset();
   d.accept_again.reset();
   sd_event_unref(d.ev);
-  return r < 0 ? 1 : 0;
+  // sd_event_exit's code (1: a fault that stops the daemon), or a negative
+  // errno: either is a failure, for systemd's Restart=
+  return r != 0 ? 1 : 0;
 }

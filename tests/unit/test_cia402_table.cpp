@@ -6,6 +6,7 @@
 #include <cmath>
 #include <numbers>
 #include <optional>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -374,6 +375,8 @@ TEST_SUITE("cia402 table driver") {
     const Status no = drivers::check_table(none.can, *ref_roles);
     REQUIRE_FALSE(no.ok());
     CHECK(no.error().message == "[table] protocol = \"canopen\": no driver of that protocol");
+    CHECK_THROWS_AS((void)drivers::make_devices(none.can, *ref_roles, Plausibility{}, 1),
+                    std::invalid_argument);
   }
 
   TEST_CASE("settings the DBC's layout does not fit leave the driver inert with the reason") {
