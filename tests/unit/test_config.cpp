@@ -63,6 +63,9 @@ TEST_SUITE("config") {
     CHECK(other.error().message ==
           "key 'table.cia402': [table.cia402] is for protocol = \"cia402\", and protocol is "
           "\"reference\"");
+    auto scalar = parse_config("[table]\nprotocol = \"cia402\"\ncia402 = 3\n", file);
+    REQUIRE_FALSE(scalar.ok());
+    CHECK(scalar.error().message == "key 'table.cia402': expected a table");
     auto key = parse_config("[table]\nprotocol = \"cia402\"\nreference = 1\n", file);
     REQUIRE_FALSE(key.ok());
     CHECK(key.error().message == "unknown key 'table.reference'");

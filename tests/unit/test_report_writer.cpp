@@ -158,6 +158,26 @@ TEST_CASE("a fault the loop had already: kept, and the report without estimates"
   CHECK(j.written["reason"] == "log not written whole: write failed: No space left on device");
 }
 
+TEST_CASE(
+    "the loop's fault first: no report with estimates, and a later fsync failure not its reason") {
+  // as the loop hands it over when its log had failed: estimates due, but
+  // no report with them
+  Fixture f;
+  Syncer syncer(eio_fsync);
+  ReportJob j = f.job(true);
+  j.with.reset();
+  j.log_error = "write failed: Input/output error: log kept up to line 1";
+  REQUIRE(j.log->flush().ok());
+  syncer.request(j.log->fd(), j.log->records_written());
+  write_report_job(j, syncer, f.state);
+  CHECK(j.log_error == "write failed: Input/output error: log kept up to line 1");
+  CHECK(j.written["marker"] == "without");
+  CHECK(j.written["status"] == "failed");
+  CHECK(j.written["reason"] == "log not written whole: " + j.log_error);
+  CHECK_FALSE(j.log.has_value());  // closed all the same
+  CHECK(j.written["log"]["sha256"] == sha256sum(f.dir / "r1.log"));
+}
+
 TEST_CASE("a report that cannot be written, and a log that cannot be read back: said, not thrown") {
   Fixture f;
   Syncer syncer(good_fsync);
