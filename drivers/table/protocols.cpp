@@ -3,6 +3,7 @@
 // names is made, and checked before a run, by its row here.
 #include <array>
 #include <stdexcept>
+#include <string>
 #include <string_view>
 
 #include "turncal/drivers/reference.hpp"
@@ -40,28 +41,33 @@ constexpr bool factories_match() {
 }
 static_assert(factories_match(), "kTableFactories' rows are not kTableProtocols'");
 
-/// The row of the configured protocol. The configuration reader accepts no
-/// other name; a configuration made otherwise with one is a program's
-/// error, thrown, never a table of another protocol.
-const TableFactory& factory_of(const CanConfig& can) {
+/// The row of the configured protocol; nullptr for a name no row has.
+const TableFactory* factory_of(const CanConfig& can) {
   for (const TableFactory& f : kTableFactories)
-    if (f.name == can.table.name) return f;
-  throw std::invalid_argument("[table] protocol = \"" + can.table.name +
-                              "\": no driver of that protocol");
+    if (f.name == can.table.name) return &f;
+  return nullptr;
+}
+
+std::string no_driver(const CanConfig& can) {
+  return "[table] protocol = \"" + can.table.name + "\": no driver of that protocol";
 }
 
 }  // namespace
 
 Status check_table(const CanConfig& can, const RoleMap& roles) {
-  for (const TableFactory& f : kTableFactories)
-    if (f.name == can.table.name) return f.check != nullptr ? f.check(can, roles) : Status{Ok{}};
-  return make_error("[table] protocol = \"" + can.table.name + "\": no driver of that protocol");
+  const TableFactory* f = factory_of(can);
+  if (f == nullptr) return make_error(no_driver(can));
+  return f->check != nullptr ? f->check(can, roles) : Status{Ok{}};
 }
 
 Devices make_devices(const CanConfig& can, const RoleMap& roles, Plausibility plausibility,
                      double time_scale) {
-  return {make_ins(can.ins, roles, plausibility, time_scale),
-          factory_of(can).make(can, roles, plausibility)};
+  // The configuration reader accepts no other name; a configuration made
+  // otherwise with one is a program's error, thrown, never a table of
+  // another protocol.
+  const TableFactory* f = factory_of(can);
+  if (f == nullptr) throw std::invalid_argument(no_driver(can));
+  return {make_ins(can.ins, roles, plausibility, time_scale), f->make(can, roles, plausibility)};
 }
 
 }  // namespace turncal::drivers

@@ -243,7 +243,7 @@ struct Config {
 
 /// Display unit of a parameter of the report ("deg/h", "ppm", "ug", "mm")
 /// and the factor from SI to it; an empty unit for an unknown name (the
-/// parameter table, turncal/estimation/state.hpp).
+/// parameter table, turncal/estimation/params.hpp).
 std::pair<std::string_view, double> display_unit(std::string_view parameter);
 
 /// The reference stand's roles (can-icd.md); the defaults of [can.roles].

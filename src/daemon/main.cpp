@@ -414,9 +414,7 @@ void Daemon::log_sync() {
 /// A failed fsync: the lines handed to the kernel since the last good one
 /// may never reach the disk, and the reason says which are sure.
 void Daemon::take_syncer_error() {
-  if (const int e = syncer.take_error(); e != 0)
-    log_fault(std::string("log fsync failed: ") + std::strerror(e) + ": lines after " +
-              std::to_string(syncer.synced()) + " may be lost");
+  if (const int e = syncer.take_error(); e != 0) log_fault(fsync_fault(e, syncer.synced()));
 }
 
 /// A fault of the host fails the run with the reason (and a quick stop);
@@ -431,12 +429,7 @@ void Daemon::host_fault(const std::string& what) {
 /// holds replays, and the run fails; nothing of it is called done.
 void Daemon::log_fault(const std::string& what) {
   if (!log_error.empty() || !engine) return;
-  std::string why = what;
-  if (log) {
-    why += ": log kept up to line " + std::to_string(log->records_written());
-    retired_log = std::move(log);  // no more of the run goes into it
-    log.reset();
-  }
+  const std::string why = retire_log(what, log, retired_log);
   log_error = why;
   host_fault(why);
 }

@@ -9,6 +9,21 @@
 
 namespace turncal::daemon {
 
+std::string fsync_fault(int error, std::uint64_t synced) {
+  return std::string("log fsync failed: ") + std::strerror(error) + ": lines after " +
+         std::to_string(synced) + " may be lost";
+}
+
+std::string retire_log(std::string what, std::optional<can::LogWriter>& log,
+                       std::optional<can::LogWriter>& retired) {
+  if (log) {
+    what += ": log kept up to line " + std::to_string(log->records_written());
+    retired = std::move(log);
+    log.reset();
+  }
+  return what;
+}
+
 namespace {
 
 void write(ReportJob& job, Syncer& syncer, const StateDir& state) {
@@ -16,13 +31,7 @@ void write(ReportJob& job, Syncer& syncer, const StateDir& state) {
   syncer.wait_idle();
   if (const int e = syncer.take_error(); e != 0 && job.log_error.empty()) {
     // as the loop's own log fault: the log is kept where it stands
-    job.log_error = std::string("log fsync failed: ") + std::strerror(e) + ": lines after " +
-                    std::to_string(syncer.synced()) + " may be lost";
-    if (job.log) {
-      job.log_error += ": log kept up to line " + std::to_string(job.log->records_written());
-      job.retired_log = std::move(job.log);
-      job.log.reset();
-    }
+    job.log_error = retire_log(fsync_fault(e, syncer.synced()), job.log, job.retired_log);
   }
   if (job.retired_log) {
     (void)job.retired_log->close();  // its fault is the run's reason already

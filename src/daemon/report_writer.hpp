@@ -8,6 +8,7 @@
 // (the index of reports is the loop's, and so is the run's end).
 #pragma once
 
+#include <cstdint>
 #include <nlohmann/json.hpp>
 #include <optional>
 #include <string>
@@ -51,6 +52,14 @@ struct ReportJob {
   nlohmann::json written;           ///< the report as a reader will find it
   std::vector<std::string> errors;  ///< for the journal
 };
+
+/// A failed fsync of the run's log as the run's reason: which lines are
+/// sure to be on disk.
+std::string fsync_fault(int error, std::uint64_t synced);
+/// A log fault: `log`, if open, is retired where it stands (no more of the
+/// run goes into it) and `what` gets up to which line it is kept.
+std::string retire_log(std::string what, std::optional<can::LogWriter>& log,
+                       std::optional<can::LogWriter>& retired);
 
 /// Does the job (see the file's comment): every step's failure is in
 /// log_error, report_error or errors, none thrown.

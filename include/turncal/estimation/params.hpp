@@ -11,6 +11,8 @@
 #include <string_view>
 #include <utility>
 
+#include "turncal/earth.hpp"
+
 namespace turncal::est {
 
 /// The parameter blocks, in state order.
@@ -32,9 +34,8 @@ struct BlockInfo {
 };
 
 namespace detail {
-inline constexpr double kDegRad = 0.017453292519943295;
-inline constexpr double kDegPerHour = kDegRad / 3600;  ///< deg/h in rad/s
-inline constexpr double kMicroG = 9.80665e-6;          ///< ug in m/s^2, to display
+inline constexpr double kDegPerHour = earth::kDeg / 3600;  ///< deg/h in rad/s
+inline constexpr double kMicroG = 9.80665e-6;              ///< ug in m/s^2, to display
 }  // namespace detail
 
 inline constexpr std::array<BlockInfo, 5> kBlocks = {{
@@ -160,13 +161,8 @@ constexpr bool param_table_matches_blocks() {
 static_assert(param_table_matches_blocks(), "kParamTable's rows do not match kBlocks");
 
 /// The named combinations of parameters a report gives beside them
-/// (model.md, 8): shown in their block's units.
-struct CombinationInfo {
-  std::string_view name;
-  Block block;
-  std::string_view why;
-};
-inline constexpr std::array<CombinationInfo, 4> kCombinations = {{
+/// (model.md, 8): rows as the parameters', shown in their block's units.
+inline constexpr std::array<ParamInfo, 4> kCombinations = {{
     {"df_eff_1", Block::kAccelBias, why::kAccel1},
     {"df_eff_2", Block::kAccelBias, why::kAccel2},
     {"df_obs_1", Block::kAccelBias, why::kPrior},
@@ -198,22 +194,25 @@ static_assert(param_index("theta_23") == sx::theta(2, 3) - sx::kNu0);
 static_assert(param_index("df0_1") == sx::kDf0 - sx::kNu0 &&
               param_index("r2") == sx::kR + 1 - sx::kNu0);
 
+/// The row of a parameter or a named combination; nullptr for neither.
+constexpr const ParamInfo* named_row(std::string_view name) {
+  if (const int i = param_index(name); i >= 0) return &kParamTable[static_cast<std::size_t>(i)];
+  for (const ParamInfo& c : kCombinations)
+    if (c.name == name) return &c;
+  return nullptr;
+}
+
 /// The block of a parameter or a named combination; nullptr for neither.
 constexpr const BlockInfo* block_of(std::string_view name) {
-  if (const int i = param_index(name); i >= 0)
-    return &block_info(kParamTable[static_cast<std::size_t>(i)].block);
-  for (const CombinationInfo& c : kCombinations)
-    if (c.name == name) return &block_info(c.block);
-  return nullptr;
+  const ParamInfo* r = named_row(name);
+  return r != nullptr ? &block_info(r->block) : nullptr;
 }
 
 /// What a run that leaves `name` undetermined lacks (the prior's reason for
 /// a name of neither table).
 constexpr std::string_view why_undetermined(std::string_view name) {
-  if (const int i = param_index(name); i >= 0) return kParamTable[static_cast<std::size_t>(i)].why;
-  for (const CombinationInfo& c : kCombinations)
-    if (c.name == name) return c.why;
-  return why::kPrior;
+  const ParamInfo* r = named_row(name);
+  return r != nullptr ? r->why : why::kPrior;
 }
 
 /// Display unit of a parameter or a named combination ("deg/h", "ppm",
