@@ -1,5 +1,7 @@
 #include "turncal/drivers/cia402.hpp"
 
+#include "cia402_detail.hpp"
+
 #include <algorithm>
 #include <array>
 #include <cstdio>
@@ -14,35 +16,13 @@ using canopen::put_le;
 
 namespace {
 
-std::string hex(std::uint32_t v, int digits) {
-  char buf[16];
-  std::snprintf(buf, sizeof buf, "0x%0*X", digits, v);
-  return buf;
-}
+using detail::hex;
+using detail::kRadToDeg;
+using detail::num;
+using detail::to_u32_counts;
 
-std::string num(double v) {
-  char buf[32];
-  std::snprintf(buf, sizeof buf, "%.6g", v);
-  return buf;
-}
-
-constexpr double kRadToDeg = 57.29577951308232;
-/// 0x60F2 bits 0-1 = 01: relative to the actual position (CiA 402).
-constexpr std::uint16_t kPositioningRelativeToActual = 0x0001;
 /// How often 0x6061 is read while the drive switches its mode.
 constexpr double kModePollPeriod_s = 0.005;
-
-/// A physical value in counts (rounded), or an error when it is not a
-/// positive u32: never clamped.
-Result<std::uint32_t> to_u32_counts(double value, double counts_per_unit, const char* what,
-                                    std::uint16_t index, const char* unit) {
-  const double c = std::round(value * counts_per_unit);
-  if (!std::isfinite(c) || c < 1 || c > 4294967295.0)
-    return make_error(std::string(what) + " " + num(value) + " " + unit + " is " + num(c) +
-                      " counts, outside the drive's u32 range 1 to 4294967295 (" + hex(index, 4) +
-                      ")");
-  return static_cast<std::uint32_t>(c);
-}
 
 Status field_in(const PdoField& f, std::uint8_t size, std::uint8_t length, const char* what) {
   if (!f.present()) return make_error(std::string("PDO layout: no ") + what);
@@ -514,13 +494,16 @@ const char* to_string(CommPhase p) {
 
 // ---- the master ----
 
-Master::Master(MasterSettings s)
+Master::Master(MasterSettings s) : Master(std::move(s), make_profile_position) {}
+
+Master::Master(MasterSettings s, const ModeFactory& mode)
     : s_(std::move(s)),
       rpdo_(s_.rpdo_layout()),
       tpdo_(s_.tpdo_layout()),
       tpdo2_(s_.velocity_layout()),
       cpr_(s_.counts_per_rad()),
-      sdo_(s_.node_id, s_.sdo_timeout_s) {
+      sdo_(s_.node_id, s_.sdo_timeout_s),
+      mode_(mode(s_, *this)) {
   if (const Status ok = s_.check(); !ok) invalid_ = ok.error().message;
 }
 
@@ -583,11 +566,15 @@ void Master::add_position(PosWindow& w, double t, std::int64_t counts) const {
 }
 
 double Master::start_up_budget_s() const {
-  // configure() writes 13 objects besides the PDOs, each of three PDOs at
-  // most 6 and its entries (8 of a byte or more in 8 bytes), then reads
-  // 0x60F2 and 0x6061: some 60 transfers, each bounded by the SDO timeout
-  constexpr double kTransfers = 13 + 3 * (6 + 8) + 2;
-  return s_.boot_timeout_s + kTransfers * s_.sdo_timeout_s + s_.mode_switch_timeout_s;
+  // configure() writes 11 objects and the mode's besides the PDOs, each of
+  // three PDOs at most 6 and its entries (8 of a byte or more in 8 bytes),
+  // then reads the mode's objects back and 0x6061: some 60 transfers, each
+  // bounded by the SDO timeout
+  std::vector<ConfigWrite> writes;
+  mode_->configuration(writes);
+  const double transfers =
+      static_cast<double>(11 + writes.size() + 3 * (6 + 8) + mode_->checks().size() + 1);
+  return s_.boot_timeout_s + transfers * s_.sdo_timeout_s + s_.mode_switch_timeout_s;
 }
 
 void Master::reset_comm(double now_s, std::vector<can::Frame>& out) {
@@ -599,7 +586,7 @@ void Master::reset_comm(double now_s, std::vector<can::Frame>& out) {
   if (recovery_ == Recovery::ReadStatus) recovery_ = Recovery::SendReset;
   mode_poll_at_ = INFINITY;  // a poll of the configuration that ends here
   config_complete_ = false;
-  move_ = MoveStep::None;
+  mode_->reset();
   sdo_.cancel_all(out);
   out.push_back(canopen::nmt_frame(canopen::NmtCommand::ResetCommunication, s_.node_id));
   ++counts_.nmt_resets;
@@ -618,12 +605,7 @@ void Master::reset_comm(double now_s, std::vector<can::Frame>& out) {
 void Master::configure(double now_s, std::vector<can::Frame>& out) {
   phase_ = CommPhase::Configuring;
   const std::uint64_t gen = ++config_generation_;
-  struct Step {
-    std::uint16_t index;
-    std::uint8_t sub;
-    std::vector<std::uint8_t> data;
-    bool optional = false;  // the drive may not have it: counted, not a failure
-  };
+  using Step = ConfigWrite;
   const double per_deg = cpr_ / kRadToDeg;
   auto u32 = [&](double v_rad, const char* what, std::uint16_t index) {
     // the constructor's check() has proved these fit (start() and
@@ -631,14 +613,9 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
     return to_u32_counts(v_rad * kRadToDeg, per_deg, what, index, "deg").value();
   };
   std::vector<Step> steps;
-  steps.push_back({obj::kModesOfOperation, 0, le_bytes(1, 1)});  // profile position
-  // Positioning option code, bits 0-1 = 01: a relative target counts from
-  // the actual position (CiA 402), not from the last target (00, the
-  // default of many drives), so a move after a halt or a quick stop goes
-  // by the delta asked from where the table is. Read back at the end.
-  steps.push_back({obj::kPositioningOption, 0, le_bytes(kPositioningRelativeToActual, 2)});
-  const std::uint32_t vel = u32(s_.profile_velocity_rps, "v", obj::kProfileVelocity);
-  steps.push_back({obj::kProfileVelocity, 0, le_bytes(vel, 4)});
+  steps.push_back(
+      {obj::kModesOfOperation, 0, le_bytes(static_cast<std::uint8_t>(mode_->code()), 1)});
+  mode_->configuration(steps);  // the mode's own objects
   steps.push_back({obj::kProfileAcceleration, 0,
                    le_bytes(u32(s_.profile_acceleration_rps2, "a", obj::kProfileAcceleration), 4)});
   steps.push_back({obj::kProfileDeceleration, 0,
@@ -698,7 +675,7 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
     const bool last = i + 1 == n;
     const bool optional = steps[i].optional;
     sdo_.download(steps[i].index, steps[i].sub, std::move(steps[i].data),
-                  [this, gen, last, vel, optional](const canopen::SdoResult& r) {
+                  [this, gen, last, optional](const canopen::SdoResult& r) {
                     if (gen != config_generation_) return;
                     // the drive's answer that it lacks the object or the value
                     const bool lacks =
@@ -716,7 +693,7 @@ void Master::configure(double now_s, std::vector<can::Frame>& out) {
                       return config_failed(r, "");
                     }
                     if (last) {
-                      velocity_written_ = vel;
+                      mode_->configured();
                       check_tpdo(gen);
                     }
                   });
@@ -756,7 +733,8 @@ void Master::config_failed(const canopen::SdoResult& r, const std::string& why) 
 
 void Master::check_tpdo(std::uint64_t gen) {
   // written by the configuration, or sent on our SYNC: known
-  if (s_.configure_mapping || s_.sync_period_s > 0) return check_options(gen);
+  if (s_.configure_mapping || s_.sync_period_s > 0)
+    return check_options(gen, std::make_shared<std::vector<ConfigCheck>>(mode_->checks()), 0);
   sdo_.upload(obj::kTpdo1Comm, 2, [this, gen](const canopen::SdoResult& r) {
     if (gen != config_generation_) return;
     if (!r.ok()) return config_failed(r, "");
@@ -784,21 +762,23 @@ void Master::check_tpdo(std::uint64_t gen) {
                 ": it must be 1 ms to half the drive heartbeat timeout (" +
                 num(s_.drive_heartbeat_timeout_s * 1000) +
                 " ms), as the table's rate and rest come from its positions");
-      check_options(gen);
+      check_options(gen, std::make_shared<std::vector<ConfigCheck>>(mode_->checks()), 0);
     });
   });
 }
 
-void Master::check_options(std::uint64_t gen) {
-  sdo_.upload(obj::kPositioningOption, 0, [this, gen](const canopen::SdoResult& r) {
+void Master::check_options(std::uint64_t gen,
+                           std::shared_ptr<const std::vector<ConfigCheck>> checks, std::size_t i) {
+  if (i == checks->size()) {
+    mode_since_ = now_;
+    return check_mode(gen);
+  }
+  const ConfigCheck& c = (*checks)[i];
+  sdo_.upload(c.index, c.sub, [this, gen, checks, i](const canopen::SdoResult& r) {
     if (gen != config_generation_) return;
     if (!r.ok()) return config_failed(r, "");
-    const std::uint32_t v = r.data.empty() ? 0xFFFFFFFFu : get_le(r.data, 0, r.data.size());
-    if (r.data.empty() || r.data.size() > 2 || (v & 0x3) != kPositioningRelativeToActual)
-      return config_failed(r, "positioning option code (0x60F2) reads " + hex(v, 4) +
-                                  ": relative moves would not count from the actual position");
-    mode_since_ = now_;
-    check_mode(gen);
+    if (std::string why = (*checks)[i].verdict(r); !why.empty()) return config_failed(r, why);
+    check_options(gen, checks, i + 1);
   });
 }
 
@@ -808,14 +788,14 @@ void Master::check_mode(std::uint64_t gen) {
     if (gen != config_generation_) return;
     if (!r.ok()) return config_failed(r, "");
     const int mode = r.data.size() == 1 ? static_cast<std::int8_t>(r.data[0]) : -1000;
-    if (mode == 1) {
-      config_complete_ = true;  // profile position, as written
+    if (mode == mode_->code()) {
+      config_complete_ = true;  // the mode, as written
       return;
     }
     if (r.data.size() != 1)
       return config_failed(r, "modes of operation display (0x6061) reads " +
-                                  std::to_string(r.data.size()) +
-                                  " bytes, not 1 (profile position)");
+                                  std::to_string(r.data.size()) + " bytes, not " +
+                                  std::to_string(mode_->code()) + " (" + mode_->name() + ")");
     // the drive switches a little later: read again, unless tick() finds
     // the time up (judged there, where a hold of the loop is known first)
     mode_read_ = mode;
@@ -885,8 +865,8 @@ void Master::tick(double now_s, std::vector<can::Frame>& out) {
   if (phase_ == CommPhase::Configuring && now_s >= mode_poll_at_) {
     if (now_s - mode_since_ >= s_.mode_switch_timeout_s)
       config_failed({}, "modes of operation display (0x6061) reads " + std::to_string(mode_read_) +
-                            ", not 1 (profile position), " + num(s_.mode_switch_timeout_s) +
-                            " s after 0x6060 was written");
+                            ", not " + std::to_string(mode_->code()) + " (" + mode_->name() +
+                            "), " + num(s_.mode_switch_timeout_s) + " s after 0x6060 was written");
     else
       check_mode(config_generation_);
   }
@@ -909,7 +889,7 @@ void Master::held(double from_s, double to_s) {
   // after it began its wait after)
   if (phase_ == CommPhase::WaitBootUp && boot_deadline_ - s_.boot_timeout_s <= from_s)
     boot_deadline_ += length;
-  if (move_ == MoveStep::Sent) move_sent_t_ += excused(move_sent_t_);
+  mode_->held(from_s, to_s);
   if (phase_ == CommPhase::Configuring) mode_since_ += excused(mode_since_);
   sdo_.held(from_s, to_s);
 }
@@ -1149,10 +1129,10 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
   if (later) rate_ = over(rate_win_).rate_rps;
   last_tpdo_t_ = t_s;
   samples_.push_back(smp);
-  if ((word & sw::kFollowingError) != 0 &&
+  if ((word & mode_->error_bits()) != 0 &&
       (state_ == State::OperationEnabled || state_ == State::FaultReactionActive ||
        state_ == State::Fault || state_ == State::QuickStopActive))
-    latch(FaultCode::FollowingError, "following error (statusword bit 13)");
+    latch(FaultCode::FollowingError, mode_->error_name());
   if (state_ == State::Fault || state_ == State::FaultReactionActive)
     latch(FaultCode::DriveFault, "drive in fault (statusword " + hex(word, 4) + ", no EMCY)");
 }
@@ -1172,7 +1152,7 @@ void Master::send_rpdo(std::uint16_t controlword, std::vector<can::Frame>& out) 
 }
 
 std::uint16_t Master::motion_bits() const {
-  std::uint16_t b = move_flags_;
+  std::uint16_t b = mode_->controlword_bits();
   if (halted_) b |= cw::kHalt;
   return b;
 }
@@ -1180,7 +1160,6 @@ std::uint16_t Master::motion_bits() const {
 void Master::evaluate(double now_s, std::vector<can::Frame>& out, bool timeouts) {
   if (config_complete_) config_done(now_s, out);
   if (phase_ != CommPhase::Running) return;
-  const std::uint16_t word = sw_.value_or(0);
   const bool fresh_after_ack = sw_ && sw_seq_ > ack_after_;
   // A quick stop is acknowledged whatever else: the drive stopped (quick
   // stop active, or not enabled at all).
@@ -1189,15 +1168,43 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out, bool timeouts)
     ack_ = ack_seq_;
     ack_on_ = AckOn::None;
   }
+  if (!recover(now_s, out)) return;
+  if (fault_ != FaultCode::None || !sw_) {
+    // a latched fault does not stop the drive (many EMCYs are warnings):
+    // the quick stop goes on being commanded until the drive shows it
+    // after the drive left operation enabled by itself, our enable
+    // operation may not stay in its RPDO1 (a drive may take it again)
+    if (fault_ != FaultCode::None &&
+        (goal_ == Goal::QuickStop || fault_ == FaultCode::LeftEnabled) &&
+        (!cw_sent_ || (cw_ & cw::kCommandMask) != cw::kCmdQuickStop))
+      send_rpdo(cw::kCmdQuickStop, out);
+    return;
+  }
+  if (!acknowledge(now_s, out, timeouts)) return;
+  bool set_point = false;
+  const std::optional<std::uint16_t> want = towards_goal(set_point);
+  if (!want) return;
+  if (set_point) {
+    target_ = mode_->set_point_target();
+    send_rpdo(*want, out);
+    mode_->set_point_sent(sw_seq_, now_s);
+  } else if (!cw_sent_ || *want != cw_) {
+    send_rpdo(*want, out);
+  }
+}
+
+bool Master::recover(double now_s, std::vector<can::Frame>& out) {
+  const std::uint16_t word = sw_.value_or(0);
+  const std::uint16_t faulty = sw::kFault | mode_->error_bits();
   switch (recovery_) {
     case Recovery::AfterComm:
-      return;  // config_done moves it on
+      return false;  // config_done moves it on
     case Recovery::SendReset: {
       // After a reconfiguration the drive's controlword is not known: hear
       // the drive first (its statusword after NMT start is fresh, sw_ was
       // cleared with the reset), for a little while.
-      if (!cw_sent_ && !sw_ && now_s - low_t_ < s_.fault_reset_low_s) return;
-      if (now_s < status_read_at_) return;
+      if (!cw_sent_ && !sw_ && now_s - low_t_ < s_.fault_reset_low_s) return false;
+      if (now_s < status_read_at_) return false;
       // Whether the drive is in fault, from its own statusword read by SDO:
       // a TPDO may be stale (a drive in fault whose last PDO still says
       // operation enabled), and the fault reset's controlwords, 0x0000 and
@@ -1211,100 +1218,30 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out, bool timeouts)
       sdo_.upload(obj::kStatusword, 0, [this, gen](const canopen::SdoResult& r) {
         if (gen == status_read_gen_ && recovery_ == Recovery::ReadStatus) status_read_ = r;
       });
-      return;
+      return false;
     }
-    case Recovery::ReadStatus: {
-      if (!status_read_) return;
-      const canopen::SdoResult r = std::move(*status_read_);
-      status_read_.reset();
-      // A boot-up or a lost heartbeat since: the drive's objects may be
-      // its defaults, only a reconfiguration clears that
-      if (needs_comm_reset_) {
-        recovery_ = Recovery::AfterComm;
-        reset_comm(now_s, out);
-        return;
-      }
-      // An EMCY since the read went out may be a new fault its answer
-      // does not show (an EMCY outranks the SDO answer on the bus)
-      if (emcy_errors_ != read_emcy_) return read_again(kEmcysKeptComing);
-      // expedited, with or without the size indicated (CiA 301): 2 to 4 bytes
-      if (!r.ok() || r.data.size() < 2 || r.data.size() > 4) {
-        // nothing known, nothing sent: the latch stays, the next Enable
-        // tries again (a silent drive latches its heartbeat loss)
-        recovery_ = Recovery::None;
-        fault_name_ = base_fault_name() + "; the statusword could not be read for its reset: " +
-                      (r.ok() ? std::to_string(r.data.size()) + " bytes" : r.describe());
-        return;
-      }
-      const auto read = static_cast<std::uint16_t>(get_le(r.data, 0, 2));
-      const State drive = decode_state(read);
-      if (drive == State::FaultReactionActive) {
-        // the drive still reacts to its fault (it may be braking): ask again
-        if (++fault_reaction_reads_ > kFaultReactionReads) {
-          recovery_ = Recovery::None;
-          fault_name_ = base_fault_name() + "; the drive stayed in fault reaction active";
-          return;
-        }
-        recovery_ = Recovery::SendReset;
-        status_read_at_ = now_s + s_.fault_reset_low_s;
-        return;
-      }
-      if (drive == State::Unknown) {
-        // no state CiA 402 codes: neither a reset nor an enable
-        recovery_ = Recovery::None;
-        fault_name_ = base_fault_name() + "; the drive's statusword " + hex(read, 4) +
-                      " codes no CiA 402 state";
-        return;
-      }
-      if (drive != State::Fault) {
-        if (drive == State::OperationEnabled && (read & sw::kFollowingError) != 0) {
-          recovery_ = Recovery::None;  // a following error that lasts: the latch stays
-          fault_name_ =
-              base_fault_name() + "; the following error lasts (statusword " + hex(read, 4) + ")";
-          return;
-        }
-        // Not in fault, by the drive's own word (a lost heartbeat, an EMCY
-        // that only warned, a set-point timeout): nothing to reset. The
-        // TPDO state the controlword is chosen from must agree first.
-        read_state_ = drive;
-        recovery_ = Recovery::Confirm;
-        return;
-      }
-      // In fault, its power stage off: the reset is a rising edge of bit 7,
-      // and RPDO1 an overwrite buffer the drive samples once a cycle: a
-      // 0x0000 sent with 0x0080 right behind it may never be seen. Bit 7 low
-      // first, when the drive may hold it high (or we do not know), and the
-      // edge later.
-      if (!cw_sent_ || (cw_ & cw::kFaultReset) != 0) {
-        send_rpdo(cw::kCmdDisableVoltage, out);
-        low_seq_ = sw_seq_;
-        low_t_ = now_s;
-        recovery_ = Recovery::ResetLow;
-        return;
-      }
-      send_rpdo(cw::kCmdFaultReset, out);
-      reset_seq_ = sw_seq_;
-      recovery_ = Recovery::WaitFresh;
-      return;
-    }
+    case Recovery::ReadStatus:
+      if (status_read_) on_status_read(now_s, out);
+      return false;
     case Recovery::Confirm:
-      if (sw_seq_ <= read_sw_seq_) return;  // no TPDO since the read
+      if (sw_seq_ <= read_sw_seq_) return false;  // no TPDO since the read
       if (needs_comm_reset_ || emcy_errors_ != read_emcy_ || state_ != read_state_ ||
-          (word & (sw::kFault | sw::kFollowingError)) != 0) {
+          (word & faulty) != 0) {
         // it changed since: read again (a frozen TPDO that never agrees
         // with the drive's own word ends it)
-        return read_again(emcy_errors_ != read_emcy_ ? std::string(kEmcysKeptComing)
-                          : state_ != read_state_
-                              ? "the drive's statusword read by SDO (" +
-                                    std::string(to_string(read_state_)) + ") and its TPDO (" +
-                                    to_string(state_) + ", " + hex(word, 4) + ") kept disagreeing"
-                              : "its TPDO kept showing a fault or a following error (" +
-                                    hex(word, 4) + ")");
+        read_again(emcy_errors_ != read_emcy_ ? std::string(kEmcysKeptComing)
+                   : state_ != read_state_
+                       ? "the drive's statusword read by SDO (" +
+                             std::string(to_string(read_state_)) + ") and its TPDO (" +
+                             to_string(state_) + ", " + hex(word, 4) + ") kept disagreeing"
+                       : std::string("its TPDO kept showing a fault or a ") + mode_->error_name() +
+                             " (" + hex(word, 4) + ")");
+        return false;
       }
       fault_ = FaultCode::None;
       fault_name_.clear();
       recovery_ = Recovery::None;
-      break;
+      return true;
     case Recovery::ResetLow:
       // a statusword since 0x0000 went out: the drive has sampled it
       if (sw_seq_ > low_seq_ || now_s - low_t_ >= s_.fault_reset_low_s) {
@@ -1312,40 +1249,105 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out, bool timeouts)
         reset_seq_ = sw_seq_;
         recovery_ = Recovery::WaitFresh;
       }
-      return;
+      return false;
     case Recovery::WaitFresh:
       // A fault reset takes the drive to Switch on disabled (CiA 402
       // transition 15): only that state, in a statusword received after the
       // reset went out, clears the latch. A frozen TPDO that still says
       // Operation enabled, or any other state, proves nothing.
-      if (sw_ && sw_seq_ > reset_seq_ && (word & (sw::kFault | sw::kFollowingError)) == 0 &&
-          state_ == State::SwitchOnDisabled) {
-        if (needs_comm_reset_) {  // only a reconfiguration clears that
-          recovery_ = Recovery::AfterComm;
-          reset_comm(now_s, out);
-          return;
-        }
-        fault_ = FaultCode::None;
-        fault_name_.clear();
-        recovery_ = Recovery::None;
-      } else {
-        return;
+      if (!(sw_ && sw_seq_ > reset_seq_ && (word & faulty) == 0 &&
+            state_ == State::SwitchOnDisabled))
+        return false;
+      if (needs_comm_reset_) {  // only a reconfiguration clears that
+        recovery_ = Recovery::AfterComm;
+        reset_comm(now_s, out);
+        return false;
       }
-      break;
+      fault_ = FaultCode::None;
+      fault_name_.clear();
+      recovery_ = Recovery::None;
+      return true;
     case Recovery::None:
-      break;
+      return true;
   }
-  if (fault_ != FaultCode::None || !sw_) {
-    // a latched fault does not stop the drive (many EMCYs are warnings):
-    // the quick stop goes on being commanded until the drive shows it
-    // after the drive left operation enabled by itself, our enable
-    // operation may not stay in its RPDO1 (a drive may take it again)
-    if (fault_ != FaultCode::None &&
-        (goal_ == Goal::QuickStop || fault_ == FaultCode::LeftEnabled) &&
-        (!cw_sent_ || (cw_ & cw::kCommandMask) != cw::kCmdQuickStop))
-      send_rpdo(cw::kCmdQuickStop, out);
+  return true;
+}
+
+void Master::on_status_read(double now_s, std::vector<can::Frame>& out) {
+  const canopen::SdoResult r = std::move(*status_read_);
+  status_read_.reset();
+  // A boot-up or a lost heartbeat since: the drive's objects may be its
+  // defaults, only a reconfiguration clears that
+  if (needs_comm_reset_) {
+    recovery_ = Recovery::AfterComm;
+    reset_comm(now_s, out);
     return;
   }
+  // An EMCY since the read went out may be a new fault its answer does not
+  // show (an EMCY outranks the SDO answer on the bus)
+  if (emcy_errors_ != read_emcy_) return read_again(kEmcysKeptComing);
+  // expedited, with or without the size indicated (CiA 301): 2 to 4 bytes
+  if (!r.ok() || r.data.size() < 2 || r.data.size() > 4) {
+    // nothing known, nothing sent: the latch stays, the next Enable tries
+    // again (a silent drive latches its heartbeat loss)
+    recovery_ = Recovery::None;
+    fault_name_ = base_fault_name() + "; the statusword could not be read for its reset: " +
+                  (r.ok() ? std::to_string(r.data.size()) + " bytes" : r.describe());
+    return;
+  }
+  const auto read = static_cast<std::uint16_t>(get_le(r.data, 0, 2));
+  const State drive = decode_state(read);
+  if (drive == State::FaultReactionActive) {
+    // the drive still reacts to its fault (it may be braking): ask again
+    if (++fault_reaction_reads_ > kFaultReactionReads) {
+      recovery_ = Recovery::None;
+      fault_name_ = base_fault_name() + "; the drive stayed in fault reaction active";
+      return;
+    }
+    recovery_ = Recovery::SendReset;
+    status_read_at_ = now_s + s_.fault_reset_low_s;
+    return;
+  }
+  if (drive == State::Unknown) {
+    // no state CiA 402 codes: neither a reset nor an enable
+    recovery_ = Recovery::None;
+    fault_name_ =
+        base_fault_name() + "; the drive's statusword " + hex(read, 4) + " codes no CiA 402 state";
+    return;
+  }
+  if (drive != State::Fault) {
+    if (drive == State::OperationEnabled && (read & mode_->error_bits()) != 0) {
+      recovery_ = Recovery::None;  // a following error that lasts: the latch stays
+      fault_name_ = base_fault_name() + "; the " + mode_->error_name() + " lasts (statusword " +
+                    hex(read, 4) + ")";
+      return;
+    }
+    // Not in fault, by the drive's own word (a lost heartbeat, an EMCY that
+    // only warned, a set-point timeout): nothing to reset. The TPDO state
+    // the controlword is chosen from must agree first.
+    read_state_ = drive;
+    recovery_ = Recovery::Confirm;
+    return;
+  }
+  // In fault, its power stage off: the reset is a rising edge of bit 7, and
+  // RPDO1 an overwrite buffer the drive samples once a cycle: a 0x0000 sent
+  // with 0x0080 right behind it may never be seen. Bit 7 low first, when
+  // the drive may hold it high (or we do not know), and the edge later.
+  if (!cw_sent_ || (cw_ & cw::kFaultReset) != 0) {
+    send_rpdo(cw::kCmdDisableVoltage, out);
+    low_seq_ = sw_seq_;
+    low_t_ = now_s;
+    recovery_ = Recovery::ResetLow;
+    return;
+  }
+  send_rpdo(cw::kCmdFaultReset, out);
+  reset_seq_ = sw_seq_;
+  recovery_ = Recovery::WaitFresh;
+}
+
+bool Master::acknowledge(double now_s, std::vector<can::Frame>& out, bool timeouts) {
+  const std::uint16_t word = sw_.value_or(0);
+  const bool fresh_after_ack = sw_ && sw_seq_ > ack_after_;
   switch (ack_on_) {
     case AckOn::Enabled:
       if (state_ == State::OperationEnabled) ack_on_ = AckOn::None, ack_ = ack_seq_;
@@ -1362,29 +1364,24 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out, bool timeouts)
     case AckOn::None:
       break;
   }
-  // the set-point handshake (profile position)
+  // the mode's handshake (profile position: the set-point's)
   if (state_ != State::OperationEnabled) {
-    if (move_ == MoveStep::Sent || move_ == MoveStep::Acked || move_ == MoveStep::Halting)
-      move_ = MoveStep::None;
-  } else if (move_ == MoveStep::Sent && sw_seq_ > move_sent_seq_ &&
-             (word & sw::kSetPointAcknowledge) != 0) {
-    ack_ = pending_.seq;
-    move_ = MoveStep::Acked;  // bit 4 drops with the controlword below
-  } else if (timeouts && move_ == MoveStep::Sent && now_s - move_sent_t_ > s_.set_point_timeout_s) {
-    move_ = MoveStep::None;
-    latch(FaultCode::SetPointTimeout, "set-point not acknowledged (statusword bit 12) within " +
-                                          num(s_.set_point_timeout_s) + " s");
-    send_rpdo(cw::kCmdEnableOperation | motion_bits(), out);  // bit 4 down
-    return;
-  } else if (move_ == MoveStep::Acked && (word & sw::kSetPointAcknowledge) == 0 &&
-             (word & sw::kTargetReached) != 0) {
-    move_ = MoveStep::Done;
-  } else if (move_ == MoveStep::Halting && fresh_after_ack && (word & sw::kTargetReached) != 0) {
-    move_ = MoveStep::Done;
+    mode_->left_enabled();
+    return true;
   }
-  // the controlword towards the goal (CiA 402 transitions)
+  const ModeProgress p = mode_->on_status(word, sw_seq_, fresh_after_ack, now_s, timeouts);
+  if (p.acked) ack_ = *p.acked;
+  if (!p.fault.empty()) {
+    latch(FaultCode::SetPointTimeout, p.fault);
+    send_rpdo(cw::kCmdEnableOperation | motion_bits(), out);  // the set-point's bit down
+    return false;
+  }
+  return true;
+}
+
+std::optional<std::uint16_t> Master::towards_goal(bool& set_point) {
+  const std::uint16_t word = sw_.value_or(0);
   std::uint16_t want = cw_;
-  bool set_point = false;
   switch (goal_) {
     case Goal::Disabled:
       // Shutdown (transition 8 from Operation enabled): the drive stops on
@@ -1404,67 +1401,169 @@ void Master::evaluate(double now_s, std::vector<can::Frame>& out, bool timeouts)
       } else {
         want = cw::kCmdShutdown;
       }
-      break;
+      return want;
     case Goal::QuickStop:
-      want = cw::kCmdQuickStop;
-      break;
+      return cw::kCmdQuickStop;
     case Goal::Enabled:
-      switch (state_) {
-        case State::SwitchOnDisabled:
-          want = cw::kCmdShutdown;  // transition 2
-          break;
-        case State::ReadyToSwitchOn:
-          want = cw::kCmdSwitchOn;  // 3
-          break;
-        case State::SwitchedOn: {
-          // 4: the drive holds its actual position from here. Onto a table
-          // that still turns (a drive that let go, a run that ended with
-          // the table coasting) it would brake the instrument at the drive's
-          // full torque: only with the table known at rest (TPDO1's
-          // positions since the NMT start, rest_since_running()); until
-          // then Switched on stays.
-          want = cw::kCmdSwitchOn;  // stays, whatever went out before a reset
-          const Rest rest = rest_since_running();
-          if (rest.state == Rest::Unknown) break;
-          if (rest.state == Rest::Turning) {
-            latch(FaultCode::TurningAtEnable,
-                  "not enabled: the table turns at " + num(rest.rate_rps * kRadToDeg) +
-                      " deg/s with the drive switched on but not enabled; enabling would brake "
-                      "it at the drive's full torque: let it stop, then enable");
-            return;
-          }
-          want = cw::kCmdEnableOperation;
-          break;
-        }
-        case State::OperationEnabled:
-          want = cw::kCmdEnableOperation | motion_bits();
-          if (move_ == MoveStep::Ready && (word & sw::kSetPointAcknowledge) == 0) {
-            want |= cw::kNewSetPoint;
-            set_point = true;
-          } else if (move_ == MoveStep::Sent) {
-            // CiA 402: bit 4 stays high until the drive acknowledges (bit 12)
-            want |= cw::kNewSetPoint;
-          }
-          break;
-        case State::QuickStopActive:
-          // 12, then up again; not before the quick stop is complete (bit
-          // 10): Disable voltage while still decelerating lets it coast
-          if ((word & sw::kTargetReached) != 0) want = cw::kCmdDisableVoltage;
-          break;
-        default:
-          break;  // not ready, fault reaction, fault: the drive moves on by itself
-      }
       break;
   }
-  if (set_point) {
-    target_ = pending_.target;
-    send_rpdo(want, out);
-    move_ = MoveStep::Sent;
-    move_sent_seq_ = sw_seq_;
-    move_sent_t_ = now_s;
-  } else if (!cw_sent_ || want != cw_) {
-    send_rpdo(want, out);
+  switch (state_) {
+    case State::SwitchOnDisabled:
+      return cw::kCmdShutdown;  // transition 2
+    case State::ReadyToSwitchOn:
+      return cw::kCmdSwitchOn;  // 3
+    case State::SwitchedOn: {
+      // 4: the drive holds its actual position from here. Onto a table that
+      // still turns (a drive that let go, a run that ended with the table
+      // coasting) it would brake the instrument at the drive's full torque:
+      // only with the table known at rest (TPDO1's positions since the NMT
+      // start, rest_since_running()); until then Switched on stays
+      // (whatever went out before a reset).
+      const Rest rest = rest_since_running();
+      if (rest.state == Rest::Unknown) return cw::kCmdSwitchOn;
+      if (rest.state == Rest::Turning) {
+        latch(FaultCode::TurningAtEnable,
+              "not enabled: the table turns at " + num(rest.rate_rps * kRadToDeg) +
+                  " deg/s with the drive switched on but not enabled; enabling would brake "
+                  "it at the drive's full torque: let it stop, then enable");
+        return std::nullopt;
+      }
+      return cw::kCmdEnableOperation;
+    }
+    case State::OperationEnabled:
+      return static_cast<std::uint16_t>(cw::kCmdEnableOperation | motion_bits() |
+                                        mode_->set_point_bits(word, set_point));
+    case State::QuickStopActive:
+      // 12, then up again; not before the quick stop is complete (bit 10):
+      // Disable voltage while still decelerating lets it coast
+      if ((word & sw::kTargetReached) != 0) want = cw::kCmdDisableVoltage;
+      return want;
+    default:
+      return want;  // not ready, fault reaction, fault: the drive moves on by itself
   }
+}
+
+std::string Master::why_no_move() const {
+  if (phase_ == CommPhase::Running && fault_ == FaultCode::None && goal_ == Goal::Enabled &&
+      state_ == State::OperationEnabled)
+    return {};
+  return std::string("a move needs the drive enabled (CiA 402 state: ") + to_string(state_) +
+         (fault_ != FaultCode::None ? ", fault: " + fault_name_ : "") + ")";
+}
+
+Status Master::enable(std::uint8_t seq, double now_s, std::vector<can::Frame>& out) {
+  // Onto a turning table (a warning latched mid-move, a drive that let go
+  // and coasts) an enable would set a new demand at speed (by the rest test
+  // the enable itself waits for: one verdict)
+  if (const Rest rest = rest_since_running();
+      phase_ == CommPhase::Running && rest.state == Rest::Turning)
+    return make_error("enable refused while the table turns (" + num(rest.rate_rps * kRadToDeg) +
+                      " deg/s): stop it first (quick stop), or wait for it to stop");
+  goal_ = Goal::Enabled;
+  quick_stopped_ = false;
+  halted_ = false;
+  fault_reaction_reads_ = 0;  // each Enable's recovery has its own bounds
+  confirm_reads_ = 0;
+  mode_->reset();
+  ack_on_ = AckOn::Enabled;
+  ack_seq_ = seq;
+  // a fault reset already tried and still no statusword without fault: this
+  // Enable tries again
+  if (fault_ != FaultCode::None &&
+      (recovery_ == Recovery::None || recovery_ == Recovery::WaitFresh ||
+       recovery_ == Recovery::Confirm)) {
+    if (needs_comm_reset_ || phase_ == CommPhase::Failed) {
+      recovery_ = Recovery::AfterComm;
+      reset_comm(now_s, out);
+    } else {
+      recovery_ = Recovery::SendReset;
+      low_t_ = now_s;
+    }
+  } else if (phase_ == CommPhase::Failed) {
+    reset_comm(now_s, out);
+  }
+  return Ok{};
+}
+
+Status Master::disable(std::uint8_t seq) {
+  const bool running = phase_ == CommPhase::Running;
+  if (running && fault_ == FaultCode::None && goal_ == Goal::Enabled &&
+      state_ == State::OperationEnabled && mode_->moving())
+    return make_error(
+        "disable refused while the table moves: stop it first (controlled or quick stop)");
+  // whatever the master thinks of its move: a drive without 0x605B/C lets
+  // a turning table coast on Shutdown
+  if (const Rest rest = rest_since_running(); running && rest.state == Rest::Turning)
+    return make_error("disable refused while the table turns (" + num(rest.rate_rps * kRadToDeg) +
+                      " deg/s): stop it first (quick stop), or wait for it to stop");
+  goal_ = Goal::Disabled;
+  abandon_recovery();
+  quick_stopped_ = false;
+  mode_->reset();
+  ack_seq_ = seq;
+  ack_on_ = AckOn::Disabled;
+  if (!running) ack_ = seq, ack_on_ = AckOn::None;
+  return Ok{};
+}
+
+Status Master::quick_stop(std::uint8_t seq, double now_s, std::vector<can::Frame>& out) {
+  goal_ = Goal::QuickStop;
+  quick_stopped_ = true;
+  mode_->reset();
+  ack_seq_ = seq;
+  ack_on_ = AckOn::Stopped;
+  ack_after_ = sw_seq_;
+  abandon_recovery();  // the next Enable tries again
+  if (phase_ == CommPhase::Running) {
+    // at once, whatever the fault latch: the drive is told to stop, and the
+    // ack waits for a statusword that shows it (quick stop active, fault,
+    // or not enabled): an EMCY may be a mere warning
+    send_rpdo(cw::kCmdQuickStop, out);
+    evaluate(now_s, out);
+    return Ok{};
+  }
+  if (phase_ == CommPhase::WaitBootUp)
+    return make_error(
+        "quick stop not sent: the drive's communication is being reset (no SDO before its "
+        "boot-up); send it again");
+  // Configuring or Failed: no PDO, but an SDO reaches the drive in
+  // pre-operational, and after a communication reset it may still be
+  // enabled. The answer to the write is the ack; it goes before the
+  // configuration's queued writes, and is kept when it fails.
+  sdo_.download_urgent(obj::kControlword, 0, le_bytes(cw::kCmdQuickStop, 2),
+                       [this, seq](const canopen::SdoResult& r) {
+                         if (ack_on_ != AckOn::Stopped || ack_seq_ != seq) return;
+                         ack_on_ = AckOn::None;
+                         if (r.ok())
+                           ack_ = seq;
+                         else
+                           latch(FaultCode::Sdo,
+                                 "quick stop by SDO (0x6040) failed: " + r.describe());
+                       });
+  sdo_.tick(now_s, out);
+  return Ok{};
+}
+
+Status Master::controlled_stop(std::uint8_t seq, double now_s, std::vector<can::Frame>& out) {
+  const bool running = phase_ == CommPhase::Running;
+  ack_seq_ = seq;
+  if (running && fault_ == FaultCode::None && state_ == State::OperationEnabled &&
+      goal_ == Goal::Enabled) {
+    halted_ = true;
+    mode_->halt();
+    ack_on_ = AckOn::Halted;
+    ack_after_ = sw_seq_;
+    send_rpdo(cw::kCmdEnableOperation | motion_bits(), out);
+  } else if (running && fault_ != FaultCode::None) {
+    // a latched fault (an EMCY that only warned, the drive that left
+    // operation enabled) and the table may turn: a quick stop, acked as one
+    // when the drive shows it
+    return quick_stop(seq, now_s, out);
+  } else {
+    ack_ = seq;  // nothing moves
+    ack_on_ = AckOn::None;
+  }
+  return Ok{};
 }
 
 Status Master::command(TableCommandCode code, std::uint8_t seq, double target_rad, double rate_rps,
@@ -1472,178 +1571,23 @@ Status Master::command(TableCommandCode code, std::uint8_t seq, double target_ra
   now_ = std::max(now_, now_s);
   if (!invalid_.empty()) return make_error("invalid CANopen master settings: " + invalid_);
   if (phase_ == CommPhase::Idle) return make_error("the CANopen master has not been started");
-  const bool running = phase_ == CommPhase::Running;
   switch (code) {
     case TableCommandCode::Enable:
-      // Onto a turning table (a warning latched mid-move, a drive that let
-      // go and coasts) an enable would set a new demand at speed
-      // (by the rest test the enable itself waits for: one verdict)
-      if (const Rest rest = rest_since_running(); running && rest.state == Rest::Turning)
-        return make_error("enable refused while the table turns (" +
-                          num(rest.rate_rps * kRadToDeg) +
-                          " deg/s): stop it first (quick stop), or wait for it to stop");
-      goal_ = Goal::Enabled;
-      quick_stopped_ = false;
-      halted_ = false;
-      fault_reaction_reads_ = 0;  // each Enable's recovery has its own bounds
-      confirm_reads_ = 0;
-      move_ = MoveStep::None;
-      ack_on_ = AckOn::Enabled;
-      ack_seq_ = seq;
-      // a fault reset already tried and still no statusword without fault:
-      // this Enable tries again
-      if (fault_ != FaultCode::None &&
-          (recovery_ == Recovery::None || recovery_ == Recovery::WaitFresh ||
-           recovery_ == Recovery::Confirm)) {
-        if (needs_comm_reset_ || phase_ == CommPhase::Failed) {
-          recovery_ = Recovery::AfterComm;
-          reset_comm(now_s, out);
-        } else {
-          recovery_ = Recovery::SendReset;
-          low_t_ = now_s;
-        }
-      } else if (phase_ == CommPhase::Failed) {
-        reset_comm(now_s, out);
-      }
+      TURNCAL_TRY(enable(seq, now_s, out));
       break;
     case TableCommandCode::Disable:
-      if (running && fault_ == FaultCode::None && goal_ == Goal::Enabled &&
-          state_ == State::OperationEnabled &&
-          (move_ == MoveStep::WaitSdo || move_ == MoveStep::Ready || move_ == MoveStep::Sent ||
-           move_ == MoveStep::Acked || move_ == MoveStep::Halting))
-        return make_error(
-            "disable refused while the table moves: stop it first (controlled or quick stop)");
-      // whatever the master thinks of its move: a drive without 0x605B/C
-      // lets a turning table coast on Shutdown
-      if (const Rest rest = rest_since_running(); running && rest.state == Rest::Turning)
-        return make_error("disable refused while the table turns (" +
-                          num(rest.rate_rps * kRadToDeg) +
-                          " deg/s): stop it first (quick stop), or wait for it to stop");
-      goal_ = Goal::Disabled;
-      abandon_recovery();
-      quick_stopped_ = false;
-      move_ = MoveStep::None;
-      ack_seq_ = seq;
-      ack_on_ = AckOn::Disabled;
-      if (!running) ack_ = seq, ack_on_ = AckOn::None;
+      TURNCAL_TRY(disable(seq));
       break;
     case TableCommandCode::QuickStop:
-      goal_ = Goal::QuickStop;
-      quick_stopped_ = true;
-      move_ = MoveStep::None;
-      ack_seq_ = seq;
-      ack_on_ = AckOn::Stopped;
-      ack_after_ = sw_seq_;
-      abandon_recovery();  // the next Enable tries again
-      if (running) {
-        // at once, whatever the fault latch: the drive is told to stop, and
-        // the ack waits for a statusword that shows it (quick stop active,
-        // fault, or not enabled): an EMCY may be a mere warning
-        send_rpdo(cw::kCmdQuickStop, out);
-        evaluate(now_s, out);
-        return Ok{};
-      }
-      if (phase_ == CommPhase::WaitBootUp)
-        return make_error(
-            "quick stop not sent: the drive's communication is being reset (no SDO before its "
-            "boot-up); send it again");
-      // Configuring or Failed: no PDO, but an SDO reaches the drive in
-      // pre-operational, and after a communication reset it may still be
-      // enabled. The answer to the write is the ack.
-      {
-        const std::uint8_t qs_seq = seq;
-        // before the configuration's queued writes, and kept when it fails
-        sdo_.download_urgent(obj::kControlword, 0, le_bytes(cw::kCmdQuickStop, 2),
-                             [this, qs_seq](const canopen::SdoResult& r) {
-                               if (ack_on_ != AckOn::Stopped || ack_seq_ != qs_seq) return;
-                               if (r.ok()) {
-                                 ack_ = qs_seq;
-                                 ack_on_ = AckOn::None;
-                               } else {
-                                 ack_on_ = AckOn::None;
-                                 latch(FaultCode::Sdo,
-                                       "quick stop by SDO (0x6040) failed: " + r.describe());
-                               }
-                             });
-        sdo_.tick(now_s, out);
-      }
-      return Ok{};
+      return quick_stop(seq, now_s, out);
     case TableCommandCode::ControlledStop:
-      ack_seq_ = seq;
-      if (running && fault_ == FaultCode::None && state_ == State::OperationEnabled &&
-          goal_ == Goal::Enabled) {
-        halted_ = true;
-        move_ = MoveStep::Halting;
-        ack_on_ = AckOn::Halted;
-        ack_after_ = sw_seq_;
-        send_rpdo(cw::kCmdEnableOperation | motion_bits(), out);
-      } else if (running && fault_ != FaultCode::None) {
-        // a latched fault (an EMCY that only warned, the drive that left
-        // operation enabled) and the table may turn: a quick stop, acked
-        // as one when the drive shows it
-        return command(TableCommandCode::QuickStop, seq, target_rad, rate_rps, now_s, out);
-      } else {
-        ack_ = seq;  // nothing moves
-        ack_on_ = AckOn::None;
-      }
+      TURNCAL_TRY(controlled_stop(seq, now_s, out));
       break;
     case TableCommandCode::MoveAbsolute:
-    case TableCommandCode::MoveRelative: {
-      const bool relative = code == TableCommandCode::MoveRelative;
-      if (!(std::isfinite(rate_rps) && rate_rps > 0))
-        return make_error("move rate " + num(rate_rps) + " rad/s must be positive");
-      TURNCAL_ASSIGN(vel, to_u32_counts(rate_rps * kRadToDeg, cpr_ / kRadToDeg, "move rate",
-                                        obj::kProfileVelocity, "deg/s"));
-      const double c = std::round(sense() * target_rad * cpr_);
-      const double lo = std::numeric_limits<std::int32_t>::min();
-      const double hi = std::numeric_limits<std::int32_t>::max();
-      const char* what = relative ? "move by" : "move to";
-      if (!(c >= lo && c <= hi))
-        return make_error(std::string(what) + " " + num(target_rad * kRadToDeg) + " deg is " +
-                          num(c) + " counts, beyond the drive's 32-bit target position (" +
-                          hex(obj::kTargetPosition, 4) + ")");
-      if (relative && have_pos_) {
-        const double end = static_cast<double>(pos_counts_) + c;
-        if (!(end >= lo && end <= hi))
-          return make_error("move by " + num(target_rad * kRadToDeg) + " deg ends at " + num(end) +
-                            " counts, beyond the drive's 32-bit position");
-      }
-      if (!running || fault_ != FaultCode::None || goal_ != Goal::Enabled ||
-          state_ != State::OperationEnabled)
-        return make_error(std::string("a move needs the drive enabled (CiA 402 state: ") +
-                          to_string(state_) +
-                          (fault_ != FaultCode::None ? ", fault: " + fault_name_ : "") + ")");
-      if (move_ == MoveStep::Sent)
-        return make_error("the last set-point is not yet acknowledged by the drive");
-      if ((move_ == MoveStep::Acked || move_ == MoveStep::Halting) && !s_.change_set_immediately)
-        return make_error("a move is under way (change set immediately is off)");
-      pending_ = {seq, relative, static_cast<std::int32_t>(c), vel};
-      move_flags_ =
-          static_cast<std::uint16_t>((relative ? cw::kRelative : 0) |
-                                     (s_.change_set_immediately ? cw::kChangeImmediately : 0));
+    case TableCommandCode::MoveRelative:
+      TURNCAL_TRY(mode_->move(code, seq, target_rad, rate_rps, now_s, out));
       halted_ = false;
-      if (vel != velocity_written_) {
-        move_ = MoveStep::WaitSdo;
-        const std::uint64_t gen = ++move_generation_;
-        sdo_.download(obj::kProfileVelocity, 0, le_bytes(vel, 4),
-                      [this, gen, vel](const canopen::SdoResult& r) {
-                        // what the drive holds, whether the move still waits or not
-                        if (r.ok()) velocity_written_ = vel;
-                        if (gen != move_generation_ || move_ != MoveStep::WaitSdo) return;
-                        if (r.ok()) {
-                          move_ = MoveStep::Ready;
-                        } else {
-                          move_ = MoveStep::None;
-                          latch(FaultCode::Sdo,
-                                "SDO abort writing the profile velocity: " + r.describe());
-                        }
-                      });
-        sdo_.tick(now_s, out);
-      } else {
-        move_ = MoveStep::Ready;
-      }
       break;
-    }
     default:
       return make_error("unknown table command code " + std::to_string(static_cast<int>(code)));
   }
@@ -1671,18 +1615,7 @@ TableView Master::status() const {
   }
   switch (state_) {
     case State::OperationEnabled:
-      switch (move_) {
-        case MoveStep::Acked:
-        case MoveStep::Halting:
-          v.state = TableState::Moving;
-          break;
-        case MoveStep::Done:
-          v.state = TableState::InPosition;
-          break;
-        default:
-          v.state = TableState::Holding;
-          break;
-      }
+      v.state = mode_->enabled_state();
       break;
     case State::QuickStopActive:
       v.state = TableState::QuickStopped;

@@ -56,6 +56,10 @@ struct Loop {
   explicit Loop(cia402::MasterSettings ms = master_settings(),
                 stand::Drive402Setup ds = drive_setup(), stand::Drive402Faults df = {})
       : master(ms), drive(ds, df) {}
+  /// The master in a mode of operation of the test's.
+  Loop(const cia402::Master::ModeFactory& mode, cia402::MasterSettings ms,
+       stand::Drive402Setup ds = drive_setup())
+      : master(ms, mode), drive(ds, {}) {}
 
   cia402::Master master;
   VirtualDrive402 drive;
@@ -2402,6 +2406,104 @@ TEST_SUITE("cia402") {
       CHECK(l.master.phase() == cia402::CommPhase::Failed);
       CHECK(l.master.status().fault == FaultCode::Configuration);
       CHECK(l.master.status().fault_name.find("0x6061") != std::string::npos);
+      CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
+    }
+  }
+
+  TEST_CASE("the mode seam: the master writes, reads back and awaits what its mode says") {
+    // A mode of the test's, no move of its own: what the master does with
+    // the mode's code, writes and checks is the master's, shared by every
+    // mode (the profile position tests above are one mode's).
+    struct Probe {
+      std::int8_t code = 1;
+      std::uint32_t velocity = 12345;  // counts/s, written to 0x6081
+      std::string refuse;              // the check's verdict on 0x6081
+      int configured = 0;
+      int checked = 0;
+    };
+    class TestMode final : public cia402::OperationMode {
+     public:
+      explicit TestMode(Probe& p) : p_(p) {}
+      std::int8_t code() const override { return p_.code; }
+      const char* name() const override { return "the test's mode"; }
+      void configuration(std::vector<cia402::ConfigWrite>& w) const override {
+        w.push_back({0x6081, 0, canopen::le_bytes(p_.velocity, 4)});
+      }
+      void configured() override { ++p_.configured; }
+      std::vector<cia402::ConfigCheck> checks() const override {
+        return {{0x6081, 0, [this](const canopen::SdoResult& r) {
+                   ++p_.checked;
+                   if (r.data.size() != 4 || canopen::get_le(r.data, 0, 4) != p_.velocity)
+                     return std::string("0x6081 does not hold what was written");
+                   return p_.refuse;
+                 }}};
+      }
+      std::uint16_t error_bits() const override { return 0; }
+      const char* error_name() const override { return "no error"; }
+      void reset() override {}
+      void left_enabled() override {}
+      bool moving() const override { return false; }
+      Status move(TableCommandCode, std::uint8_t, double, double, double,
+                  std::vector<can::Frame>&) override {
+        return make_error("the test's mode makes no moves");
+      }
+      void halt() override {}
+      cia402::ModeProgress on_status(std::uint16_t, std::uint64_t, bool, double, bool) override {
+        return {};
+      }
+      std::uint16_t controlword_bits() const override { return 0; }
+      std::uint16_t set_point_bits(std::uint16_t, bool& starts) const override {
+        starts = false;
+        return 0;
+      }
+      std::int32_t set_point_target() const override { return 0; }
+      void set_point_sent(std::uint64_t, double) override {}
+      TableState enabled_state() const override { return TableState::Holding; }
+      void held(double, double) override {}
+
+     private:
+      Probe& p_;
+    };
+    Probe probe;
+    auto factory = [&probe](const cia402::MasterSettings&, cia402::ModeHost&) {
+      return std::make_unique<TestMode>(probe);
+    };
+    SUBCASE("its code in 0x6060, its writes, its checks, then 0x6061 shows its code") {
+      Loop l(factory, master_settings());
+      l.start();
+      REQUIRE(l.running());
+      CHECK(*l.drive.value(0x6060, 0) == 1);
+      CHECK(*l.drive.value(0x6081, 0) == 12345);  // the mode's write, not the settings' rate
+      CHECK(probe.configured == 1);
+      CHECK(probe.checked == 1);
+      // the profile position's own write is not the master's: 0x60F2 untouched
+      const auto& w = l.drive.sdo_writes();
+      CHECK(std::find(w.begin(), w.end(), std::make_pair<std::uint16_t, std::uint8_t>(0x60F2, 0)) ==
+            w.end());
+      REQUIRE(l.enabled(1));
+      const Status move = l.command(TableCommandCode::MoveRelative, 2, 10 * kDeg, 30 * kDeg);
+      REQUIRE_FALSE(move);
+      CHECK(move.error().message == "the test's mode makes no moves");
+    }
+    SUBCASE("a check's verdict fails the configuration with its text, nothing started") {
+      probe.refuse = "the drive keeps no such mode";
+      Loop l(factory, master_settings());
+      l.start();
+      l.run_for(0.5);
+      CHECK(probe.checked == 1);
+      CHECK(l.master.phase() == cia402::CommPhase::Failed);
+      CHECK(l.master.status().fault == FaultCode::Configuration);
+      CHECK(l.master.status().fault_name == "the drive keeps no such mode");
+      CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
+    }
+    SUBCASE("a code the drive lacks: 0x6060 refused, named, nothing read back") {
+      probe.code = 3;  // profile velocity, which this drive has not
+      Loop l(factory, master_settings());
+      l.start();
+      l.run_for(0.5);
+      CHECK(probe.checked == 0);
+      CHECK(l.master.phase() == cia402::CommPhase::Failed);
+      CHECK(l.master.status().fault_name.find("0x6060") != std::string::npos);
       CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
     }
   }

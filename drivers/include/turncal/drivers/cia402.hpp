@@ -1,20 +1,26 @@
-// A CANopen master for one CiA 402 servo drive in profile position mode,
-// pure (style.md, 2 and 7): frames in, frames out, time injected as seconds;
-// every timeout comes from tick(now_s), nothing blocks.
+// A CANopen master for one CiA 402 servo drive, pure (style.md, 2 and 7):
+// frames in, frames out, time injected as seconds; every timeout comes from
+// tick(now_s), nothing blocks. What belongs to the mode of operation (its
+// objects, what is read back, the moves and their handshake) sits behind
+// OperationMode; the state machine, the fault latch and its reset, NMT,
+// SDO, the heartbeats and the encoder are the master's, shared by every
+// mode. Profile position (drivers/table/cia402_profile_position.cpp) is
+// the one a stand uses today.
 //
 // What it does, in order:
 //   NMT reset communication -> the drive's boot-up (0x700+node, 0x00) ->
-//   NMT enter pre-operational -> configuration by SDO (0x6060 = 1,
-//   0x60F2 = 1, 0x6081, 0x6083, 0x6084, 0x6085, 0x605A, 0x6007, 0x1016:01,
-//   0x1017, then the PDO mappings 0x1600 / 0x1A00 [/ 0x1A01] when the
-//   settings ask; then 0x60F2 read back, and 0x6061 read until the drive
-//   shows profile position) -> NMT start.
+//   NMT enter pre-operational -> configuration by SDO (0x6060 = the mode,
+//   the mode's objects (profile position: 0x60F2 = 1, 0x6081), 0x6083,
+//   0x6084, 0x6085, 0x605A, 0x605B, 0x605C, 0x6007, 0x1016:01, 0x1017, then
+//   the PDO mappings 0x1600 / 0x1A00 [/ 0x1A01] when the settings ask; then
+//   the mode's objects read back (profile position: 0x60F2), and 0x6061 read
+//   until the drive shows the mode) -> NMT start.
 //
-// Relative moves: 0x60F2 (positioning option code) bits 0-1 = 01 makes a
-// relative target count from the actual position (CiA 402); many drives
-// default to 00, from the last target, which after a halt or a quick stop
-// is not where the table is. The configuration fails when the drive does
-// not keep 01.
+// Relative moves (profile position): 0x60F2 (positioning option code) bits
+// 0-1 = 01 makes a relative target count from the actual position (CiA
+// 402); many drives default to 00, from the last target, which after a
+// halt or a quick stop is not where the table is. The configuration fails
+// when the drive does not keep 01.
 // From then on RPDO1 (controlword + target position) goes out, TPDO1
 // (statusword + position actual) and, when asked, TPDO2 (velocity actual)
 // come in, the drive's heartbeat is watched, its EMCYs are decoded and
@@ -82,6 +88,7 @@
 
 #include <cmath>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <optional>
 #include <string>
@@ -409,6 +416,108 @@ struct MasterCounts {
   std::uint64_t ramp_options_refused = 0;
 };
 
+// ---- the seam of a mode of operation ----
+
+/// One SDO write of the drive's configuration.
+struct ConfigWrite {
+  std::uint16_t index = 0;
+  std::uint8_t sub = 0;
+  std::vector<std::uint8_t> data;
+  /// The drive may lack it (CiA 402 optional): a refusal is a notice, not
+  /// a failed configuration.
+  bool optional = false;
+};
+
+/// An object read back once the configuration is written, and the verdict
+/// on its answer: empty when the drive keeps what the mode needs, otherwise
+/// why not (the configuration fails with that text).
+struct ConfigCheck {
+  std::uint16_t index = 0;
+  std::uint8_t sub = 0;
+  std::function<std::string(const canopen::SdoResult&)> verdict;
+};
+
+/// What a mode of operation may ask of the master it belongs to.
+class ModeHost {
+ public:
+  /// The drive's SDO server (a mode's own objects, such as a move's rate).
+  virtual canopen::SdoClient& mode_sdo() = 0;
+  /// Latches a fault of the mode's (the first cause stays).
+  virtual void mode_fault(FaultCode code, std::string name) = 0;
+  /// Empty when the drive is enabled and free of faults for a move;
+  /// otherwise why a move is refused.
+  [[nodiscard]] virtual std::string why_no_move() const = 0;
+  /// The unwrapped position actual, counts; empty before the first TPDO1.
+  [[nodiscard]] virtual std::optional<std::int64_t> position_counts() const = 0;
+
+ protected:
+  virtual ~ModeHost() = default;
+};
+
+/// What the drive shows of the mode's handshake at one statusword.
+struct ModeProgress {
+  std::optional<std::uint8_t> acked;  ///< the seq of a move the drive accepted
+  std::string fault;                  ///< not empty: the handshake timed out, why
+};
+
+/// The part of the master that is one mode of operation's (CiA 402 0x6060):
+/// its configuration, what it reads back, its commands and its set-point
+/// handshake. The state machine, the fault latch and its reset, NMT, SDO,
+/// the heartbeats and the encoder are the master's, shared by every mode.
+/// Profile position (cia402_profile_position.cpp) is the first; homing,
+/// profile velocity and cyclic synchronous position are each one more.
+class OperationMode {
+ public:
+  virtual ~OperationMode() = default;
+  /// The value of 0x6060 written and of 0x6061 awaited.
+  [[nodiscard]] virtual std::int8_t code() const = 0;
+  [[nodiscard]] virtual const char* name() const = 0;
+  /// The mode's writes, after 0x6060 and before the ramps and heartbeats.
+  virtual void configuration(std::vector<ConfigWrite>& writes) const = 0;
+  /// The configuration's last write is done: what the drive holds now.
+  virtual void configured() = 0;
+  /// What is read back after the configuration, in order, before 0x6061.
+  [[nodiscard]] virtual std::vector<ConfigCheck> checks() const = 0;
+  /// Statusword bits that are an error of the mode in operation enabled,
+  /// and what it is called (profile position: bit 13, following error).
+  [[nodiscard]] virtual std::uint16_t error_bits() const = 0;
+  [[nodiscard]] virtual const char* error_name() const = 0;
+
+  /// No move any more (a communication reset, an Enable, a Disable, a
+  /// quick stop).
+  virtual void reset() = 0;
+  /// The drive is no longer in operation enabled: a move under way ended.
+  virtual void left_enabled() = 0;
+  /// A move is asked, or under way.
+  [[nodiscard]] virtual bool moving() const = 0;
+  /// A sequencer move (MoveAbsolute: to target_rad; MoveRelative: by it).
+  /// An error, and nothing sent or changed, when it cannot be made.
+  virtual Status move(TableCommandCode code, std::uint8_t seq, double target_rad, double rate_rps,
+                      double now_s, std::vector<can::Frame>& out) = 0;
+  /// A controlled stop (controlword bit 8) began.
+  virtual void halt() = 0;
+  /// The handshake at a statusword in operation enabled; `fresh_after_halt`:
+  /// received after the halt went out. `timeouts`: judged now (from tick()).
+  virtual ModeProgress on_status(std::uint16_t word, std::uint64_t sw_seq, bool fresh_after_halt,
+                                 double now_s, bool timeouts) = 0;
+  /// The mode's controlword bits besides the halt (profile position: 5, 6).
+  [[nodiscard]] virtual std::uint16_t controlword_bits() const = 0;
+  /// The set-point bits for the next controlword in operation enabled;
+  /// `starts`: this word begins a new set-point (set_point_sent follows).
+  [[nodiscard]] virtual std::uint16_t set_point_bits(std::uint16_t word, bool& starts) const = 0;
+  /// The target position the set-point carries in RPDO1.
+  [[nodiscard]] virtual std::int32_t set_point_target() const = 0;
+  virtual void set_point_sent(std::uint64_t sw_seq, double now_s) = 0;
+  /// The table's state in operation enabled, without a fault.
+  [[nodiscard]] virtual TableState enabled_state() const = 0;
+  /// The caller's loop was held: what the mode awaits does not count it.
+  virtual void held(double from_s, double to_s) = 0;
+};
+
+/// Profile position (0x6060 = 1), the mode a stand turns its table in.
+[[nodiscard]] std::unique_ptr<OperationMode> make_profile_position(const MasterSettings& s,
+                                                                   ModeHost& host);
+
 /// The master's own progress through NMT and configuration.
 enum class CommPhase : std::uint8_t {
   Idle,         ///< start() not called
@@ -419,12 +528,17 @@ enum class CommPhase : std::uint8_t {
 };
 const char* to_string(CommPhase p);
 
-class Master {
+class Master final : private ModeHost {
  public:
   /// Settings that fail check() leave the master inert: start() latches a
   /// configuration fault with the reason and sends nothing, command()
   /// returns it (create() refuses them up front).
   explicit Master(MasterSettings s);
+  /// Makes the master's mode of operation (profile position by default).
+  using ModeFactory =
+      std::function<std::unique_ptr<OperationMode>(const MasterSettings&, ModeHost&)>;
+  /// A master in another mode of operation: `mode` is called once, here.
+  Master(MasterSettings s, const ModeFactory& mode);
   [[nodiscard]] static Result<std::unique_ptr<Master>> create(MasterSettings s);
   Master(const Master&) = delete;
   Master& operator=(const Master&) = delete;
@@ -505,15 +619,6 @@ class Master {
 
  private:
   enum class Goal : std::uint8_t { Disabled, Enabled, QuickStop };
-  enum class MoveStep : std::uint8_t {
-    None,     ///< no move since enable
-    WaitSdo,  ///< the profile velocity is being written
-    Ready,    ///< the set-point goes out with the next controlword
-    Sent,     ///< bit 4 set, waiting for bit 12
-    Acked,    ///< bit 4 cleared, moving until bit 10
-    Halting,  ///< halt set, decelerating until bit 10
-    Done,     ///< target reached (or halted at rest)
-  };
   /// The way out of a latched fault, started by Enable: AfterComm (a
   /// communication reset and reconfiguration first), SendReset (the
   /// statusword to be read), ReadStatus (0x6041 read by SDO, its answer
@@ -531,12 +636,14 @@ class Master {
     WaitFresh
   };
   enum class AckOn : std::uint8_t { None, Enabled, Disabled, Stopped, Halted };
-  struct PendingMove {
-    std::uint8_t seq = 0;
-    bool relative = false;
-    std::int32_t target = 0;
-    std::uint32_t velocity = 0;
-  };
+
+  // ModeHost
+  canopen::SdoClient& mode_sdo() override { return sdo_; }
+  void mode_fault(FaultCode code, std::string name) override { latch(code, std::move(name)); }
+  [[nodiscard]] std::string why_no_move() const override;
+  [[nodiscard]] std::optional<std::int64_t> position_counts() const override {
+    return have_pos_ ? std::optional<std::int64_t>(pos_counts_) : std::nullopt;
+  }
 
   void reset_comm(double now_s, std::vector<can::Frame>& out);
   void configure(double now_s, std::vector<can::Frame>& out);
@@ -551,9 +658,10 @@ class Master {
   /// written, no SYNC): reads its transmission type and event timer back,
   /// which must fit the drive heartbeat timeout; then check_options.
   void check_tpdo(std::uint64_t gen);
-  /// Reads 0x60F2 back, then check_mode.
-  void check_options(std::uint64_t gen);
-  /// Reads 0x6061 until it shows profile position (1), then completes.
+  /// Reads back the mode's objects from the i-th on, then check_mode.
+  void check_options(std::uint64_t gen, std::shared_ptr<const std::vector<ConfigCheck>> checks,
+                     std::size_t i);
+  /// Reads 0x6061 until it shows the mode written to 0x6060, then completes.
   void check_mode(std::uint64_t gen);
   void latch(FaultCode code, std::string name, bool needs_comm_reset = false);
   /// A fault reset under way ends, nothing more sent for it.
@@ -566,6 +674,20 @@ class Master {
   /// `timeouts`: from tick() (the set-point's time judged only there,
   /// after the caller has said whether its loop was held).
   void evaluate(double now_s, std::vector<can::Frame>& out, bool timeouts = false);
+  /// A fault reset's step (recovery_): false when evaluate() goes no further.
+  bool recover(double now_s, std::vector<can::Frame>& out);
+  /// The fault reset's statusword read answered (Recovery::ReadStatus).
+  void on_status_read(double now_s, std::vector<can::Frame>& out);
+  /// The acks the last statusword gives, and the mode's handshake; false
+  /// when evaluate() goes no further.
+  bool acknowledge(double now_s, std::vector<can::Frame>& out, bool timeouts);
+  /// The controlword towards the goal (CiA 402 transitions); empty when
+  /// nothing is to be sent (a fault latched on the way).
+  std::optional<std::uint16_t> towards_goal(bool& set_point);
+  Status enable(std::uint8_t seq, double now_s, std::vector<can::Frame>& out);
+  Status disable(std::uint8_t seq);
+  Status quick_stop(std::uint8_t seq, double now_s, std::vector<can::Frame>& out);
+  Status controlled_stop(std::uint8_t seq, double now_s, std::vector<can::Frame>& out);
   void send_rpdo(std::uint16_t controlword, std::vector<can::Frame>& out);
   /// +1, or -1 when the drive counts clockwise: table angle = sense * counts / cpr.
   [[nodiscard]] double sense() const { return s_.counts_clockwise ? -1.0 : 1.0; }
@@ -657,18 +779,12 @@ class Master {
   AckOn ack_on_ = AckOn::None;
   std::uint8_t ack_seq_ = 0;
   std::uint64_t ack_after_ = 0;  // a statusword after this one
-  MoveStep move_ = MoveStep::None;
-  PendingMove pending_;
-  std::uint64_t move_sent_seq_ = 0;
-  double move_sent_t_ = 0;
+  std::unique_ptr<OperationMode> mode_;
   std::uint64_t low_seq_ = 0;  // sw_seq_ when 0x0000 went out before a fault reset
   double low_t_ = 0;
   double mode_since_ = 0;  // the mode check began
   double mode_poll_at_ = INFINITY;
-  int mode_read_ = 0;  // 0x6061 as last read, not yet 1
-  std::uint32_t velocity_written_ = 0;
-  std::uint64_t move_generation_ = 0;
-  std::uint16_t move_flags_ = 0;  // relative, change immediately
+  int mode_read_ = 0;             // 0x6061 as last read, not yet the mode
   bool halted_ = false;           // controlword bit 8 (controlled stop)
   bool config_complete_ = false;  // the last configuration SDO is done
   bool drive_hb_lost_ = false;

@@ -1,0 +1,232 @@
+// Profile position (CiA 402, 0x6060 = 1): the master's mode of operation for
+// a stand's moves. A move's rate is the profile velocity (0x6081, written by
+// SDO when it differs from what the drive holds), its target the target
+// position (0x607A) in RPDO1, and the set-point handshake is controlword
+// bit 4 (new set-point) held until statusword bit 12 (set-point
+// acknowledge), then bit 10 (target reached) ends the move. Bit 6 makes the
+// target relative; 0x60F2 bits 0-1 = 01 make it count from the actual
+// position, which is written at configuration and read back.
+#include <cmath>
+#include <limits>
+#include <memory>
+
+#include "cia402_detail.hpp"
+#include "turncal/drivers/cia402.hpp"
+
+namespace turncal::cia402 {
+
+using canopen::get_le;
+using canopen::le_bytes;
+using detail::hex;
+using detail::kRadToDeg;
+using detail::num;
+using detail::to_u32_counts;
+
+namespace {
+
+/// 0x60F2 bits 0-1 = 01: relative to the actual position (CiA 402).
+constexpr std::uint16_t kPositioningRelativeToActual = 0x0001;
+
+class ProfilePosition final : public OperationMode {
+ public:
+  ProfilePosition(const MasterSettings& s, ModeHost& host)
+      : s_(s), host_(host), cpr_(s.counts_per_rad()), sense_(s.counts_clockwise ? -1.0 : 1.0) {}
+
+  [[nodiscard]] std::int8_t code() const override { return 1; }
+  [[nodiscard]] const char* name() const override { return "profile position"; }
+
+  void configuration(std::vector<ConfigWrite>& writes) const override {
+    // Positioning option code, bits 0-1 = 01: a relative target counts from
+    // the actual position (CiA 402), not from the last target (00, the
+    // default of many drives), so a move after a halt or a quick stop goes
+    // by the delta asked from where the table is. Read back by checks().
+    writes.push_back({obj::kPositioningOption, 0, le_bytes(kPositioningRelativeToActual, 2)});
+    writes.push_back({obj::kProfileVelocity, 0, le_bytes(configured_velocity(), 4)});
+  }
+
+  void configured() override { velocity_written_ = configured_velocity(); }
+
+  [[nodiscard]] std::vector<ConfigCheck> checks() const override {
+    return {{obj::kPositioningOption, 0, [](const canopen::SdoResult& r) -> std::string {
+               const std::uint32_t v =
+                   r.data.empty() ? 0xFFFFFFFFu : get_le(r.data, 0, r.data.size());
+               if (r.data.empty() || r.data.size() > 2 || (v & 0x3) != kPositioningRelativeToActual)
+                 return "positioning option code (0x60F2) reads " + hex(v, 4) +
+                        ": relative moves would not count from the actual position";
+               return {};
+             }}};
+  }
+
+  [[nodiscard]] std::uint16_t error_bits() const override { return sw::kFollowingError; }
+  [[nodiscard]] const char* error_name() const override {
+    return "following error (statusword bit 13)";
+  }
+
+  void reset() override { step_ = Step::None; }
+
+  void left_enabled() override {
+    if (step_ == Step::Sent || step_ == Step::Acked || step_ == Step::Halting) step_ = Step::None;
+  }
+
+  [[nodiscard]] bool moving() const override {
+    return step_ == Step::WaitSdo || step_ == Step::Ready || step_ == Step::Sent ||
+           step_ == Step::Acked || step_ == Step::Halting;
+  }
+
+  Status move(TableCommandCode code, std::uint8_t seq, double target_rad, double rate_rps,
+              double now_s, std::vector<can::Frame>& out) override;
+
+  void halt() override { step_ = Step::Halting; }
+
+  ModeProgress on_status(std::uint16_t word, std::uint64_t sw_seq, bool fresh_after_halt,
+                         double now_s, bool timeouts) override {
+    ModeProgress p;
+    if (step_ == Step::Sent && sw_seq > sent_seq_ && (word & sw::kSetPointAcknowledge) != 0) {
+      p.acked = pending_.seq;
+      step_ = Step::Acked;  // bit 4 drops with the next controlword
+    } else if (timeouts && step_ == Step::Sent && now_s - sent_t_ > s_.set_point_timeout_s) {
+      step_ = Step::None;
+      p.fault = "set-point not acknowledged (statusword bit 12) within " +
+                num(s_.set_point_timeout_s) + " s";
+    } else if (step_ == Step::Acked && (word & sw::kSetPointAcknowledge) == 0 &&
+               (word & sw::kTargetReached) != 0) {
+      step_ = Step::Done;
+    } else if (step_ == Step::Halting && fresh_after_halt && (word & sw::kTargetReached) != 0) {
+      step_ = Step::Done;
+    }
+    return p;
+  }
+
+  [[nodiscard]] std::uint16_t controlword_bits() const override { return flags_; }
+
+  [[nodiscard]] std::uint16_t set_point_bits(std::uint16_t word, bool& starts) const override {
+    starts = false;
+    if (step_ == Step::Ready && (word & sw::kSetPointAcknowledge) == 0) {
+      starts = true;
+      return cw::kNewSetPoint;
+    }
+    // CiA 402: bit 4 stays high until the drive acknowledges (bit 12)
+    return step_ == Step::Sent ? cw::kNewSetPoint : 0;
+  }
+
+  [[nodiscard]] std::int32_t set_point_target() const override { return pending_.target; }
+
+  void set_point_sent(std::uint64_t sw_seq, double now_s) override {
+    step_ = Step::Sent;
+    sent_seq_ = sw_seq;
+    sent_t_ = now_s;
+  }
+
+  [[nodiscard]] TableState enabled_state() const override {
+    switch (step_) {
+      case Step::Acked:
+      case Step::Halting:
+        return TableState::Moving;
+      case Step::Done:
+        return TableState::InPosition;
+      default:
+        return TableState::Holding;
+    }
+  }
+
+  void held(double from_s, double to_s) override {
+    if (step_ == Step::Sent && to_s > from_s)
+      sent_t_ += std::max(0.0, to_s - std::max(from_s, sent_t_));
+  }
+
+ private:
+  enum class Step : std::uint8_t {
+    None,     ///< no move since enable
+    WaitSdo,  ///< the profile velocity is being written
+    Ready,    ///< the set-point goes out with the next controlword
+    Sent,     ///< bit 4 set, waiting for bit 12
+    Acked,    ///< bit 4 cleared, moving until bit 10
+    Halting,  ///< halt set, decelerating until bit 10
+    Done,     ///< target reached (or halted at rest)
+  };
+  struct Pending {
+    std::uint8_t seq = 0;
+    std::int32_t target = 0;
+  };
+
+  [[nodiscard]] std::uint32_t configured_velocity() const {
+    // MasterSettings::check() has proved it fits (the master configures
+    // nothing when it failed)
+    return to_u32_counts(s_.profile_velocity_rps * kRadToDeg, cpr_ / kRadToDeg, "v",
+                         obj::kProfileVelocity, "deg")
+        .value();
+  }
+
+  const MasterSettings& s_;
+  ModeHost& host_;
+  double cpr_;    // counts per table rad
+  double sense_;  // -1 when the drive counts clockwise
+  Step step_ = Step::None;
+  Pending pending_;
+  std::uint64_t sent_seq_ = 0;  // statuswords received when bit 4 went out
+  double sent_t_ = 0;
+  std::uint16_t flags_ = 0;  // relative, change immediately
+  std::uint32_t velocity_written_ = 0;
+  std::uint64_t generation_ = 0;  // of the profile velocity's write
+};
+
+Status ProfilePosition::move(TableCommandCode code, std::uint8_t seq, double target_rad,
+                             double rate_rps, double now_s, std::vector<can::Frame>& out) {
+  const bool relative = code == TableCommandCode::MoveRelative;
+  if (!(std::isfinite(rate_rps) && rate_rps > 0))
+    return make_error("move rate " + num(rate_rps) + " rad/s must be positive");
+  TURNCAL_ASSIGN(vel, to_u32_counts(rate_rps * kRadToDeg, cpr_ / kRadToDeg, "move rate",
+                                    obj::kProfileVelocity, "deg/s"));
+  const double c = std::round(sense_ * target_rad * cpr_);
+  const double lo = std::numeric_limits<std::int32_t>::min();
+  const double hi = std::numeric_limits<std::int32_t>::max();
+  const char* what = relative ? "move by" : "move to";
+  if (!(c >= lo && c <= hi))
+    return make_error(std::string(what) + " " + num(target_rad * kRadToDeg) + " deg is " + num(c) +
+                      " counts, beyond the drive's 32-bit target position (" +
+                      hex(obj::kTargetPosition, 4) + ")");
+  if (const auto at = host_.position_counts(); relative && at) {
+    const double end = static_cast<double>(*at) + c;
+    if (!(end >= lo && end <= hi))
+      return make_error("move by " + num(target_rad * kRadToDeg) + " deg ends at " + num(end) +
+                        " counts, beyond the drive's 32-bit position");
+  }
+  if (std::string why = host_.why_no_move(); !why.empty()) return make_error(std::move(why));
+  if (step_ == Step::Sent)
+    return make_error("the last set-point is not yet acknowledged by the drive");
+  if ((step_ == Step::Acked || step_ == Step::Halting) && !s_.change_set_immediately)
+    return make_error("a move is under way (change set immediately is off)");
+  pending_ = {seq, static_cast<std::int32_t>(c)};
+  flags_ = static_cast<std::uint16_t>((relative ? cw::kRelative : 0) |
+                                      (s_.change_set_immediately ? cw::kChangeImmediately : 0));
+  if (vel == velocity_written_) {
+    step_ = Step::Ready;
+    return Ok{};
+  }
+  step_ = Step::WaitSdo;
+  const std::uint64_t gen = ++generation_;
+  canopen::SdoClient& sdo = host_.mode_sdo();
+  sdo.download(obj::kProfileVelocity, 0, le_bytes(vel, 4),
+               [this, gen, vel](const canopen::SdoResult& r) {
+                 // what the drive holds, whether the move still waits or not
+                 if (r.ok()) velocity_written_ = vel;
+                 if (gen != generation_ || step_ != Step::WaitSdo) return;
+                 if (r.ok()) {
+                   step_ = Step::Ready;
+                 } else {
+                   step_ = Step::None;
+                   host_.mode_fault(FaultCode::Sdo,
+                                    "SDO abort writing the profile velocity: " + r.describe());
+                 }
+               });
+  sdo.tick(now_s, out);
+  return Ok{};
+}
+
+}  // namespace
+
+std::unique_ptr<OperationMode> make_profile_position(const MasterSettings& s, ModeHost& host) {
+  return std::make_unique<ProfilePosition>(s, host);
+}
+
+}  // namespace turncal::cia402
