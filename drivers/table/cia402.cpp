@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cstdio>
 #include <limits>
 #include <utility>
@@ -1132,7 +1133,9 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
   if ((word & mode_->error_bits()) != 0 &&
       (state_ == State::OperationEnabled || state_ == State::FaultReactionActive ||
        state_ == State::Fault || state_ == State::QuickStopActive))
-    latch(FaultCode::FollowingError, mode_->error_name());
+    latch(FaultCode::FollowingError, std::string(mode_->error_name()) + " (statusword bit " +
+                                         std::to_string(std::countr_zero(mode_->error_bits())) +
+                                         ")");
   if (state_ == State::Fault || state_ == State::FaultReactionActive)
     latch(FaultCode::DriveFault, "drive in fault (statusword " + hex(word, 4) + ", no EMCY)");
 }

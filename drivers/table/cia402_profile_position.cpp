@@ -9,6 +9,7 @@
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <optional>
 
 #include "cia402_detail.hpp"
 #include "turncal/drivers/cia402.hpp"
@@ -30,7 +31,11 @@ constexpr std::uint16_t kPositioningRelativeToActual = 0x0001;
 class ProfilePosition final : public OperationMode {
  public:
   ProfilePosition(const MasterSettings& s, ModeHost& host)
-      : s_(s), host_(host), cpr_(s.counts_per_rad()), sense_(s.counts_clockwise ? -1.0 : 1.0) {}
+      : s_(s),
+        host_(host),
+        cpr_(s.counts_per_rad()),
+        sense_(s.counts_clockwise ? -1.0 : 1.0),
+        configured_velocity_(configured_velocity(s, cpr_)) {}
 
   [[nodiscard]] std::int8_t code() const override { return 1; }
   [[nodiscard]] const char* name() const override { return "profile position"; }
@@ -41,10 +46,12 @@ class ProfilePosition final : public OperationMode {
     // default of many drives), so a move after a halt or a quick stop goes
     // by the delta asked from where the table is. Read back by checks().
     writes.push_back({obj::kPositioningOption, 0, le_bytes(kPositioningRelativeToActual, 2)});
-    writes.push_back({obj::kProfileVelocity, 0, le_bytes(configured_velocity(), 4)});
+    // (counted by the master's start-up budget whatever the settings; sent
+    // only when they pass MasterSettings::check(), which proves it fits)
+    writes.push_back({obj::kProfileVelocity, 0, le_bytes(configured_velocity_.value_or(0), 4)});
   }
 
-  void configured() override { velocity_written_ = configured_velocity(); }
+  void configured() override { velocity_written_ = configured_velocity_.value_or(0); }
 
   [[nodiscard]] std::vector<ConfigCheck> checks() const override {
     return {{obj::kPositioningOption, 0, [](const canopen::SdoResult& r) -> std::string {
@@ -58,9 +65,7 @@ class ProfilePosition final : public OperationMode {
   }
 
   [[nodiscard]] std::uint16_t error_bits() const override { return sw::kFollowingError; }
-  [[nodiscard]] const char* error_name() const override {
-    return "following error (statusword bit 13)";
-  }
+  [[nodiscard]] const char* error_name() const override { return "following error"; }
 
   void reset() override { step_ = Step::None; }
 
@@ -149,12 +154,14 @@ class ProfilePosition final : public OperationMode {
     std::int32_t target = 0;
   };
 
-  [[nodiscard]] std::uint32_t configured_velocity() const {
-    // MasterSettings::check() has proved it fits (the master configures
-    // nothing when it failed)
-    return to_u32_counts(s_.profile_velocity_rps * kRadToDeg, cpr_ / kRadToDeg, "v",
-                         obj::kProfileVelocity, "deg")
-        .value();
+  /// The settings' profile velocity in counts; empty when it does not fit
+  /// (settings that fail check(): the master configures nothing then).
+  [[nodiscard]] static std::optional<std::uint32_t> configured_velocity(const MasterSettings& s,
+                                                                        double cpr) {
+    auto c = to_u32_counts(s.profile_velocity_rps * kRadToDeg, cpr / kRadToDeg, "v",
+                           obj::kProfileVelocity, "deg");
+    if (!c) return std::nullopt;
+    return *c;
   }
 
   const MasterSettings& s_;
@@ -166,6 +173,7 @@ class ProfilePosition final : public OperationMode {
   std::uint64_t sent_seq_ = 0;  // statuswords received when bit 4 went out
   double sent_t_ = 0;
   std::uint16_t flags_ = 0;  // relative, change immediately
+  std::optional<std::uint32_t> configured_velocity_;
   std::uint32_t velocity_written_ = 0;
   std::uint64_t generation_ = 0;  // of the profile velocity's write
 };

@@ -2,7 +2,7 @@
 // the daemon in, the reply and the action the loop must take out. Every
 // field a request carries is type-checked here, so a request of any shape
 // gets an error reply and never an exception out of the event loop; the
-// loop only wires sockets to it (main.cpp), and the fuzz target drives it
+// loop only wires sockets to it (clients.cpp), and the fuzz target drives it
 // with any bytes.
 //
 // Requests are JSON objects, one a line: {"cmd": "status" | "watch" |

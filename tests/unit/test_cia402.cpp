@@ -1505,6 +1505,43 @@ TEST_SUITE("cia402") {
     REQUIRE(l.enabled(4));
   }
 
+  TEST_CASE("the start-up budget: every transfer of a configuration, inert settings too") {
+    // 11 writes of the master's, 2 of profile position's, 3 PDOs of at most
+    // 6 + 8 transfers, the 0x60F2 read-back and 0x6061: 57 SDO timeouts,
+    // besides the boot-up and the mode switch
+    cia402::MasterSettings s = master_settings();
+    s.boot_timeout_s = 2;
+    s.sdo_timeout_s = 0.5;
+    s.mode_switch_timeout_s = 0.2;
+    const double budget = 2 + 57 * 0.5 + 0.2;
+    CHECK(cia402::Master(s).start_up_budget_s() == doctest::Approx(budget).epsilon(1e-12));
+    // a profile velocity beyond the drive's u32 counts: settings that fail,
+    // a master that sends nothing, and whose budget is still a number
+    s.counts_per_rev = 1e12;
+    REQUIRE_FALSE(s.check());
+    const cia402::Master inert(s);
+    double b = 0;
+    CHECK_NOTHROW(b = inert.start_up_budget_s());
+    CHECK(b == doctest::Approx(budget).epsilon(1e-12));
+  }
+
+  TEST_CASE("following error in the statusword alone, no EMCY: the master in fault, named so") {
+    Loop l;
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    // bit 13 in the drive's TPDO1 (statusword at byte 0, CiA 402's default
+    // layout), its objects and EMCYs untouched
+    l.tamper = [](can::Frame& f) {
+      if (f.id == 0x180 + 5) f.data[1] = static_cast<std::uint8_t>(f.data[1] | 0x20);
+    };
+    l.run_for(0.05);
+    CHECK(l.master.status().state == TableState::Fault);
+    CHECK(l.master.status().fault == FaultCode::FollowingError);
+    CHECK(l.master.status().fault_name == "following error (statusword bit 13)");
+    CHECK(l.master.counts().emcy == 0);
+  }
+
   TEST_CASE("following error: statusword bit 13 and EMCY 0x8611, the master in fault") {
     stand::Drive402Faults df;
     df.following_error_at_s = 2.0;

@@ -478,8 +478,8 @@ class OperationMode {
   virtual void configured() = 0;
   /// What is read back after the configuration, in order, before 0x6061.
   [[nodiscard]] virtual std::vector<ConfigCheck> checks() const = 0;
-  /// Statusword bits that are an error of the mode in operation enabled,
-  /// and what it is called (profile position: bit 13, following error).
+  /// The statusword bit that is an error of the mode in operation enabled,
+  /// and what it is called (profile position: bit 13, "following error").
   [[nodiscard]] virtual std::uint16_t error_bits() const = 0;
   [[nodiscard]] virtual const char* error_name() const = 0;
 
