@@ -535,12 +535,16 @@ bool SdoClient::on_frame(const can::Frame& f, double now_s, std::vector<can::Fra
     return true;
   }
   const bool same_object = get_le(f.payload(), 1, 2) == t.index && f.data[3] == t.sub;
+  if (!t.initiated && !same_object) {
+    // An initiate response names its object: one for another is a late
+    // answer to a transfer that already ended (timed out, aborted), not
+    // this one's; counted, skipped, and this transfer waits on for its own
+    ++counts_.unexpected;
+    ++counts_.late;
+    return true;
+  }
   t.deadline = now_s + timeout_s_;
   if (!t.initiated) {
-    if (!same_object) {
-      abort_active(abort_code::kGeneral, now_s, out);
-      return true;
-    }
     if (!t.upload) {
       if (scs != 3) {
         abort_active(abort_code::kCommandSpecifier, now_s, out);

@@ -1025,15 +1025,53 @@ void Master::on_emcy(const can::Frame& f, double t_s) {
   else
     emcy_.back() = *e;
   if (e->code == 0) return;  // error reset or no error: no news of a fault
-  ++emcy_errors_;
   if (fault_ == FaultCode::DriveFault) {
-    // the statusword said fault first; the EMCY says why
+    // the statusword said fault first; the EMCY says why, whatever its class
+    ++emcy_errors_;
     fault_ = FaultCode::Emcy;
     fault_name_ = e->text;
     fault_base_ = fault_name_;
     return;
   }
+  if (emcy_warns(e->code, s_.emcy_warnings)) {
+    // A warning by its code: told, and the drive's statusword decides
+    // whether it is more. Its TPDO's fault bit latches the fault (on_tpdo),
+    // but a TPDO may be stale (silent or frozen in fault): the drive's own
+    // statusword is read by SDO too.
+    ++counts_.emcy_warnings;
+    last_warning_ = e->text;
+    notice("the drive warned: " + e->text +
+           " (a warning by table.cia402.emcy_warnings; the run "
+           "goes on unless the drive's statusword shows a fault)");
+    const std::uint64_t gen = config_generation_;
+    sdo_.upload(obj::kStatusword, 0, [this, gen, text = e->text](const canopen::SdoResult& r) {
+      if (gen == config_generation_) warning_checked(r, text);
+    });
+    return;
+  }
+  ++emcy_errors_;
   latch(FaultCode::Emcy, e->text);
+}
+
+void Master::warning_checked(const canopen::SdoResult& r, const std::string& emcy) {
+  if (!r.ok() || r.data.size() < 2) {
+    // not known: taken for a fault, the table stopped
+    latch(FaultCode::Emcy,
+          emcy + "; the drive's statusword could not be read after it (" + r.describe() + ")");
+    return;
+  }
+  const auto word = static_cast<std::uint16_t>(get_le(r.data, 0, 2));
+  const State s = decode_state(word);
+  if (s == State::Fault || s == State::FaultReactionActive) {
+    ++emcy_errors_;
+    latch(FaultCode::Emcy, emcy);  // the EMCY names the fault its statusword shows
+  }
+}
+
+bool emcy_warns(std::uint16_t code,
+                const std::vector<std::pair<std::uint16_t, std::uint16_t>>& warnings) {
+  return std::any_of(warnings.begin(), warnings.end(),
+                     [&](const auto& r) { return code >= r.first && code <= r.second; });
 }
 
 void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& out) {
@@ -1137,7 +1175,10 @@ void Master::on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& o
                                          std::to_string(std::countr_zero(mode_->error_bits())) +
                                          ")");
   if (state_ == State::Fault || state_ == State::FaultReactionActive)
-    latch(FaultCode::DriveFault, "drive in fault (statusword " + hex(word, 4) + ", no EMCY)");
+    latch(FaultCode::DriveFault,
+          "drive in fault (statusword " + hex(word, 4) +
+              (last_warning_.empty() ? ", no EMCY)"
+                                     : ") after " + last_warning_ + ", a code that alone warns"));
 }
 
 void Master::send_rpdo(std::uint16_t controlword, std::vector<can::Frame>& out) {
@@ -1243,6 +1284,7 @@ bool Master::recover(double now_s, std::vector<can::Frame>& out) {
       }
       fault_ = FaultCode::None;
       fault_name_.clear();
+      last_warning_.clear();
       recovery_ = Recovery::None;
       return true;
     case Recovery::ResetLow:
@@ -1268,6 +1310,7 @@ bool Master::recover(double now_s, std::vector<can::Frame>& out) {
       }
       fault_ = FaultCode::None;
       fault_name_.clear();
+      last_warning_.clear();
       recovery_ = Recovery::None;
       return true;
     case Recovery::None:
@@ -1390,10 +1433,10 @@ std::optional<std::uint16_t> Master::towards_goal(bool& set_point) {
       // Shutdown (transition 8 from Operation enabled): the drive stops on
       // its ramp before it lets go, where Disable voltage (9) lets a moving
       // table coast. From Quick stop active only Disable voltage (12) leads
-      // out: sent once the quick stop is complete (bit 10, at rest).
+      // out: sent once the quick stop is complete (quick_stop_done).
       // Switch on disabled stays so (Disable voltage holds it there).
       if (state_ == State::QuickStopActive) {
-        if ((word & sw::kTargetReached) != 0) want = cw::kCmdDisableVoltage;
+        if (quick_stop_done(word)) want = cw::kCmdDisableVoltage;
       } else if (state_ == State::SwitchOnDisabled || state_ == State::NotReadyToSwitchOn) {
         want = cw::kCmdDisableVoltage;
       } else if (state_ == State::OperationEnabled && rest_since_running().state != Rest::AtRest) {
@@ -1437,13 +1480,21 @@ std::optional<std::uint16_t> Master::towards_goal(bool& set_point) {
       return static_cast<std::uint16_t>(cw::kCmdEnableOperation | motion_bits() |
                                         mode_->set_point_bits(word, set_point));
     case State::QuickStopActive:
-      // 12, then up again; not before the quick stop is complete (bit 10):
-      // Disable voltage while still decelerating lets it coast
-      if ((word & sw::kTargetReached) != 0) want = cw::kCmdDisableVoltage;
+      // 12, then up again; not before the quick stop is complete: Disable
+      // voltage while still decelerating lets it coast
+      if (quick_stop_done(word)) want = cw::kCmdDisableVoltage;
       return want;
     default:
       return want;  // not ready, fault reaction, fault: the drive moves on by itself
   }
+}
+
+bool Master::quick_stop_done(std::uint16_t word) const {
+  // Bit 10 (target reached) in quick stop active: set by many drives once
+  // at rest, but CiA 402 defines it there for profile modes only, and not
+  // every drive sets it. The table known at rest from its own positions
+  // (TPDO1 since the NMT start) is as good.
+  return (word & sw::kTargetReached) != 0 || rest_since_running().state == Rest::AtRest;
 }
 
 std::string Master::why_no_move() const {

@@ -86,6 +86,23 @@ class ProfilePosition final : public OperationMode {
   ModeProgress on_status(std::uint16_t word, std::uint64_t sw_seq, bool fresh_after_halt,
                          double now_s, bool timeouts) override {
     ModeProgress p;
+    // A set-point waits for bit 12 low before its bit 4 goes up (CiA 402's
+    // handshake); a drive that keeps bit 12 up with no set-point of ours
+    // would hold it forever: as long as a set-point may take to be taken
+    if (step_ != Step::Ready) {
+      ready_since_.reset();
+    } else if (!ready_since_) {
+      ready_since_ = now_s;
+    } else if (timeouts && (word & sw::kSetPointAcknowledge) != 0 &&
+               now_s - *ready_since_ > s_.set_point_timeout_s) {
+      step_ = Step::None;
+      ready_since_.reset();
+      p.fault =
+          "set-point not sent: the drive's statusword bit 12 (set-point acknowledge) stayed "
+          "up for " +
+          num(s_.set_point_timeout_s) + " s with no set-point of ours to acknowledge";
+      return p;
+    }
     if (step_ == Step::Sent && sw_seq > sent_seq_ && (word & sw::kSetPointAcknowledge) != 0) {
       p.acked = pending_.seq;
       step_ = Step::Acked;  // bit 4 drops with the next controlword
@@ -137,6 +154,8 @@ class ProfilePosition final : public OperationMode {
   void held(double from_s, double to_s) override {
     if (step_ == Step::Sent && to_s > from_s)
       sent_t_ += std::max(0.0, to_s - std::max(from_s, sent_t_));
+    if (ready_since_ && to_s > from_s)
+      *ready_since_ += std::max(0.0, to_s - std::max(from_s, *ready_since_));
   }
 
  private:
@@ -172,7 +191,8 @@ class ProfilePosition final : public OperationMode {
   Pending pending_;
   std::uint64_t sent_seq_ = 0;  // statuswords received when bit 4 went out
   double sent_t_ = 0;
-  std::uint16_t flags_ = 0;  // relative, change immediately
+  std::optional<double> ready_since_;  // the first status seen with a set-point Ready
+  std::uint16_t flags_ = 0;            // relative, change immediately
   std::optional<std::uint32_t> configured_velocity_;
   std::uint32_t velocity_written_ = 0;
   std::uint64_t generation_ = 0;  // of the profile velocity's write

@@ -57,6 +57,7 @@ Result<cia402::MasterSettings> master_settings(const Cia402Settings& c, const Ro
   s.quick_stop_deceleration_rps2 = c.quick_stop_deceleration_rps2;
   s.quick_stop_option = c.quick_stop_option_code;
   s.abort_connection_option = c.abort_connection_option_code;
+  if (c.emcy_warnings) s.emcy_warnings = *c.emcy_warnings;
   s.change_set_immediately = c.change_set_immediately;
   s.configure_mapping = c.configure_mapping;
   s.velocity_pdo = c.velocity_pdo;

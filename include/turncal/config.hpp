@@ -8,8 +8,10 @@
 #include <filesystem>
 #include <initializer_list>
 #include <limits>
+#include <optional>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "turncal/can/dbc.hpp"
@@ -116,6 +118,9 @@ struct Cia402Settings {
   bool change_set_immediately = false;  ///< controlword bit 5 with every set-point
   double sdo_timeout_s = 0.5;
   double boot_timeout_s = 2.0;  ///< from the NMT reset to the drive's boot-up
+  /// EMCY codes that only warn, as ranges (both ends in); empty: the
+  /// master's defaults (drivers/cia402.hpp, kDefaultEmcyWarnings).
+  std::optional<std::vector<std::pair<std::uint16_t, std::uint16_t>>> emcy_warnings;
 };
 
 /// The turntable protocols [table] protocol may name, each once: the

@@ -262,6 +262,52 @@ Status read_ins(const toml::table& t, const std::string& file, InsLayout& ins) {
   return Status{Ok{}};
 }
 
+/// One EMCY code of emcy_warnings: "0x" and four hex digits.
+std::optional<std::uint16_t> emcy_code(std::string_view s) {
+  if (s.size() != 6 || (s.substr(0, 2) != "0x" && s.substr(0, 2) != "0X")) return std::nullopt;
+  std::uint32_t v = 0;
+  for (const char ch : s.substr(2)) {
+    const int d = std::isdigit(static_cast<unsigned char>(ch)) != 0 ? ch - '0'
+                  : ch >= 'a' && ch <= 'f'                          ? ch - 'a' + 10
+                  : ch >= 'A' && ch <= 'F'                          ? ch - 'A' + 10
+                                                                    : -1;
+    if (d < 0) return std::nullopt;
+    v = v * 16 + static_cast<std::uint32_t>(d);
+  }
+  return static_cast<std::uint16_t>(v);
+}
+
+/// table.cia402.emcy_warnings: the EMCY codes that only warn, each "0xHHHH"
+/// or a range "0xHHHH-0xHHHH"; an empty list makes every code a fault.
+Status read_emcy_warnings(const Reader& r, const toml::table& t, Cia402Settings& c) {
+  const toml::node* n = t.get("emcy_warnings");
+  if (n == nullptr) return Status{Ok{}};
+  const toml::array* a = n->as_array();
+  if (a == nullptr)
+    return r.error_at(*n, "emcy_warnings",
+                      "expected a list of EMCY codes, as \"0x4210\" or \"0x4000-0x4FFF\"");
+  std::vector<std::pair<std::uint16_t, std::uint16_t>> ranges;
+  for (const toml::node& e : *a) {
+    const auto* str = e.as_string();
+    const std::string v = str != nullptr ? str->get() : std::string();
+    const auto dash = v.find('-');
+    const auto lo = emcy_code(v.substr(0, dash));
+    const auto hi = dash == std::string::npos ? lo : emcy_code(v.substr(dash + 1));
+    if (!lo || !hi)
+      return r.error_at(e, "emcy_warnings",
+                        "expected an EMCY code as \"0x4210\" or a range as \"0x4000-0x4FFF\"" +
+                            (str != nullptr ? ", not \"" + v + "\"" : std::string()));
+    if (*hi < *lo)
+      return r.error_at(e, "emcy_warnings", "the range \"" + v + "\" ends before it begins");
+    if (*lo == 0)
+      return r.error_at(e, "emcy_warnings",
+                        "0x0000 is the error reset, no warning: begin the range at 0x0001");
+    ranges.emplace_back(*lo, *hi);
+  }
+  c.emcy_warnings = std::move(ranges);
+  return Status{Ok{}};
+}
+
 Status read_cia402(const toml::table& t, const std::string& file, Cia402Settings& c) {
   Reader r(t, file, "table.cia402.");
   TURNCAL_TRY(r.no_unknown_keys({"node_id",
@@ -284,7 +330,8 @@ Status read_cia402(const toml::table& t, const std::string& file, Cia402Settings
                                  "velocity_pdo",
                                  "change_set_immediately",
                                  "sdo_timeout_ms",
-                                 "boot_timeout_ms"}));
+                                 "boot_timeout_ms",
+                                 "emcy_warnings"}));
   std::uint32_t node = c.node_id, host = c.host_node_id;
   TURNCAL_TRY(r.integer("node_id", node, 1, 127));
   TURNCAL_TRY(r.integer("host_node_id", host, 1, 127));
@@ -360,7 +407,7 @@ Status read_cia402(const toml::table& t, const std::string& file, Cia402Settings
   TURNCAL_TRY(r.boolean("configure_mapping", c.configure_mapping));
   TURNCAL_TRY(r.boolean("velocity_pdo", c.velocity_pdo));
   TURNCAL_TRY(r.boolean("change_set_immediately", c.change_set_immediately));
-  return Status{Ok{}};
+  return read_emcy_warnings(r, t, c);
 }
 
 /// Each table protocol's [table.NAME] section (kTableProtocols' rows, in

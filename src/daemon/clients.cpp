@@ -8,6 +8,7 @@
 
 #include <algorithm>
 #include <cstring>
+#include <map>
 #include <memory>
 #include <string>
 
@@ -53,6 +54,37 @@ void Daemon::reap_clients() {
     }
   }
   std::erase_if(clients, [](const auto& c) { return c->done(); });
+}
+
+/// At max_clients, one client closed to let a new one in: of the peer
+/// (uid) that holds the most connections, so that one peer's flood costs
+/// that peer alone, the one idle longest, a watcher only when that peer
+/// has no other; never one in the middle of a request. False: none can go.
+bool Daemon::make_room() {
+  std::map<long long, std::size_t> held;
+  for (const auto& c : clients) ++held[c->uid];
+  Client* victim = nullptr;
+  auto better = [&](const Client& a, const Client* b) {
+    if (b == nullptr) return true;
+    if (held[a.uid] != held[b->uid]) return held[a.uid] > held[b->uid];
+    if (a.watching != b->watching) return !a.watching;
+    return a.last_request_us < b->last_request_us;
+  };
+  for (const auto& c : clients)
+    if (!c->done() && !c->close_after && c->in.empty() && better(*c, victim)) victim = c.get();
+  if (victim == nullptr) return false;
+  const std::uint64_t idle_us = monotonic_us() - victim->last_request_us;
+  const std::string why =
+      "control connection closed to make room for a new one: " + std::to_string(clients.size()) +
+      " open (max_clients), " + std::to_string(held[victim->uid]) + " of them uid " +
+      std::to_string(victim->uid) + "'s; this one " + (victim->watching ? "watching, " : "") +
+      "idle for " + std::to_string(idle_us / 1000000) + " s";
+  // told why, if it reads at all; its replies not yet taken are lost with it
+  const std::string line = json({{"ok", false}, {"error", why}}).dump() + "\n";
+  (void)!::send(victim->fd, line.data(), line.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
+  info(why);
+  std::erase_if(clients, [&](const auto& p) { return p.get() == victim; });
+  return true;
 }
 
 void Daemon::handle_request(Client& c, const std::string& line) {
@@ -169,22 +201,29 @@ int Daemon::on_accept(sd_event_source*, int fd, uint32_t, void* u) {
       }
       return;
     }
-    if (d->clients.size() >= d->cfg.daemon.max_clients) {
-      const std::string msg = "{\"ok\":false,\"error\":\"too many control connections (" +
-                              std::to_string(d->cfg.daemon.max_clients) + ")\"}\n";
-      (void)!::send(cfd, msg.data(), msg.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
-      ::close(cfd);
-      d->warn("control connection refused: " + std::to_string(d->clients.size()) + " open");
-      return;
-    }
     struct ucred cred {};
     socklen_t len = sizeof cred;
-    if (::getsockopt(cfd, SOL_SOCKET, SO_PEERCRED, &cred, &len) == 0)
+    const bool known = ::getsockopt(cfd, SOL_SOCKET, SO_PEERCRED, &cred, &len) == 0;
+    if (known)
       d->info("control connection from pid " + std::to_string(cred.pid) + " uid " +
               std::to_string(cred.uid) + " gid " + std::to_string(cred.gid));
+    // Full: room is made rather than the newcomer refused, or clients that
+    // connect and never ask anything would lock the operator out, and an
+    // abort with them
+    if (d->clients.size() >= d->cfg.daemon.max_clients && !d->make_room()) {
+      const std::string msg = "{\"ok\":false,\"error\":\"too many control connections (" +
+                              std::to_string(d->cfg.daemon.max_clients) +
+                              "), each in the middle of a request\"}\n";
+      (void)!::send(cfd, msg.data(), msg.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
+      ::close(cfd);
+      d->warn("control connection refused: " + std::to_string(d->clients.size()) +
+              " open, each in the middle of a request");
+      return;
+    }
     auto c = std::make_unique<Client>();
     c->d = d;
     c->fd = cfd;
+    c->uid = known ? static_cast<long long>(cred.uid) : -1;
     c->last_request_us = monotonic_us();
     if (sd_event_add_io(d->ev, c->src.out(), cfd, EPOLLIN, on_client, c.get()) < 0) {
       d->warn("cannot watch a control connection");

@@ -21,7 +21,9 @@ struct Client {
   EventSource src;
   std::string in;
   bool watching = false;
-  std::uint64_t last_request_us = 0;  ///< monotonic
+  /// The peer's user, by SO_PEERCRED; -1: not known.
+  long long uid = -1;
+  std::uint64_t last_request_us = 0;  ///< monotonic; at accept until its first request
   std::uint64_t unread_since_us = 0;  ///< monotonic; 0: nothing waits
   /// monotonic: when the unfinished request line in `in` began (its first
   /// byte read); 0 while `in` is empty

@@ -181,6 +181,9 @@ json report_json(const ReportContext& ctx, const Engine& engine, const BuiltInpu
                      {"at_s", holds}};
   // health
   const Ingest& in = engine.ingest();
+  // what the table's driver told that is no fault: a drive's warning EMCY,
+  // an optional object it refused
+  j["table_notices"] = in.table().notices();
   j["health"] = {
       {"ins_velocity", health_json(in.health(kVelocity), now)},
       {"ins_status", health_json(in.health(kInsStatus), now)},

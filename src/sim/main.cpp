@@ -32,7 +32,6 @@
 #include "turncal/build_paths.hpp"
 #include "turncal/can/candump.hpp"
 #include "turncal/config.hpp"
-#include "turncal/drivers/canopen.hpp"
 #include "turncal/drivers/socketcan.hpp"
 #include "turncal/earth.hpp"
 #include "turncal/estimation/nominal.hpp"
@@ -59,13 +58,14 @@ struct Options {
   std::string config = std::string(turncal::build::data_dir) + "/turncal.toml";
   std::uint64_t seed = 1;
   double heading_offset_deg = 0;
-  double start_time_s = 1767225600;    // 2026-01-01T00:00:00Z: runs are reproducible
-  std::vector<std::string> faults;     // NAME=V[:V...]
-  std::string ins_clock, table_clock;  // OFFSET_S:PPM
-  std::string angle_limits;            // MIN_DEG:MAX_DEG
-  std::string heartbeat_timeout;       // the table's, stand s
-  std::string truth_in;                // errors given in a JSON file
-  std::string rates;                   // VELOCITY_HZ:ENCODER_HZ[:INS_STATUS_HZ:TABLE_STATUS_HZ]
+  double start_time_s = 1767225600;     // 2026-01-01T00:00:00Z: runs are reproducible
+  std::vector<std::string> faults;      // NAME=V[:V...]
+  std::vector<std::string> drive_ways;  // a CiA 402 drive's behaviours, NAME[=V[:V]]
+  std::string ins_clock, table_clock;   // OFFSET_S:PPM
+  std::string angle_limits;             // MIN_DEG:MAX_DEG
+  std::string heartbeat_timeout;        // the table's, stand s
+  std::string truth_in;                 // errors given in a JSON file
+  std::string rates;                    // VELOCITY_HZ:ENCODER_HZ[:INS_STATUS_HZ:TABLE_STATUS_HZ]
 };
 
 constexpr const char* kFaultHelp =
@@ -93,7 +93,13 @@ constexpr const char* kFaultHelp =
     "                             heartbeat (EMCY 0x8130, 0x6007), the host loses its\n"
     "  drive-refuse-moves=1       set-points are never acknowledged\n"
     "  drive-warning-in-move=S    S seconds into the first move, an EMCY that only\n"
-    "                             warns (0x4210): the drive would go on turning\n";
+    "                             warns (0x4210): the drive would go on turning\n"
+    "a CiA 402 drive's ways, as real drives have them (--drive NAME[=VALUE], repeatable):\n"
+    "  sdo-answer=MIN_MS:MAX_MS   each SDO answer this late, spread between the two\n"
+    "  no-target-reached-in-quick-stop  statusword bit 10 never set in quick stop active\n"
+    "  set-point-ack-after-enable=S  statusword bit 12 up S s after each enable (inf: for\n"
+    "                             good), a set-point's bit 4 meanwhile not taken\n"
+    "  warning-at-boot=CODE       an EMCY that only warns after each boot-up (hex)\n";
 
 /// Numbers separated by ':'.
 bool numbers(const std::string& text, std::vector<double>& out) {
@@ -109,6 +115,40 @@ bool numbers(const std::string& text, std::vector<double>& out) {
     pos = end + 1;
   }
   return true;
+}
+
+/// A CiA 402 drive's behaviour, NAME[=VALUE] (kFaultHelp's list).
+Status apply_drive_way(const std::string& spec, stand::StandSetup& s) {
+  const std::size_t eq = spec.find('=');
+  const std::string name = spec.substr(0, eq);
+  const std::string value = eq == std::string::npos ? "" : spec.substr(eq + 1);
+  const auto bad = [&] {
+    return make_error("--drive " + spec + ": unknown behaviour or wrong value\n" + kFaultHelp);
+  };
+  if (!s.cia402) return make_error("--drive " + spec + ": the table is no CiA 402 drive");
+  stand::Drive402Setup& d = s.drive;
+  if (name == "no-target-reached-in-quick-stop" && value.empty()) {
+    d.target_reached_in_quick_stop = false;
+  } else if (name == "set-point-ack-after-enable") {
+    char* end = nullptr;
+    const double v = std::strtod(value.c_str(), &end);
+    if (value.empty() || *end != '\0' || !(v > 0)) return bad();
+    d.set_point_ack_after_enable_s = v;
+  } else if (name == "sdo-answer") {
+    std::vector<double> v;
+    if (!numbers(value, v) || v.size() != 2 || !(v[0] >= 0 && v[1] >= v[0] && v[1] <= 1000))
+      return bad();
+    d.sdo_answer_min_s = v[0] / 1000;
+    d.sdo_answer_max_s = v[1] / 1000;
+  } else if (name == "warning-at-boot") {
+    char* end = nullptr;
+    const unsigned long code = std::strtoul(value.c_str(), &end, 16);
+    if (value.empty() || *end != '\0' || code == 0 || code > 0xFFFF) return bad();
+    d.boot_warning_code = static_cast<std::uint16_t>(code);
+  } else {
+    return bad();
+  }
+  return Ok{};
 }
 
 /// A CiA 402 drive's faults; false when `name` is none of them.
@@ -251,7 +291,8 @@ int usage(const char* why) {
                "       turncal-sim --offline --out RUN.log --truth TRUTH.json [common]\n"
                "common: [--profile PLAN.toml] [--config turncal.toml] [--seed N]\n"
                "        [--heading-offset DEG] [--ins-interface IF] [--table-interface IF]\n"
-               "        [--fault NAME=VALUE]... [--ins-clock OFFSET_S:PPM]\n"
+               "        [--fault NAME=VALUE]... [--drive NAME[=VALUE]]...\n"
+               "        [--ins-clock OFFSET_S:PPM]\n"
                "        [--table-clock OFFSET_S:PPM] [--truth-in ERRORS.json]\n"
                "        [--angle-limits MIN_DEG:MAX_DEG] (the table's soft limits)\n"
                "        [--table-heartbeat-timeout S] (the table stops itself after S stand\n"
@@ -291,12 +332,15 @@ bool parse(int argc, char** argv, Options& o, std::string& err) {
       o.scripted_host = true;
     } else if (a == "--real-bus") {
       o.real_bus = true;
-    } else if (a == "--fault" || a == "--ins-clock" || a == "--table-clock" || a == "--truth-in" ||
-               a == "--angle-limits" || a == "--rates" || a == "--table-heartbeat-timeout") {
+    } else if (a == "--fault" || a == "--drive" || a == "--ins-clock" || a == "--table-clock" ||
+               a == "--truth-in" || a == "--angle-limits" || a == "--rates" ||
+               a == "--table-heartbeat-timeout") {
       const char* v = value();
       if (v == nullptr) return false;
       if (a == "--fault")
         o.faults.emplace_back(v);
+      else if (a == "--drive")
+        o.drive_ways.emplace_back(v);
       else
         (a == "--ins-clock"      ? o.ins_clock
          : a == "--table-clock"  ? o.table_clock
@@ -443,6 +487,7 @@ Result<World> load_world(const Options& o) {
   }
   if (!o.truth_in.empty()) TURNCAL_TRY(read_truth(o.truth_in, setup.ins.sim));
   for (const std::string& f : o.faults) TURNCAL_TRY(apply_fault(f, setup));
+  for (const std::string& way : o.drive_ways) TURNCAL_TRY(apply_drive_way(way, setup));
   TURNCAL_TRY(apply_clock("--ins-clock", o.ins_clock, setup.ins_clock));
   TURNCAL_TRY(apply_clock("--table-clock", o.table_clock, setup.table_clock));
   if (!o.angle_limits.empty()) {
@@ -637,7 +682,7 @@ int live(const Options& o) {
       for (const can::TimedFrame& f : rx.frames) {
         const double at = static_cast<double>(f.time_ns - kernel0_ns) * 1e-9 * o.speed;
         from_bus.emplace_back(at, f.frame);
-        if (canopen::is_sync(f.frame)) {
+        if (stand::facts::is_sync(f.frame)) {
           if (!std::isnan(sync_last_at) && at > sync_last_at) {
             sync_gaps.push_back(at - sync_last_at);
             if (sync_gaps.size() > 15) sync_gaps.pop_front();
@@ -697,7 +742,7 @@ int live(const Options& o) {
         const double t = loop.next_time();
         for (const can::Frame& c : due) {
           if (receipt_drive->commanded_by(c)) command_taken_t = t;
-          if (canopen::is_sync(c)) {
+          if (stand::facts::is_sync(c)) {
             syncs_taken_then = sync_taken_t == t ? syncs_taken_then + 1 : 1;
             sync_taken_t = t;
           }
@@ -732,7 +777,7 @@ int live(const Options& o) {
           l.bus_read = read_bus(false) && bus_drained();
           for (const auto& waiting : from_bus) {
             l.command_waiting = l.command_waiting || receipt_drive->commanded_by(waiting.second);
-            l.sync_waiting = l.sync_waiting || canopen::is_sync(waiting.second);
+            l.sync_waiting = l.sync_waiting || stand::facts::is_sync(waiting.second);
           }
           return stand::still_true_late(l);
         };
@@ -811,7 +856,7 @@ int live(const Options& o) {
     nlohmann::json drive = nullptr;
     if (const stand::VirtualDrive402* d = loop.stand().drive()) {
       // the CiA 402 drive's own state: what a test of the host's faults checks
-      drive = {{"state", cia402::to_string(d->state())},
+      drive = {{"state", std::string(stand::facts::state_name(d->state()))},
                {"statusword", d->statusword()},
                {"nmt", static_cast<int>(d->nmt())},
                {"angle_deg", d->angle(now) / kDeg},

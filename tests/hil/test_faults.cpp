@@ -88,7 +88,9 @@ json replay_of_log(const hil::fs::path& dir, const std::string& id, const json& 
 }  // namespace
 
 TEST_SUITE("faults") {
-  TEST_CASE("hostile control requests during the turn: error replies, the run goes on") {
+  TEST_CASE(
+      "hostile control requests and 300 idle clients during the turn: error replies, the abort "
+      "gets through") {
     hil::TempDir dir;
     write_stand(dir.path, hil::if0(), false, 60, kSlowTurnDps);
     // a report file of a wrong shape, as a crash loop would have read it
@@ -125,18 +127,22 @@ TEST_SUITE("faults") {
     // the daemon opens no path a client names
     CHECK(raw_request(sock, "{\"cmd\":\"start\",\"profile\":\"../../../etc/passwd\"}\n")
               .find("expected the name of a plan") != std::string::npos);
-    // more connections than allowed: the extra one is told why; the others work
+    // 300 clients that connect and never ask, against max_clients = 16:
+    // each one past the 16th closes the one idle longest (told why), so
+    // the operator's status and abort still get through, in the turn
     std::vector<int> held;
-    for (int k = 0; k < 16; ++k) held.push_back(connect_control(sock));
+    for (int k = 0; k < 300; ++k) held.push_back(connect_control(sock));
     std::this_thread::sleep_for(300ms);  // accepted
-    CHECK(raw_request(sock, "{\"cmd\":\"status\"}\n").find("too many control connections") !=
-          std::string::npos);
-    for (const int fd : held) ::close(fd);
-    std::this_thread::sleep_for(300ms);
+    std::string first;                   // the first client's one line: why it was closed
+    for (char c; ::recv(held[0], &c, 1, 0) == 1 && c != '\n';) first += c;
+    CHECK_MESSAGE(
+        first.find("closed to make room for a new one: 16 open (max_clients)") != std::string::npos,
+        first);
     REQUIRE(ctl(dir.path, {"--json", "status"}, "st.json") == 0);
     CHECK(json::parse(slurp(dir.path / "st.json"))["phase"] == "turn");  // the run went on
     CHECK(ctl(dir.path, {"abort", "operator test"}) == 0);
     CHECK(ctl(dir.path, {"watch"}, "w.out", 20000ms) == 1);
+    for (const int fd : held) ::close(fd);
     const json r = report_of(dir.path, id);
     CHECK(r["status"] == "aborted");
     CHECK(r["reason"] == "operator test");
@@ -150,7 +156,8 @@ TEST_SUITE("faults") {
     CHECK(st["table"]["rate_dps"] == 0.0);
     CHECK(st["counts"]["quick_stops"].get<int>() >= 1);
     const std::string log = slurp(dir.path / "daemon.err");
-    CHECK(log.find("control connection refused") != std::string::npos);
+    CHECK(log.find("control connection closed to make room for a new one") != std::string::npos);
+    CHECK(log.find("control connection refused") == std::string::npos);
     CHECK(log.find("report unreadable: estimates.nu0_1.value") != std::string::npos);
   }
 
@@ -814,8 +821,9 @@ TEST_SUITE("faults") {
     CHECK(h["unknown_id"].get<int>() > 100);
     CHECK(h["velocity_tags_dropped"] == 0);  // the wrap is no jump
     CHECK(h["ins_velocity"]["dropped"] == 0);
-    // the velocity spans the wrap: the whole run, 120 s at 25 Hz
-    CHECK(r["velocity_samples"].get<int>() > 2900);
+    // the velocity spans the wrap: the whole run at 25 Hz, but for its
+    // first seconds (120 s gave 2900 and more)
+    CHECK(r["velocity_samples"].get<int>() > 25 * (plan_duration_s(40) - 4));
     const json rp = replay_of_log(dir.path, id, r);
     CHECK(rp["status"] == "done");
     daemon.terminate();
@@ -1067,7 +1075,17 @@ TEST_SUITE("faults of a CiA 402 drive through the daemon") {
       int sync_ms = 0;  ///< sync_period_ms: TPDO1 on our SYNC, its samples dated by it
     };
     const std::vector<Case> cases = {
-        {"no fault: the run is done", {}, {}},
+        // a drive with the ways of real ones: its SDO answers 2 to 5 ms
+        // late, bit 12 up for 50 ms after each enable, no bit 10 in quick
+        // stop active, a warning EMCY after each boot-up (error passive,
+        // reset once operational) and one 2 s into the turn: each warning
+        // told, none changes anything, the run done, its estimates as near
+        // the truth as on the plain drive
+        {"a drive of real drives' ways, warnings at boot and in the turn: told, the run done",
+         {"--fault", "drive-warning-in-move=2", "--drive", "sdo-answer=2:5", "--drive",
+          "set-point-ack-after-enable=0.05", "--drive", "no-target-reached-in-quick-stop",
+          "--drive", "warning-at-boot=8120"},
+         {}},
         // the replay dates each sample by the SYNC's echo in the log, as the
         // live run did: the estimates agree bit for bit
         {"no fault, TPDO1 on our SYNC: the run is done, its replay the same", {}, {}, 100},
@@ -1081,9 +1099,6 @@ TEST_SUITE("faults of a CiA 402 drive through the daemon") {
         {"the drive silent in hold 1: each loses the other",
          {"--fault", "drive-silent=30:5"},
          {"drive heartbeat lost", "table encoder lost", "table status lost"}},
-        {"an EMCY that only warns, 2 s into the turn: the host stops the table",
-         {"--fault", "drive-warning-in-move=2"},
-         {"EMCY 0x4210"}},
     };
     for (const Case& k : cases) SUBCASE(k.name) {
         hil::TempDir dir;
@@ -1180,8 +1195,32 @@ TEST_SUITE("faults of a CiA 402 drive through the daemon") {
                     st["drive"]["sync_answer_frames_late_or_queued"].get<std::uint64_t>() +
                     socket_dropped);
         }
+        const bool warned = k.sim.size() > 1 && k.sim[1].starts_with("drive-warning-in-move");
         if (done) {
-          CHECK(st["drive"]["emcy"].empty());
+          if (warned) {
+            // the drive sent its warning in the turn once, one at each
+            // boot-up with its error reset, nothing else; the host told each
+            int in_turn = 0, at_boot = 0, other = 0;
+            for (const auto& c : st["drive"]["emcy"]) {
+              const int code = c.get<int>();
+              (code == 0x4210 ? in_turn : code == 0x8120 ? at_boot : code == 0 ? at_boot : other)++;
+            }
+            CHECK(in_turn == 1);
+            CHECK(at_boot >= 1);
+            CHECK(other == 0);
+            for (const char* code : {"EMCY 0x4210", "EMCY 0x8120"}) {
+              CAPTURE(code);
+              bool told = false;
+              for (const auto& n : r["table_notices"])
+                told = told ||
+                       n.get<std::string>().find(std::string("the drive warned: ") + code) == 0;
+              CHECK_MESSAGE(told, r["table_notices"].dump());
+              CHECK(slurp(dir.path / "daemon.err").find(std::string("the drive warned: ") + code) !=
+                    std::string::npos);
+            }
+          } else {
+            CHECK(st["drive"]["emcy"].empty());
+          }
           CHECK(st["drive"]["quick_stops"] == 0);
           CHECK(std::abs(st["drive"]["angle_deg"].get<double>() - 180) < 0.01);
         } else {
@@ -1191,19 +1230,8 @@ TEST_SUITE("faults of a CiA 402 drive through the daemon") {
         // never let go while turning (a test with teeth for the faults in
         // the turn: in hold the table does not move, a coast is not counted)
         CHECK(st["drive"]["coasts"] == 0);
-        if (k.sim.size() == 2 && k.sim[1].starts_with("drive-silent"))
+        if (k.sim.size() > 1 && k.sim[1].starts_with("drive-silent"))
           CHECK(st["drive"]["host_heartbeat_lost"].get<int>() >= 1);
-        if (k.sim.size() == 2 && k.sim[1].starts_with("drive-warning-in-move")) {
-          // the drive would have gone on: the host's quick stop ended the
-          // turn short of its 180 deg. The warning came at 45 deg (1 s at
-          // 30 deg/s^2, 1 s at 30 deg/s); the host's reaction (a tick, at 4x
-          // the stand's time) and the 90 deg/s^2 quick stop add some 30.
-          CHECK(st["drive"]["quick_stops"] == 1);
-          const double angle = st["drive"]["angle_deg"].get<double>();
-          CHECK(angle > 45);
-          CHECK(angle < 150);
-          CHECK(st["drive"]["state"] == "quick stop active");
-        }
       }
   }
 }

@@ -17,6 +17,8 @@
 #include "scenarios.hpp"
 #include "turncal/build_paths.hpp"
 #include "turncal/can/candump.hpp"
+#include "turncal/drivers/canopen.hpp"
+#include "turncal/drivers/cia402.hpp"
 #include "turncal/drivers/reference.hpp"
 #include "turncal/physics/strapdown.hpp"
 #include "turncal/run/calibration.hpp"
@@ -2351,7 +2353,7 @@ TEST_SUITE("run engine on the virtual CiA 402 stand") {
     CHECK(d->counts().set_points == 2);
     CHECK(d->counts().quick_stops == 0);
     CHECK(d->emcy_sent().empty());
-    CHECK(d->state() != cia402::State::Fault);
+    CHECK(d->state() != stand::facts::State::Fault);
     CHECK_FALSE(d->moving(t));
     CHECK(d->angle(t) == doctest::Approx(std::numbers::pi).epsilon(1e-5));
     CHECK(d->value(cia402::obj::kModesOfOperation, 0) == 1);  // profile position
@@ -2376,7 +2378,7 @@ TEST_SUITE("run engine on the virtual CiA 402 stand") {
     const stand::VirtualDrive402* d = c.loop.stand().drive();
     REQUIRE(d != nullptr);
     const double t = c.loop.next_time();
-    CHECK(d->state() != cia402::State::OperationEnabled);
+    CHECK(d->state() != stand::facts::State::OperationEnabled);
     CHECK_FALSE(d->moving(t));
     CHECK(d->emcy_sent().at(0) == 0x2310);
     CHECK(d->counts().set_points == 1);  // the move to the start angle only
@@ -2385,35 +2387,57 @@ TEST_SUITE("run engine on the virtual CiA 402 stand") {
 }
 
 TEST_SUITE("run engine on the virtual CiA 402 stand") {
-  TEST_CASE("an EMCY that only warns, in the turn: the host quick-stops a drive that goes on") {
-    // given a drive that sends an EMCY warning (0x4210) in the middle of
-    // the turn (t0 at about 21.5 s, the turn from t0 + 60 s, 180 deg
-    // at 30 deg/s: about 81.5 to 88.5 s) and would itself keep moving
+  TEST_CASE(
+      "an EMCY in the turn from a drive that goes on: a warning's code told, a fault's "
+      "quick-stops it") {
+    // given a drive that sends an EMCY in the middle of the turn (t0 at
+    // about 21.5 s, the turn from t0 + 60 s, 180 deg at 30 deg/s: about
+    // 81.5 to 88.5 s), no fault bit in its statusword, and would itself
+    // keep moving
     const Plan plan = short_plan();
     stand::StandSetup s = cia402_setup_of(plan, 7);
     s.drive_faults.warning_at_s = 85;
-    s.drive_faults.warning_code = 0x4210;
+    bool warns = false;
+    SUBCASE("0x4210, excess temperature: a warning by the default classes") {
+      s.drive_faults.warning_code = 0x4210;
+      warns = true;
+    }
+    SUBCASE("0x2310, continuous overcurrent: a fault, whatever the drive made of it") {
+      s.drive_faults.warning_code = 0x2310;
+    }
     ClosedLoop c(plan, s, cia402_stand(), cia402_roles());
     // when the engine runs it
     c.run_until(200);
-    // then the run fails naming the EMCY, the quick stop confirmed
-    CHECK(c.phase() == run::Phase::Failed);
-    CHECK_MESSAGE(c.course().reason.find("0x4210") != std::string::npos, c.course().reason);
-    CHECK(c.course().quick_stop_acked);
-    CHECK_FALSE(c.course().quick_stop_gave_up);
-    // and the drive was stopped by us, in the turn: quick stop active, at
-    // rest short of the target, never in fault of its own
     const stand::VirtualDrive402* d = c.loop.stand().drive();
     REQUIRE(d != nullptr);
     const double t = c.loop.next_time();
-    CHECK(d->counts().quick_stops >= 1);
-    CHECK(d->state() == cia402::State::QuickStopActive);
+    CHECK(d->emcy_sent().at(0) == s.drive_faults.warning_code);
     CHECK_FALSE(d->moving(t));
     const double deg = d->angle(t) * 180 / std::numbers::pi;
-    MESSAGE("stopped at " << deg << " deg");
-    CHECK(deg > 5);
-    CHECK(deg < 175);
-    CHECK(d->emcy_sent().at(0) == 0x4210);
+    MESSAGE("at rest at " << deg << " deg");
+    if (warns) {
+      // then the warning is told, and the run is done as it would be
+      // without it: the whole turn, no quick stop
+      CHECK_MESSAGE(c.phase() == run::Phase::Done, c.course().reason);
+      CHECK(d->counts().quick_stops == 0);
+      CHECK(std::abs(deg - 180) < 0.01);
+      const auto& notices = c.engine->ingest().table().notices();
+      CHECK(std::any_of(notices.begin(), notices.end(), [](const std::string& n) {
+        return n.starts_with("the drive warned: EMCY 0x4210");
+      }));
+    } else {
+      // then the run fails naming the EMCY, the quick stop confirmed, and
+      // the drive was stopped by us, in the turn: quick stop active, at
+      // rest short of the target, never in fault of its own
+      CHECK(c.phase() == run::Phase::Failed);
+      CHECK_MESSAGE(c.course().reason.find("0x2310") != std::string::npos, c.course().reason);
+      CHECK(c.course().quick_stop_acked);
+      CHECK_FALSE(c.course().quick_stop_gave_up);
+      CHECK(d->counts().quick_stops >= 1);
+      CHECK(d->state() == stand::facts::State::QuickStopActive);
+      CHECK(deg > 5);
+      CHECK(deg < 175);
+    }
   }
 
   TEST_CASE(

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <functional>
+#include <limits>
 #include <random>
 #include <string>
 #include <vector>
@@ -18,6 +19,7 @@
 using namespace turncal;
 using cia402::FaultCode;
 using cia402::State;
+using DriveState = stand::facts::State;  // the virtual drive's own, from CiA 402
 using stand::VirtualDrive402;
 
 namespace {
@@ -29,6 +31,11 @@ constexpr double kRateWindowS = 0.25;
 
 /// 10000 counts per motor turn, 100 motor turns per table turn: 1e6
 /// counts per table revolution, one count 6.3e-6 rad.
+/// An EMCY code the master takes for a fault (current, CiA 301 0x23xx)
+/// sent by a drive that goes on, no fault bit in its statusword: a drive
+/// that classes its codes otherwise than the master does.
+constexpr std::uint16_t kFaultClassCode = 0x2310;
+
 cia402::MasterSettings master_settings() {
   cia402::MasterSettings s;
   s.node_id = 5;
@@ -242,6 +249,40 @@ TEST_SUITE("cia402") {
     CHECK(canopen::emcy_text(0x8611) == "EMCY 0x8611 following error");
     CHECK(canopen::emcy_text(0x7305) == "EMCY 0x7305 incremental sensor 1 fault");
     CHECK(canopen::emcy_text(0xABCD) == "EMCY 0xABCD");
+  }
+
+  TEST_CASE("SDO client: a late answer to a transfer that timed out is skipped, not the next's") {
+    canopen::SdoClient c(5, 0.5);
+    std::vector<can::Frame> out;
+    std::vector<canopen::SdoResult> done;
+    c.upload(0x6041, 0, [&](const canopen::SdoResult& r) { done.push_back(r); });
+    c.upload(0x6064, 0, [&](const canopen::SdoResult& r) { done.push_back(r); });
+    c.tick(0, out);
+    REQUIRE(out.size() == 1);
+    c.tick(0.5, out);  // the statusword's read times out, the position's goes out
+    REQUIRE(done.size() == 1);
+    CHECK(done[0].abort == 0x05040000);
+    REQUIRE(out.size() == 3);  // request, our abort, the next request
+    CHECK(out[2].data[0] == 0x40);
+    CHECK(canopen::get_le(out[2].payload(), 1, 2) == 0x6064);
+    // then the statusword's answer, late: skipped
+    can::Frame late;
+    late.id = 0x585;
+    late.len = 8;
+    late.data = {0x4B, 0x41, 0x60, 0x00, 0x37, 0x06, 0, 0};
+    out.clear();
+    CHECK(c.on_frame(late, 0.6, out));
+    CHECK(out.empty());  // no abort of the transfer under way
+    CHECK(done.size() == 1);
+    CHECK(c.counts().late == 1);
+    // and the position's own answer completes its read
+    can::Frame own = late;
+    own.data = {0x43, 0x64, 0x60, 0x00, 0x10, 0x27, 0, 0};
+    CHECK(c.on_frame(own, 0.61, out));
+    REQUIRE(done.size() == 2);
+    CHECK(done[1].ok());
+    CHECK(done[1].index == 0x6064);
+    CHECK(canopen::get_le(done[1].data, 0, 4) == 10000);
   }
 
   TEST_CASE("SDO client: a wrong toggle bit and a silent server abort the transfer") {
@@ -488,7 +529,7 @@ TEST_SUITE("cia402") {
     Loop l;
     l.start();
     REQUIRE(l.running());
-    CHECK(l.drive.nmt() == canopen::NmtState::Operational);
+    CHECK(l.drive.nmt() == stand::facts::Nmt::Operational);
     using W = std::pair<std::uint16_t, std::uint8_t>;
     const std::vector<W> order{{0x6060, 0}, {0x60F2, 0}, {0x6081, 0}, {0x6083, 0},
                                {0x6084, 0}, {0x6085, 0}, {0x605A, 0}, {0x605B, 0},
@@ -518,7 +559,7 @@ TEST_SUITE("cia402") {
     CHECK(l.drive.counts().host_heartbeats - host_hb == doctest::Approx(10).epsilon(0.11));
     CHECK(l.master.status().state == TableState::Disabled);
     CHECK(l.master.status().fault == FaultCode::None);
-    CHECK(l.drive.state() == State::SwitchOnDisabled);
+    CHECK(l.drive.state() == DriveState::SwitchOnDisabled);
     // encoder samples from TPDO1 at the event timer, the table where it is
     l.samples.clear();
     l.run_for(0.1);
@@ -643,7 +684,7 @@ TEST_SUITE("cia402") {
     CHECK(l.samples.back().angle_rad == doctest::Approx(1.0).epsilon(1e-5));
     CHECK(l.drive.counts().sync >= 25);
     REQUIRE(l.enabled(3));
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
   }
 
   // A master running with SYNC every 10 ms; from here the bus is written by
@@ -888,6 +929,62 @@ TEST_SUITE("cia402") {
     CHECK(l.master.status().state == TableState::Moving);
   }
 
+  TEST_CASE("a drive whose SDO answers come 2 to 5 ms late: each that late, the run as usual") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.sdo_answer_min_s = 0.002;
+    ds.sdo_answer_max_s = 0.005;
+    SUBCASE("the drive alone: every answer between 2 and 5 ms, none at once") {
+      stand::VirtualDrive402 d(ds);
+      std::vector<stand::DriveFrame> out;
+      d.advance(0.1, out);  // booted
+      out.clear();
+      double t = 0.2;
+      for (int k = 0; k < 20; ++k, t += 0.01) {
+        can::Frame q;
+        q.id = 0x600 + 5;
+        q.len = 8;
+        q.data = {0x40, 0x41, 0x60, 0x00, 0, 0, 0, 0};  // read the statusword
+        d.receive(t, q, out);
+        CHECK(out.empty());
+        d.advance(t + 0.0099, out);
+        REQUIRE(out.size() == 1);
+        CAPTURE(k);
+        CHECK(out[0].frame.id == 0x585);
+        CHECK(out[0].t_s - t >= 0.002 - 1e-12);
+        CHECK(out[0].t_s - t <= 0.005 + 1e-12);
+        out.clear();
+      }
+    }
+    SUBCASE("through the master: configured, enabled, a move done") {
+      Loop l(master_settings(), ds);
+      l.start();
+      REQUIRE(l.running());
+      REQUIRE(l.enabled(1));
+      REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
+      REQUIRE(l.in_position(2, 10));
+      CHECK(l.master.status().fault == FaultCode::None);
+      CHECK(l.drive.angle(l.t) == doctest::Approx(M_PI / 2).epsilon(1e-6));
+    }
+  }
+
+  TEST_CASE("a warning EMCY at each boot-up, reset once operational: told, the run as usual") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.boot_warning_code = 0x8120;  // CAN in error passive: a warning by the default classes
+    Loop l(master_settings(), ds);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    CHECK(l.master.status().fault == FaultCode::None);
+    const std::vector<std::uint16_t>& sent = l.drive.emcy_sent();
+    REQUIRE(sent.size() >= 2);
+    CHECK(sent[0] == 0x8120);
+    CHECK(sent.back() == 0x0000);  // its error reset
+    const auto& told = l.master.notices();
+    CHECK(std::any_of(told.begin(), told.end(), [](const std::string& n) {
+      return n.starts_with("the drive warned: EMCY 0x8120");
+    }));
+  }
+
   TEST_CASE("segmented SDO: the device name read, a label written and read back") {
     Loop l;
     l.start();
@@ -935,7 +1032,7 @@ TEST_SUITE("cia402") {
       // the drive: what came before was written, nothing after, never started
       using W = std::pair<std::uint16_t, std::uint8_t>;
       CHECK(l.drive.sdo_writes() == std::vector<W>{{0x6060, 0}, {0x60F2, 0}, {0x6081, 0}});
-      CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
+      CHECK(l.drive.nmt() == stand::facts::Nmt::PreOperational);
       // a move is refused with the reason, and sends nothing
       l.from_master.clear();
       const auto sent = l.sent.size();
@@ -963,7 +1060,7 @@ TEST_SUITE("cia402") {
     REQUIRE(l.run_until([&] { return l.master.statusword().has_value(); }, 0.5));
     CHECK(l.master.drive_state() == State::SwitchOnDisabled);
     REQUIRE(l.enabled(42));
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
     CHECK(l.master.drive_state() == State::OperationEnabled);
     CHECK((l.drive.controlword() & 0x8F) == 0x0F);
     // disable: shutdown (transition 8) to ready to switch on, not disable
@@ -971,10 +1068,10 @@ TEST_SUITE("cia402") {
     REQUIRE(l.command(TableCommandCode::Disable, 43));
     REQUIRE(l.run_until([&] { return l.master.status().ack == 43; }, 0.5));
     CHECK(l.master.status().state == TableState::Disabled);
-    CHECK(l.drive.state() == State::ReadyToSwitchOn);
+    CHECK(l.drive.state() == DriveState::ReadyToSwitchOn);
     CHECK((l.drive.controlword() & 0x8F) == 0x06);
     l.run_for(0.1);
-    CHECK(l.drive.state() == State::ReadyToSwitchOn);
+    CHECK(l.drive.state() == DriveState::ReadyToSwitchOn);
     // and enabled again from there
     REQUIRE(l.enabled(44));
   }
@@ -1044,7 +1141,7 @@ TEST_SUITE("cia402") {
     const double from = l.drive.angle(l.t);
     const double t_stop = l.t;
     REQUIRE(l.command(TableCommandCode::QuickStop, 3));
-    CHECK(l.drive.state() == State::QuickStopActive);
+    CHECK(l.drive.state() == DriveState::QuickStopActive);
     REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.1));
     CHECK(l.master.status().state == TableState::QuickStopped);
     l.run_for(0.5);
@@ -1059,12 +1156,12 @@ TEST_SUITE("cia402") {
     CHECK(l.drive.rate(t_stop + v / q + 1e-9) == 0);
     CHECK(l.drive.rate(t_stop + v / q / 2) == doctest::Approx(v / 2).epsilon(1e-9));
     CHECK(l.drive.angle(l.t) - from == doctest::Approx(v * v / (2 * q)).epsilon(1e-9));
-    CHECK(l.drive.state() == State::QuickStopActive);  // 0x605A = 6: stays
+    CHECK(l.drive.state() == DriveState::QuickStopActive);  // 0x605A = 6: stays
     CHECK(l.master.status().state == TableState::QuickStopped);
     CHECK(l.drive.counts().quick_stops == 1);
     // enable again from quick stop active
     REQUIRE(l.enabled(4));
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
   }
 
   TEST_CASE("controlled stop by halt: decelerates at 0x6084, in position where it stopped") {
@@ -1078,7 +1175,7 @@ TEST_SUITE("cia402") {
     // 30 deg/s at 40 deg/s^2: 11.25 deg
     CHECK(l.drive.angle(l.t) - from == doctest::Approx(11.25 * kDeg).epsilon(1e-3));
     CHECK((l.drive.controlword() & 0x100) != 0);
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
     // a new move clears halt and goes, relative to where the table stopped
     const std::int64_t stopped = l.drive.position_counts(l.t);
     REQUIRE(l.command(TableCommandCode::MoveRelative, 4, -10 * kDeg, 30 * kDeg));
@@ -1102,13 +1199,13 @@ TEST_SUITE("cia402") {
     CHECK(l.master.emergencies().front().code == 0x2310);
     CHECK(l.master.emergencies().front().t_s == doctest::Approx(2.0).epsilon(0.01));
     l.run_for(1.0);
-    CHECK(l.drive.state() == State::Fault);
+    CHECK(l.drive.state() == DriveState::Fault);
     CHECK_FALSE(l.drive.moving(l.t));
     CHECK(*l.drive.value(0x603F, 0) == 0x2310);
     // a move is refused while in fault
     CHECK_FALSE(l.command(TableCommandCode::MoveRelative, 3, 0.1, 0.1).ok());
     REQUIRE(l.enabled(4));
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
     CHECK(l.drive.counts().fault_resets == 1);
     CHECK(l.master.status().fault == FaultCode::None);
     CHECK(l.master.emergencies().back().code == 0x0000);  // the drive's error reset
@@ -1190,12 +1287,12 @@ TEST_SUITE("cia402") {
     l.run_for(1.0);
     REQUIRE(l.master.status().fault_name == "EMCY 0x3210 DC link over-voltage");
     CHECK_FALSE(l.enabled(2));
-    CHECK(l.drive.state() == State::Fault);
+    CHECK(l.drive.state() == DriveState::Fault);
     CHECK(l.master.status().state == TableState::Fault);
     CHECK(l.master.status().ack == 1);
     REQUIRE(l.enabled(3));
     CHECK(l.drive.counts().fault_resets == 1);
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
   }
 
   TEST_CASE("a profile velocity written for a move that was quick-stopped is remembered") {
@@ -1240,7 +1337,7 @@ TEST_SUITE("cia402") {
     REQUIRE(l.enabled(1));
     l.run_for(1.0);
     const auto tpdo_before = l.master.counts().tpdo;
-    CHECK(l.drive.state() == State::Fault);
+    CHECK(l.drive.state() == DriveState::Fault);
     // the last (or every) statusword the master has says operation enabled ...
     CHECK(l.master.drive_state() == State::OperationEnabled);
     if (df.stale == stand::StalePdo::Frozen) {
@@ -1257,7 +1354,7 @@ TEST_SUITE("cia402") {
     CHECK_FALSE(l.command(TableCommandCode::MoveAbsolute, 2, 0.5, 0.1).ok());
     // only the fault reset and a statusword after it clear it
     REQUIRE(l.enabled(3));
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
     CHECK(l.drive.counts().fault_resets == 1);
   }
 
@@ -1278,7 +1375,7 @@ TEST_SUITE("cia402") {
     // the drive heard nothing either: its consumer quick-stopped it (0x6007 = 3)
     l.run_for(0.5);
     CHECK(l.drive.counts().host_heartbeat_lost == 1);
-    CHECK(l.drive.state() == State::QuickStopActive);
+    CHECK(l.drive.state() == DriveState::QuickStopActive);
     CHECK_FALSE(l.drive.moving(l.t));
     CHECK(l.drive.emcy_sent().back() == 0x8130);
     l.run_for(1.5);                                       // the drive talks again
@@ -1292,8 +1389,8 @@ TEST_SUITE("cia402") {
     CHECK(l.drive.sdo_writes().size() == writes + 12);      // the configuration again
     CHECK(*l.drive.value(0x1016, 1) == (127 << 16 | 500));  // watched again
     CHECK(*l.drive.value(0x1017, 0) == 100);
-    CHECK(l.drive.state() == State::OperationEnabled);
-    CHECK(l.drive.nmt() == canopen::NmtState::Operational);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
+    CHECK(l.drive.nmt() == stand::facts::Nmt::Operational);
     // and it moves again
     REQUIRE(l.command(TableCommandCode::MoveRelative, 4, 10 * kDeg, 30 * kDeg));
     REQUIRE(l.in_position(4, 3));
@@ -1375,7 +1472,7 @@ TEST_SUITE("cia402") {
     CHECK(l.t - stopped_at > 0.39);
     CHECK(l.t - stopped_at < 0.51);
     CHECK(l.master.status().fault_name == "EMCY 0x8130 life guard error or heartbeat error");
-    CHECK(l.drive.state() == State::QuickStopActive);
+    CHECK(l.drive.state() == DriveState::QuickStopActive);
     CHECK(l.drive.emcy_sent().back() == 0x8130);
     CHECK(l.drive.counts().quick_stops == 1);
     // the sequencer's quick stop is acknowledged: the drive stopped itself
@@ -1398,13 +1495,13 @@ TEST_SUITE("cia402") {
     l.master.set_host_heartbeat(false);
     REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 1));
     l.run_for(0.5);
-    CHECK(l.drive.state() == State::Fault);
+    CHECK(l.drive.state() == DriveState::Fault);
     CHECK(*l.drive.value(0x603F, 0) == 0x8130);
     CHECK_FALSE(l.drive.moving(l.t));
     CHECK(l.master.status().fault_name == "EMCY 0x8130 life guard error or heartbeat error");
     l.master.set_host_heartbeat(true);
     REQUIRE(l.enabled(3));
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
   }
 
   TEST_CASE("the drive leaves operational or boots again: a fault, and a new configuration") {
@@ -1425,12 +1522,12 @@ TEST_SUITE("cia402") {
     REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 0.5));
     CHECK(l.master.status().fault == FaultCode::DriveNmtState);
     CHECK(l.master.status().fault_name == why);
-    CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
+    CHECK(l.drive.nmt() == stand::facts::Nmt::PreOperational);
     REQUIRE(l.enabled(2));
     CHECK(l.master.counts().nmt_resets == 2);
     CHECK(l.master.counts().configurations == 2);
-    CHECK(l.drive.nmt() == canopen::NmtState::Operational);
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.nmt() == stand::facts::Nmt::Operational);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
   }
 
   TEST_CASE("a pre-operational heartbeat after our NMT start: late news within the timeout") {
@@ -1498,7 +1595,7 @@ TEST_SUITE("cia402") {
     REQUIRE(l.turning(1.0, 90, 30));
     REQUIRE(l.command(TableCommandCode::QuickStop, 3));
     l.run_for(0.5);
-    CHECK(l.drive.state() == State::SwitchOnDisabled);
+    CHECK(l.drive.state() == DriveState::SwitchOnDisabled);
     CHECK_FALSE(l.drive.moving(l.t));
     CHECK(l.master.status().ack == 3);
     CHECK(l.master.status().state == TableState::QuickStopped);
@@ -1553,7 +1650,7 @@ TEST_SUITE("cia402") {
     REQUIRE(l.run_until([&] { return l.master.status().state == TableState::Fault; }, 3));
     CHECK(l.master.status().fault_name == "EMCY 0x8611 following error");
     l.run_for(0.5);
-    CHECK(l.drive.state() == State::Fault);
+    CHECK(l.drive.state() == DriveState::Fault);
     CHECK((l.drive.statusword() & 0x2000) != 0);
     REQUIRE(l.master.statusword().has_value());
     CHECK((*l.master.statusword() & 0x2000) != 0);
@@ -1975,7 +2072,7 @@ TEST_SUITE("cia402") {
     REQUIRE(l.master.status().fault == FaultCode::Emcy);
     // the reset is ignored; the frozen TPDO keeps saying operation enabled
     CHECK_FALSE(l.enabled(2));
-    CHECK(l.drive.state() == State::Fault);
+    CHECK(l.drive.state() == DriveState::Fault);
     CHECK(l.master.drive_state() == State::OperationEnabled);
     CHECK(l.master.status().state == TableState::Fault);
     CHECK(l.master.status().ack == 1);
@@ -1983,7 +2080,7 @@ TEST_SUITE("cia402") {
     // the next reset takes: switch on disabled seen, then enabled
     REQUIRE(l.enabled(4));
     CHECK(l.drive.counts().fault_resets == 1);
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
   }
 
   TEST_CASE("the fault reset's rising edge survives a drive that samples RPDO1 once a cycle") {
@@ -2000,12 +2097,12 @@ TEST_SUITE("cia402") {
     l.run_for(1.0);
     REQUIRE(l.master.status().fault == FaultCode::Emcy);
     CHECK_FALSE(l.enabled(2));  // the first reset is ignored: bit 7 stays high
-    CHECK(l.drive.state() == State::Fault);
+    CHECK(l.drive.state() == DriveState::Fault);
     REQUIRE((l.drive.controlword() & 0x80) != 0);
     // the second needs bit 7 low for one sample, then high
     REQUIRE(l.enabled(3));
     CHECK(l.drive.counts().fault_resets == 1);
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
   }
 
   TEST_CASE("quick stop outside running: refused while the drive boots, by SDO while configuring") {
@@ -2064,31 +2161,100 @@ TEST_SUITE("cia402") {
     }
   }
 
-  TEST_CASE("an EMCY that only warns: the quick stop waits for a statusword that shows it") {
+  TEST_CASE("an EMCY that warns, in a move: told once, nothing latched, the move goes on") {
+    stand::Drive402Faults df;
+    df.warning_at_s = 1.0;
+    df.warning_code = 0x4210;  // excess temperature device: a warning by the default classes
+    cia402::MasterSettings ms = master_settings();
+    SUBCASE("by the default classes") {}
+    SUBCASE("by a class of the configuration's (0x4200-0x42FF)") {
+      ms.emcy_warnings = {{0x4200, 0x42FF}};
+    }
+    Loop l(ms, drive_setup(), df);
+    REQUIRE(l.turning(1.5));
+    CHECK(l.master.status().fault == FaultCode::None);
+    CHECK(l.master.counts().emcy == 1);
+    CHECK(l.master.counts().emcy_warnings == 1);
+    const auto& told = l.master.notices();
+    REQUIRE(!told.empty());
+    CHECK(told.back().find("the drive warned: EMCY 0x4210") == 0);
+    CHECK(l.drive.moving(l.t));
+    CHECK(l.master.status().state == TableState::Moving);
+    // the move ends where it was headed, in position, with no quick stop
+    REQUIRE(l.run_until([&] { return l.master.status().state == TableState::InPosition; }, 20));
+    CHECK(l.drive.counts().quick_stops == 0);
+    CHECK(l.drive.angle(l.t) == doctest::Approx(2 * M_PI).epsilon(1e-6));
+  }
+
+  TEST_CASE("an EMCY's class is the configuration's: no ranges, every code a fault") {
+    stand::Drive402Faults df;
+    df.warning_at_s = 1.0;
+    df.warning_code = 0x4210;
+    cia402::MasterSettings ms = master_settings();
+    ms.emcy_warnings.clear();
+    Loop l(ms, drive_setup(), df);
+    REQUIRE(l.turning(1.5));
+    CHECK(l.master.status().fault == FaultCode::Emcy);
+    CHECK(l.master.status().fault_name.find("EMCY 0x4210") == 0);
+    CHECK(l.master.counts().emcy_warnings == 0);
+  }
+
+  TEST_CASE("a drive fault whose EMCY code alone warns: the statusword's fault bit decides") {
+    stand::Drive402Faults df;
+    df.fault_at_s = 1.0;
+    df.fault_code = 0x4310;  // excess temperature drive: a warning's class, but the drive faults
+    Loop l(master_settings(), drive_setup(), df);
+    REQUIRE(l.turning(1.5));
+    REQUIRE(l.drive.state() == DriveState::Fault);
+    CHECK(l.master.status().fault == FaultCode::DriveFault);
+    CHECK(l.master.status().state == TableState::Fault);
+    const std::string name = l.master.status().fault_name;
+    CAPTURE(name);
+    CHECK(name.find("drive in fault (statusword 0x") == 0);
+    CHECK(name.find("after EMCY 0x4310") != std::string::npos);
+    CHECK(l.master.counts().emcy_warnings == 1);
+  }
+
+  TEST_CASE("emcy_warns: inside a range, both ends in; outside it, a fault") {
+    const auto& d = cia402::kDefaultEmcyWarnings;
+    for (const int warn : {0x4000, 0x4210, 0x4FFF, 0x8110, 0x8120, 0x8140}) {
+      CAPTURE(warn);
+      CHECK(cia402::emcy_warns(static_cast<std::uint16_t>(warn), d));
+    }
+    for (const int fault : {0x1000, 0x2310, 0x3FFF, 0x5000, 0x8130, 0x8611, 0xFF00}) {
+      CAPTURE(fault);
+      CHECK_FALSE(cia402::emcy_warns(static_cast<std::uint16_t>(fault), d));
+    }
+    CHECK_FALSE(cia402::emcy_warns(0x4210, {}));
+  }
+
+  TEST_CASE("an EMCY fault from a drive that goes on: the quick stop waits for its statusword") {
     stand::Drive402Setup ds = drive_setup();
     ds.cycle_s = 0.004;
     stand::Drive402Faults df;
     df.warning_at_s = 1.0;
+    df.warning_code = kFaultClassCode;
     Loop l(master_settings(), ds, df);
     REQUIRE(l.turning(1.5));
-    REQUIRE(l.master.status().fault == FaultCode::Emcy);  // latched, to be safe
-    REQUIRE(l.drive.state() == State::OperationEnabled);  // but the drive goes on
+    REQUIRE(l.master.status().fault == FaultCode::Emcy);       // latched, to be safe
+    REQUIRE(l.drive.state() == DriveState::OperationEnabled);  // but the drive goes on
     REQUIRE(l.drive.moving(l.t));
     REQUIRE(l.command(TableCommandCode::QuickStop, 3));
     CHECK(l.master.status().ack != 3);  // the drive has not yet sampled it
     CHECK(l.drive.moving(l.t));
     REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.1));
-    CHECK(l.drive.state() == State::QuickStopActive);
+    CHECK(l.drive.state() == DriveState::QuickStopActive);
     CHECK((l.drive.controlword() & 0x8F) == 0x02);
   }
 
-  TEST_CASE("a latched warning while the table turns: Enable refused, then recovered at rest") {
+  TEST_CASE("an EMCY fault latched while the table turns: Enable refused, then recovered at rest") {
     stand::Drive402Faults df;
     df.warning_at_s = 1.0;
+    df.warning_code = kFaultClassCode;
     Loop l(master_settings(), drive_setup(), df);
     REQUIRE(l.turning(1.5));
     REQUIRE(l.master.status().fault == FaultCode::Emcy);
-    REQUIRE(l.drive.state() == State::OperationEnabled);
+    REQUIRE(l.drive.state() == DriveState::OperationEnabled);
     REQUIRE(l.drive.moving(l.t));
     // an enable would set a new demand at speed; a fault reset's 0x0000 or
     // 0x0080 would be Disable voltage to this drive, not in fault
@@ -2102,7 +2268,7 @@ TEST_SUITE("cia402") {
     l.run_for(kRateWindowS);
     REQUIRE(l.enabled(5));
     CHECK(l.master.status().fault == FaultCode::None);
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
     CHECK(l.drive.counts().coasts == 0);
     CHECK(l.drive.counts().fault_resets == 0);
     // the drive's own statusword was read before anything was decided
@@ -2130,10 +2296,10 @@ TEST_SUITE("cia402") {
     REQUIRE(
         l.run_until([&] { return l.master.status().fault == FaultCode::TurningAtEnable; }, 3.0));
     CHECK(l.master.status().fault_name.find("the table turns at") != std::string::npos);
-    CHECK(l.drive.state() == State::SwitchedOn);  // not enabled onto it
+    CHECK(l.drive.state() == DriveState::SwitchedOn);  // not enabled onto it
     CHECK(l.drive.moving(l.t));
     l.run_for(0.5);
-    CHECK(l.drive.state() == State::SwitchedOn);
+    CHECK(l.drive.state() == DriveState::SwitchedOn);
     // once it has run down on its own (30 deg/s at 2 deg/s^2): enabled
     REQUIRE(l.run_until([&] { return !l.drive.moving(l.t); }, 16.0));
     l.run_for(0.1);
@@ -2165,7 +2331,7 @@ TEST_SUITE("cia402") {
     // so the operator may disable it, and enable it again
     REQUIRE(l.command(TableCommandCode::Disable, 2));
     REQUIRE(l.run_until([&] { return l.master.status().ack == 2; }, 0.5));
-    CHECK(l.drive.state() == State::ReadyToSwitchOn);  // Shutdown, transition 8
+    CHECK(l.drive.state() == DriveState::ReadyToSwitchOn);  // Shutdown, transition 8
     REQUIRE(l.enabled(3));
   }
 
@@ -2210,6 +2376,7 @@ TEST_SUITE("cia402") {
     ds.cycle_s = 0.004;  // the statusword answering goes with the next cycle
     stand::Drive402Faults df;
     df.warning_at_s = 1.0;  // latched, the drive goes on
+    df.warning_code = kFaultClassCode;
     Loop l(master_settings(), ds, df);
     REQUIRE(l.turning(1.5));
     REQUIRE(l.master.status().fault == FaultCode::Emcy);
@@ -2217,7 +2384,7 @@ TEST_SUITE("cia402") {
     REQUIRE(l.command(TableCommandCode::ControlledStop, 3));
     CHECK(l.master.status().ack != 3);  // not acked before the drive shows it
     REQUIRE(l.run_until([&] { return l.master.status().ack == 3; }, 0.5));
-    CHECK(l.drive.state() == State::QuickStopActive);
+    CHECK(l.drive.state() == DriveState::QuickStopActive);
     REQUIRE(l.run_until([&] { return !l.drive.moving(l.t); }, 2.0));
     CHECK(l.drive.counts().coasts == 0);
   }
@@ -2229,6 +2396,7 @@ TEST_SUITE("cia402") {
     stand::Drive402Faults df;
     df.refuse_objects[0x605B00] = 0x06020000;
     df.warning_at_s = 1.0;
+    df.warning_code = kFaultClassCode;
     Loop l(master_settings(), drive_setup(), df);
     REQUIRE(l.turning(1.5));
     REQUIRE(l.master.status().fault == FaultCode::Emcy);
@@ -2251,6 +2419,7 @@ TEST_SUITE("cia402") {
       "a TPDO that never agrees with the drive's own statusword: the reset gives up, says why") {
     stand::Drive402Faults df;
     df.warning_at_s = 0.5;  // latched at rest: the next Enable reads the statusword
+    df.warning_code = kFaultClassCode;
     Loop l(master_settings(), drive_setup(), df);
     l.start();
     REQUIRE(l.running());
@@ -2298,11 +2467,11 @@ TEST_SUITE("cia402") {
       CHECK_FALSE(l.drive.moving(l.t));
       CHECK((l.drive.controlword() & cia402::cw::kHalt) != 0);
     }
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
     // TPDO1 back: at rest, then shut down (transition 8)
     l.tamper = nullptr;
     REQUIRE(l.run_until([&] { return l.master.status().ack == 4; }, 1.0));
-    CHECK(l.drive.state() == State::ReadyToSwitchOn);
+    CHECK(l.drive.state() == DriveState::ReadyToSwitchOn);
   }
 
   TEST_CASE("disable, then enable before the drive's statusword says so: not a drive of its own") {
@@ -2314,7 +2483,7 @@ TEST_SUITE("cia402") {
     REQUIRE(l.enabled(1));
     REQUIRE(l.command(TableCommandCode::Disable, 2));
     // the drive has sampled it; the master has not yet heard so
-    REQUIRE(l.run_until([&] { return l.drive.state() != State::OperationEnabled; }, 0.01));
+    REQUIRE(l.run_until([&] { return l.drive.state() != DriveState::OperationEnabled; }, 0.01));
     REQUIRE(l.master.drive_state() == State::OperationEnabled);
     REQUIRE(l.command(TableCommandCode::Enable, 3));
     REQUIRE(l.run_until(
@@ -2333,7 +2502,7 @@ TEST_SUITE("cia402") {
     f.id = canopen::kRpdo1Base + 5;
     f.len = 6;
     l.drive.receive(l.t, f, l.from_drive);
-    CHECK(l.drive.state() == State::SwitchOnDisabled);
+    CHECK(l.drive.state() == DriveState::SwitchOnDisabled);
     CHECK(l.drive.counts().coasts == 1);
     // on friction alone (2 deg/s^2), not the quick stop's 180 deg/s^2
     CHECK(std::fabs(l.drive.rate(l.t + 1)) == doctest::Approx(28 * kDeg).epsilon(1e-3));
@@ -2343,14 +2512,17 @@ TEST_SUITE("cia402") {
 
   TEST_CASE("the drive leaves operation enabled by itself: a fault, not enabled again unasked") {
     std::uint8_t word = 0;
-    State left_to = State::Unknown;
+    State left_to = State::Unknown;  // as the master names it
+    DriveState drive_left_to = DriveState::NotReadyToSwitchOn;
     SUBCASE("quick stop, by another node") {
       word = 0x02;
       left_to = State::QuickStopActive;
+      drive_left_to = DriveState::QuickStopActive;
     }
     SUBCASE("disable voltage, by another node") {
       word = 0x00;
       left_to = State::SwitchOnDisabled;
+      drive_left_to = DriveState::SwitchOnDisabled;
     }
     Loop l;
     l.start();
@@ -2361,29 +2533,68 @@ TEST_SUITE("cia402") {
     f.len = 6;
     f.data[0] = word;
     l.drive.receive(l.t, f, l.from_drive);
-    REQUIRE(l.drive.state() == left_to);
+    REQUIRE(l.drive.state() == drive_left_to);
     REQUIRE(l.run_until([&] { return l.master.status().fault == FaultCode::LeftEnabled; }, 0.1));
     CHECK(l.master.status().fault_name.find(std::string("the drive left operation enabled by "
                                                         "itself, to ") +
                                             cia402::to_string(left_to)) == 0);
     const auto from = l.sent.size();
     l.run_for(0.5);
-    CHECK(l.drive.state() == left_to);  // not enabled again behind anyone's back
+    CHECK(l.drive.state() == drive_left_to);  // not enabled again behind anyone's back
     CHECK(l.master.status().state == TableState::Fault);
     for (std::size_t i = from; i < l.sent.size(); ++i)
       CHECK(l.sent[i].id != canopen::kRpdo1Base + 5);
     REQUIRE(l.enabled(2));  // asked: enabled again
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
     CHECK(l.master.status().fault == FaultCode::None);
   }
 
+  TEST_CASE(
+      "a drive that keeps bit 12 up after enable: the set-point waits, or faults saying why") {
+    stand::Drive402Setup ds = drive_setup();
+    SUBCASE("50 ms: the set-point goes once it drops, the move done") {
+      ds.set_point_ack_after_enable_s = 0.05;
+      Loop l(master_settings(), ds);
+      l.start();
+      REQUIRE(l.running());
+      REQUIRE(l.enabled(1));
+      REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
+      REQUIRE(l.in_position(2, 10));
+      CHECK(l.drive.counts().set_points == 1);
+      CHECK(l.drive.angle(l.t) == doctest::Approx(M_PI / 2).epsilon(1e-6));
+      CHECK(l.master.status().fault == FaultCode::None);
+    }
+    SUBCASE("never dropped: a fault after the set-point timeout, nothing moved") {
+      ds.set_point_ack_after_enable_s = std::numeric_limits<double>::infinity();
+      Loop l(master_settings(), ds);
+      l.start();
+      REQUIRE(l.running());
+      REQUIRE(l.enabled(1));
+      REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
+      REQUIRE(l.run_until([&] { return l.master.status().fault != FaultCode::None; }, 2));
+      CHECK(l.master.status().fault == FaultCode::SetPointTimeout);
+      CHECK(l.master.status().fault_name.find(
+                "set-point not sent: the drive's statusword bit 12") == 0);
+      CHECK(l.drive.counts().set_points == 0);
+      CHECK_FALSE(l.drive.moving(l.t));
+      // no bit 4 ever went out: the drive was never asked
+      for (const can::Frame& f : l.sent)
+        if (f.id == canopen::kRpdo1Base + 5) CHECK((f.data[0] & 0x10) == 0);
+    }
+  }
+
   TEST_CASE("disable: refused while moving; from quick stop active nothing before rest") {
-    Loop l;
+    stand::Drive402Setup ds = drive_setup();
+    SUBCASE("a drive that sets bit 10 in quick stop active once at rest") {}
+    SUBCASE("a drive that never sets it there: the rest is the table's, by its positions") {
+      ds.target_reached_in_quick_stop = false;
+    }
+    Loop l(master_settings(), ds);
     REQUIRE(l.turning(1.0, 90, 30));
     const auto sent = l.sent.size();
     CHECK_FALSE(l.command(TableCommandCode::Disable, 3).ok());
     CHECK(l.sent.size() == sent);
-    CHECK(l.drive.state() == State::OperationEnabled);
+    CHECK(l.drive.state() == DriveState::OperationEnabled);
     REQUIRE(l.in_position(2, 5));
     // a quick stop, and at once enable again: refused while it decelerates
     // (the drive stays quick stop active, the controlword Quick stop), then
@@ -2397,7 +2608,7 @@ TEST_SUITE("cia402") {
     REQUIRE_FALSE(early.ok());
     CHECK(early.error().message.find("enable refused while the table turns") == 0);
     while (l.drive.moving(l.t)) {
-      CHECK(l.drive.state() == State::QuickStopActive);
+      CHECK(l.drive.state() == DriveState::QuickStopActive);
       CHECK((l.drive.controlword() & 0x8F) == 0x02);
       l.step();
     }
@@ -2413,13 +2624,13 @@ TEST_SUITE("cia402") {
     REQUIRE_FALSE(early_off.ok());
     CHECK(early_off.error().message.find("disable refused while the table turns") == 0);
     while (l.drive.moving(l.t)) {
-      CHECK(l.drive.state() == State::QuickStopActive);
+      CHECK(l.drive.state() == DriveState::QuickStopActive);
       l.step();
     }
     l.run_for(kRateWindowS);
     REQUIRE(l.command(TableCommandCode::Disable, 9));
     REQUIRE(l.run_until([&] { return l.master.status().ack == 9; }, 0.5));
-    CHECK(l.drive.state() == State::SwitchOnDisabled);  // transition 12
+    CHECK(l.drive.state() == DriveState::SwitchOnDisabled);  // transition 12
     CHECK(l.master.status().state == TableState::Disabled);
   }
 
@@ -2443,7 +2654,7 @@ TEST_SUITE("cia402") {
       CHECK(l.master.phase() == cia402::CommPhase::Failed);
       CHECK(l.master.status().fault == FaultCode::Configuration);
       CHECK(l.master.status().fault_name.find("0x6061") != std::string::npos);
-      CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
+      CHECK(l.drive.nmt() == stand::facts::Nmt::PreOperational);
     }
   }
 
@@ -2531,7 +2742,7 @@ TEST_SUITE("cia402") {
       CHECK(l.master.phase() == cia402::CommPhase::Failed);
       CHECK(l.master.status().fault == FaultCode::Configuration);
       CHECK(l.master.status().fault_name == "the drive keeps no such mode");
-      CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
+      CHECK(l.drive.nmt() == stand::facts::Nmt::PreOperational);
     }
     SUBCASE("a code the drive lacks: 0x6060 refused, named, nothing read back") {
       probe.code = 3;  // profile velocity, which this drive has not
@@ -2541,7 +2752,7 @@ TEST_SUITE("cia402") {
       CHECK(probe.checked == 0);
       CHECK(l.master.phase() == cia402::CommPhase::Failed);
       CHECK(l.master.status().fault_name.find("0x6060") != std::string::npos);
-      CHECK(l.drive.nmt() == canopen::NmtState::PreOperational);
+      CHECK(l.drive.nmt() == stand::facts::Nmt::PreOperational);
     }
   }
 
@@ -2606,12 +2817,12 @@ TEST_SUITE("cia402") {
     INFO(l.master.status().fault_name);
     REQUIRE(l.master.status().fault == FaultCode::DriveHeartbeatLost);
     l.run_for(0.5);  // it talks again, still enabled
-    REQUIRE(l.drive.state() == State::OperationEnabled);
+    REQUIRE(l.drive.state() == DriveState::OperationEnabled);
     const auto from = l.sent.size();
     REQUIRE(l.command(TableCommandCode::Enable, 2));
     REQUIRE(l.run_until(
         [&] {
-          CHECK(l.drive.state() == State::OperationEnabled);  // never let go
+          CHECK(l.drive.state() == DriveState::OperationEnabled);  // never let go
           return l.master.status().ack == 2 && l.master.status().state == TableState::Holding;
         },
         1.0));
@@ -2626,6 +2837,7 @@ TEST_SUITE("cia402") {
     ds.mode_switch_s = 0.05;  // configuring for a while
     stand::Drive402Faults df;
     df.warning_at_s = 0.02;  // an EMCY during the configuration: latched
+    df.warning_code = kFaultClassCode;
     Loop l(master_settings(), ds, df);
     l.start();
     REQUIRE(l.run_until([&] { return l.master.status().fault == FaultCode::Emcy; }, 0.1));

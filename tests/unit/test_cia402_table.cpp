@@ -13,6 +13,7 @@
 #include "turncal/build_paths.hpp"
 #include "turncal/config.hpp"
 #include "turncal/drivers/canopen.hpp"
+#include "turncal/drivers/cia402.hpp"
 #include "turncal/drivers/reference.hpp"
 #include "turncal/sim/virtual_drive402.hpp"
 
@@ -156,7 +157,7 @@ TEST_SUITE("cia402 table driver") {
     b.start();
     REQUIRE(b.command(TableCommandCode::Enable, 1));
     REQUIRE(b.state_is(TableState::Holding, 1));
-    CHECK(b.drive.state() == cia402::State::OperationEnabled);
+    CHECK(b.drive.state() == stand::facts::State::OperationEnabled);
     REQUIRE(b.command(TableCommandCode::MoveAbsolute, 2, 30 * kDeg, 10 * kDeg));
     REQUIRE(b.state_is(TableState::InPosition, 2, 10));
     REQUIRE_FALSE(b.encoder.empty());
@@ -187,7 +188,7 @@ TEST_SUITE("cia402 table driver") {
     CHECK(b.last()->fault_name.find("0x2310") != std::string::npos);
     REQUIRE(b.command(TableCommandCode::QuickStop, 2));
     b.run_until([] { return false; }, 0.3);
-    CHECK(b.drive.state() != cia402::State::OperationEnabled);
+    CHECK(b.drive.state() != stand::facts::State::OperationEnabled);
     CHECK(b.last()->state == static_cast<int>(TableState::Fault));
   }
 
@@ -227,7 +228,7 @@ TEST_SUITE("cia402 table driver") {
     CHECK(beats == 0);
     CHECK(b.drive.counts().host_heartbeat_lost == 1);
     CHECK(b.drive.counts().quick_stops >= 1);
-    CHECK(b.drive.state() != cia402::State::OperationEnabled);
+    CHECK(b.drive.state() != stand::facts::State::OperationEnabled);
   }
 
   TEST_CASE("a malformed TPDO1 is counted and skipped; another node's frames are not ours") {

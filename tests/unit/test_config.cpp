@@ -464,12 +464,39 @@ TEST_CASE("config: [table] protocol = \"cia402\" and [table.cia402]") {
            Bad{"sdo_timeout_ms = 0\n", "table.cia402.sdo_timeout_ms", 4},
            Bad{"velocity_pdo = 1\n", "table.cia402.velocity_pdo", 4},
            Bad{"nodeid = 1\n", "table.cia402.nodeid", 4},
+           Bad{"emcy_warnings = \"0x4210\"\n", "table.cia402.emcy_warnings", 4},
+           Bad{"emcy_warnings = [\"0x4210\",\n \"4210\"]\n", "table.cia402.emcy_warnings", 5},
+           Bad{"emcy_warnings = [\"0x42G0\"]\n", "table.cia402.emcy_warnings", 4},
+           Bad{"emcy_warnings = [0x4210]\n", "table.cia402.emcy_warnings", 4},
+           Bad{"emcy_warnings = [\"0x4FFF-0x4000\"]\n", "table.cia402.emcy_warnings", 4},
+           Bad{"emcy_warnings = [\"0x0000-0x4FFF\"]\n", "table.cia402.emcy_warnings", 4},
        }) {
     CAPTURE(b.text);
     Error e = parse_error(head + b.text);
     CHECK(e.where.file == "/etc/turncal/turncal.toml");
     CHECK(e.where.line == b.line);
     CHECK(e.message.find(b.key) != std::string::npos);
+  }
+  SUBCASE("the EMCY codes that only warn: codes and ranges; none; the master's defaults") {
+    auto c = parse_config(head + "emcy_warnings = [\"0x4210\", \"0x8100-0x81ff\"]\n",
+                          "/etc/turncal/turncal.toml");
+    REQUIRE(c.ok());
+    const auto& w = c->can.table.cia402.emcy_warnings;
+    REQUIRE(w.has_value());
+    REQUIRE(w->size() == 2);
+    CHECK((*w)[0] == std::pair<std::uint16_t, std::uint16_t>{0x4210, 0x4210});
+    CHECK((*w)[1] == std::pair<std::uint16_t, std::uint16_t>{0x8100, 0x81FF});
+    auto none = parse_config(head + "emcy_warnings = []\n", "/etc/turncal/turncal.toml");
+    REQUIRE(none.ok());
+    REQUIRE(none->can.table.cia402.emcy_warnings.has_value());
+    CHECK(none->can.table.cia402.emcy_warnings->empty());
+    auto dflt = parse_config(head, "/etc/turncal/turncal.toml");
+    REQUIRE(dflt.ok());
+    CHECK_FALSE(dflt->can.table.cia402.emcy_warnings.has_value());
+    Error e = parse_error(head + "emcy_warnings = [\"0x4FFF-0x4000\"]\n");
+    CHECK(e.message.find("ends before it begins") != std::string::npos);
+    Error f = parse_error(head + "emcy_warnings = [\"4210\"]\n");
+    CHECK(f.message.find("not \"4210\"") != std::string::npos);
   }
   SUBCASE("the drive's ramps above the stand's acceleration") {
     Error e =

@@ -28,10 +28,15 @@
 // * a lost host heartbeat does not change the NMT state (0x1029 absent);
 // * an event-driven TPDO1 goes on every statusword change and at its event
 //   timer (position changes alone wait for the timer).
+//
+// Written from CiA 301 and CiA 402 alone (cia_facts.hpp): it includes
+// none of the master's code, so the master's assumptions are its to
+// contradict.
 #pragma once
 
 #include <cmath>
 #include <cstdint>
+#include <deque>
 #include <limits>
 #include <map>
 #include <optional>
@@ -39,9 +44,8 @@
 #include <vector>
 
 #include "turncal/can/frame.hpp"
-#include "turncal/drivers/canopen.hpp"
-#include "turncal/drivers/cia402.hpp"
 #include "turncal/physics/profile.hpp"
+#include "turncal/sim/cia_facts.hpp"
 
 namespace turncal::stand {
 
@@ -79,6 +83,25 @@ struct Drive402Setup {
   /// shutdown, disable operation or quick stop) the drive no longer brakes:
   /// the table runs down on its bearings' friction alone, this slowly.
   double coast_deceleration_rps2 = 0.0349;  // 2 deg/s^2
+  /// Statusword bit 10 (target reached) in quick stop active once at rest,
+  /// as many drives set it; false: never there (CiA 402 defines it for the
+  /// profile modes' operation enabled; a drive need not set it elsewhere).
+  bool target_reached_in_quick_stop = true;
+  /// > 0: statusword bit 12 (set-point acknowledge) up this long after each
+  /// entry into operation enabled, with no set-point (a drive whose
+  /// trajectory generator is busy starting up); a set-point's bit 4 in that
+  /// time is not taken. Infinity: it never drops.
+  double set_point_ack_after_enable_s = 0;
+  /// Each SDO answer this long after its request, spread over [min, max]
+  /// (a drive whose SDO server runs in its slow task: 2 to 5 ms are
+  /// common); 0: at once.
+  double sdo_answer_min_s = 0;
+  double sdo_answer_max_s = 0;
+  /// Not 0: an EMCY of this code (one that warns, statusword bit 7 for as
+  /// long as it lasts) right after each boot-up, cleared by an EMCY 0x0000
+  /// once it is operational (a drive that reports its DC link charging, or
+  /// the CAN controller's error passive while the bus came up).
+  std::uint16_t boot_warning_code = 0;
 };
 
 /// What TPDO1 does while the drive is in fault (the stale-PDO trap).
@@ -146,10 +169,10 @@ class VirtualDrive402 {
   /// A frame from the bus at t (after advance(t)); answers go to `out`.
   void receive(double t, const can::Frame& f, std::vector<DriveFrame>& out);
 
-  [[nodiscard]] cia402::State state() const { return state_; }
+  [[nodiscard]] facts::State state() const { return state_; }
   [[nodiscard]] std::uint16_t statusword() const;
   [[nodiscard]] std::uint16_t controlword() const { return cw_; }
-  [[nodiscard]] canopen::NmtState nmt() const { return nmt_; }
+  [[nodiscard]] facts::Nmt nmt() const { return nmt_; }
   [[nodiscard]] bool booted() const { return !booting_; }
   /// True multi-turn table angle, rad, and the motion the INS turns by.
   [[nodiscard]] double angle(double t) const { return motion_.at(t).angle; }
@@ -216,6 +239,8 @@ class VirtualDrive402 {
   void set(std::uint16_t index, std::uint8_t sub, std::int64_t v);
   [[nodiscard]] bool silent(double t) const;
   void emit(double t, const can::Frame& f, std::vector<DriveFrame>& out);
+  /// An SDO answer: at once, or after the setup's delay.
+  void answer_sdo(double t, const can::Frame& f, std::vector<DriveFrame>& out);
   void emcy(double t, std::uint16_t code, std::uint8_t reg, std::vector<DriveFrame>& out);
 
   void on_nmt(double t, const can::Frame& f, std::vector<DriveFrame>& out);
@@ -244,7 +269,7 @@ class VirtualDrive402 {
   void fault(double t, std::uint16_t code, std::vector<DriveFrame>& out);
   void host_heartbeat_lost(double t, std::vector<DriveFrame>& out);
   void at_rest(double t, std::vector<DriveFrame>& out);
-  void enter(cia402::State s);
+  void enter(facts::State s);
 
   void refresh(double t);
   [[nodiscard]] bool tpdo_valid() const;
@@ -260,7 +285,7 @@ class VirtualDrive402 {
   std::map<std::uint32_t, Entry> app_defaults_;   // 0x2000.. after a node reset
   double now_ = -std::numeric_limits<double>::infinity();
   // NMT
-  canopen::NmtState nmt_ = canopen::NmtState::PreOperational;
+  facts::Nmt nmt_ = facts::Nmt::PreOperational;
   bool booting_ = true;
   double boot_at_ = 0;
   double next_hb_ = std::numeric_limits<double>::infinity();
@@ -277,12 +302,15 @@ class VirtualDrive402 {
     bool toggle = false;
   } sdo_;
   // CiA 402
-  cia402::State state_ = cia402::State::SwitchOnDisabled;
+  facts::State state_ = facts::State::SwitchOnDisabled;
   std::uint16_t cw_ = 0;
   bool target_reached_ = true;
   bool set_point_ack_ = false;
+  bool enable_ack_ = false;  // bit 12 up after enable (set_point_ack_after_enable_s)
+  double enable_ack_until_ = std::numeric_limits<double>::infinity();
   bool following_error_ = false;
   bool warning_ = false;
+  bool boot_warning_ = false;  // warning_ is the boot-up's (boot_warning_code)
   TableMotion motion_;
   Motion motion_kind_ = Motion::Rest;
   double rest_at_ = -std::numeric_limits<double>::infinity();
@@ -302,6 +330,8 @@ class VirtualDrive402 {
   double mode_at_ = std::numeric_limits<double>::infinity();
   std::int64_t last_target_ = 0;  // the last set-point's absolute target, counts
   std::vector<std::pair<std::uint16_t, std::uint8_t>> writes_;
+  std::deque<DriveFrame> sdo_due_;  // SDO answers not yet due
+  double sdo_spread_ = 0;
   std::vector<std::uint16_t> emcy_sent_;
   Drive402Counts counts_;
 };

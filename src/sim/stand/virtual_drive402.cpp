@@ -6,11 +6,13 @@
 
 namespace turncal::stand {
 
-using canopen::get_le;
-using canopen::put_le;
-using cia402::State;
-namespace ac = canopen::abort_code;
-namespace obj = cia402::obj;
+using facts::get_le;
+using facts::put_le;
+using facts::State;
+namespace ac = facts::abort;
+namespace obj = facts::od;
+namespace cob = facts::cob;
+using Nmt = facts::Nmt;
 
 namespace {
 
@@ -63,7 +65,7 @@ void VirtualDrive402::build_dictionary() {
     e.mappable = map;
     e.min = lo;
     e.max = hi >= 0 ? hi : static_cast<std::int64_t>((std::uint64_t{1} << (8 * size)) - 1);
-    e.value = canopen::le_bytes(v, size);
+    e.value = facts::le_bytes(v, size);
     return e;
   };
   auto sgn = [](std::uint8_t size, bool w, std::int64_t v, bool map, std::int64_t lo,
@@ -75,7 +77,7 @@ void VirtualDrive402::build_dictionary() {
     e.is_signed = true;
     e.min = lo;
     e.max = hi;
-    e.value = canopen::le_bytes(static_cast<std::uint64_t>(v), size);
+    e.value = facts::le_bytes(static_cast<std::uint64_t>(v), size);
     return e;
   };
   auto str = [](const std::string& s) {
@@ -84,29 +86,29 @@ void VirtualDrive402::build_dictionary() {
     return e;
   };
   const std::uint8_t node = setup_.node_id;
-  add(0x1000, 0, uns(4, false, 0x00020192));  // CiA 402, servo drive
-  add(0x1001, 0, uns(1, false, 0));
+  add(obj::kDeviceType, 0, uns(4, false, facts::od::kServoDrive402));
+  add(obj::kErrorRegister, 0, uns(1, false, 0));
   add(obj::kDeviceName, 0, str(setup_.device_name));
-  add(0x100A, 0, str("1.0"));
+  add(obj::kSoftwareVersion, 0, str("1.0"));
   Entry label = str("");
   label.writable = true;
-  add(0x2001, 0, label);  // a stand label, written and read by segmented SDO
+  add(obj::kLabel, 0, label);  // a stand label, written and read by segmented SDO
   add(obj::kConsumerHeartbeat, 0, uns(1, false, 1));
   add(obj::kConsumerHeartbeat, 1, uns(4, true, 0));
   add(obj::kProducerHeartbeat, 0, uns(2, true, setup_.producer_heartbeat_ms));
-  add(0x1018, 0, uns(1, false, 4));
-  add(0x1018, 1, uns(4, false, 0));
-  add(0x1018, 2, uns(4, false, 0x402));
-  add(0x1018, 3, uns(4, false, 1));
-  add(0x1018, 4, uns(4, false, 1));
+  add(obj::kIdentity, 0, uns(1, false, 4));
+  add(obj::kIdentity, 1, uns(4, false, 0));
+  add(obj::kIdentity, 2, uns(4, false, 0x402));
+  add(obj::kIdentity, 3, uns(4, false, 1));
+  add(obj::kIdentity, 4, uns(4, false, 1));
   const bool map = setup_.default_mapping;
   add(obj::kRpdo1Comm, 0, uns(1, false, 2));
-  add(obj::kRpdo1Comm, 1, uns(4, true, canopen::kRpdo1Base + node));
+  add(obj::kRpdo1Comm, 1, uns(4, true, cob::kRpdo1 + node));
   add(obj::kRpdo1Comm, 2, uns(1, true, 0xFF));
   add(obj::kRpdo1Map, 0, uns(1, true, map ? 2 : 0, false, 0, 8));
   for (std::uint8_t i = 1; i <= 8; ++i) add(obj::kRpdo1Map, i, uns(4, true, 0));
   add(obj::kTpdo1Comm, 0, uns(1, false, 5));
-  add(obj::kTpdo1Comm, 1, uns(4, true, canopen::kTpdo1Base + node));
+  add(obj::kTpdo1Comm, 1, uns(4, true, cob::kTpdo1 + node));
   add(obj::kTpdo1Comm, 2, uns(1, true, setup_.tpdo_transmission_type));
   add(obj::kTpdo1Comm, 3, uns(2, true, 0));
   add(obj::kTpdo1Comm, 5, uns(2, true, setup_.tpdo_event_timer_ms));
@@ -114,7 +116,7 @@ void VirtualDrive402::build_dictionary() {
   for (std::uint8_t i = 1; i <= 8; ++i) add(obj::kTpdo1Map, i, uns(4, true, 0));
   // TPDO2: not valid and empty until a master maps it (velocity actual)
   add(obj::kTpdo2Comm, 0, uns(1, false, 5));
-  add(obj::kTpdo2Comm, 1, uns(4, true, 0x80000000u | (canopen::kTpdo2Base + node)));
+  add(obj::kTpdo2Comm, 1, uns(4, true, 0x80000000u | (cob::kTpdo2 + node)));
   add(obj::kTpdo2Comm, 2, uns(1, true, 0xFF));
   add(obj::kTpdo2Comm, 3, uns(2, true, 0));
   add(obj::kTpdo2Comm, 5, uns(2, true, 0));
@@ -184,16 +186,19 @@ std::int64_t VirtualDrive402::position_counts(double t) const {
 }
 
 std::uint16_t VirtualDrive402::statusword() const {
-  std::uint16_t s = cia402::state_bits(state_) | cia402::sw::kRemote;
+  std::uint16_t s = facts::state_bits(state_) | facts::sw::kRemote;
   if (state_ == State::ReadyToSwitchOn || state_ == State::SwitchedOn ||
       state_ == State::OperationEnabled || state_ == State::QuickStopActive ||
       state_ == State::FaultReactionActive)
-    s |= cia402::sw::kVoltageEnabled;
-  if (target_reached_ && (state_ == State::OperationEnabled || state_ == State::QuickStopActive))
-    s |= cia402::sw::kTargetReached;
-  if (set_point_ack_ && state_ == State::OperationEnabled) s |= cia402::sw::kSetPointAcknowledge;
-  if (following_error_) s |= cia402::sw::kFollowingError;
-  if (warning_) s |= cia402::sw::kWarning;
+    s |= facts::sw::kVoltageEnabled;
+  if (target_reached_ &&
+      (state_ == State::OperationEnabled ||
+       (state_ == State::QuickStopActive && setup_.target_reached_in_quick_stop)))
+    s |= facts::sw::kTargetReached;
+  if ((set_point_ack_ || enable_ack_) && state_ == State::OperationEnabled)
+    s |= facts::sw::kSetPointAcknowledge;
+  if (following_error_) s |= facts::sw::kFollowingError;
+  if (warning_) s |= facts::sw::kWarning;
   return s;
 }
 
@@ -205,13 +210,23 @@ void VirtualDrive402::emit(double t, const can::Frame& f, std::vector<DriveFrame
   if (!silent(t)) out.push_back({t, f});
 }
 
+void VirtualDrive402::answer_sdo(double t, const can::Frame& f, std::vector<DriveFrame>& out) {
+  const double lo = setup_.sdo_answer_min_s, hi = std::max(lo, setup_.sdo_answer_max_s);
+  if (hi <= 0) return emit(t, f, out);
+  // spread over [lo, hi] by the golden ratio's fractions: every delay
+  // between, none twice in a row, the same sequence each run; never
+  // before an answer already due (one server, its answers in order)
+  sdo_spread_ = std::fmod(sdo_spread_ + 0.6180339887498949, 1.0);
+  const double due = t + lo + (hi - lo) * sdo_spread_;
+  sdo_due_.push_back({sdo_due_.empty() ? due : std::max(due, sdo_due_.back().t_s), f});
+}
+
 void VirtualDrive402::emcy(double t, std::uint16_t code, std::uint8_t reg,
                            std::vector<DriveFrame>& out) {
-  set(0x1001, 0, reg);
+  set(obj::kErrorRegister, 0, reg);
   if (code != 0) set(obj::kErrorCode, 0, code);
   emcy_sent_.push_back(code);
-  if (!booting_ && nmt_ != canopen::NmtState::Stopped)
-    emit(t, canopen::emcy_frame(setup_.node_id, code, reg), out);
+  if (!booting_ && nmt_ != Nmt::Stopped) emit(t, facts::emcy(setup_.node_id, code, reg), out);
 }
 
 void VirtualDrive402::reset_communication(double t) {
@@ -220,6 +235,7 @@ void VirtualDrive402::reset_communication(double t) {
   boot_at_ = t + setup_.boot_delay_s;
   next_hb_ = std::numeric_limits<double>::infinity();
   host_last_hb_ = NAN;
+  sdo_due_.clear();  // the server restarts: answers not yet sent are never sent
   sdo_ = Transfer{};
   next_tpdo_ = std::numeric_limits<double>::infinity();
   last_sent_sw_.reset();
@@ -244,20 +260,27 @@ void VirtualDrive402::advance(double t, std::vector<DriveFrame>& out) {
     consider(faults_.following_error_at_s, 4);
     consider(faults_.warning_at_s, 9);
     if (motion_kind_ != Motion::Rest) consider(rest_at_, 5);
-    if (nmt_ == canopen::NmtState::Operational && !booting_) consider(next_tpdo_, 6);
+    if (nmt_ == Nmt::Operational && !booting_) consider(next_tpdo_, 6);
     consider(next_cycle_, 7);
     consider(mode_at_, 8);
+    consider(enable_ack_until_, 10);
+    if (!sdo_due_.empty()) consider(sdo_due_.front().t_s, 11);
     const std::uint16_t hb_ms = static_cast<std::uint16_t>(u32(obj::kProducerHeartbeat));
     const double when = next.when();
     switch (next.which()) {
       case 0:
         booting_ = false;
-        nmt_ = canopen::NmtState::PreOperational;
-        emit(when, canopen::heartbeat_frame(setup_.node_id, canopen::NmtState::BootUp), out);
+        nmt_ = Nmt::PreOperational;
+        emit(when, facts::heartbeat(setup_.node_id, Nmt::BootUp), out);
         next_hb_ = hb_ms > 0 ? when + hb_ms / 1000.0 : kInf;
+        if (setup_.boot_warning_code != 0) {
+          warning_ = true;
+          boot_warning_ = true;
+          emcy(when, setup_.boot_warning_code, 0x01, out);  // generic error
+        }
         break;
       case 1:
-        emit(when, canopen::heartbeat_frame(setup_.node_id, nmt_), out);
+        emit(when, facts::heartbeat(setup_.node_id, nmt_), out);
         next_hb_ = hb_ms > 0 ? next_hb_ + hb_ms / 1000.0 : kInf;
         break;
       case 2:
@@ -294,6 +317,14 @@ void VirtualDrive402::advance(double t, std::vector<DriveFrame>& out) {
         warning_ = true;
         emcy(when, faults_.warning_code, 0x09, out);  // generic + temperature
         break;
+      case 11:
+        emit(when, sdo_due_.front().frame, out);
+        sdo_due_.pop_front();
+        break;
+      case 10:
+        enable_ack_ = false;
+        enable_ack_until_ = kInf;
+        break;
       case 8:
         mode_at_ = kInf;
         set(obj::kModesDisplay, 0, static_cast<std::int64_t>(u32(obj::kModesOfOperation)));
@@ -313,21 +344,20 @@ void VirtualDrive402::receive(double t, const can::Frame& f, std::vector<DriveFr
   const std::uint8_t node = setup_.node_id;
   const std::uint32_t consumer = u32(obj::kConsumerHeartbeat, 1);
   const std::uint32_t rpdo = u32(obj::kRpdo1Comm, 1);
-  if (f.id == canopen::kNmtId) {
+  if (f.id == cob::kNmt) {
     on_nmt(t, f, out);
-  } else if (canopen::on_sync_id(f)) {
+  } else if (facts::on_sync_id(f)) {
     // CiA 301: no data, or one byte of counter; other lengths are no SYNC
-    if (canopen::is_sync(f)) {
+    if (facts::is_sync(f)) {
       on_sync(t, out);
     } else {
       ++counts_.malformed;
     }
-  } else if (f.id == canopen::kSdoRxBase + node) {
+  } else if (f.id == cob::kSdoRx + node) {
     on_sdo(t, f, out);
   } else if ((rpdo & 0x80000000u) == 0 && f.id == (rpdo & 0x7FF)) {
     on_rpdo(t, f, out);
-  } else if ((consumer & 0xFFFF) != 0 &&
-             f.id == canopen::kHeartbeatBase + ((consumer >> 16) & 0x7F)) {
+  } else if ((consumer & 0xFFFF) != 0 && f.id == cob::kHeartbeat + ((consumer >> 16) & 0x7F)) {
     if (f.len != 1) {
       ++counts_.malformed;
     } else {
@@ -348,19 +378,24 @@ void VirtualDrive402::on_nmt(double t, const can::Frame& f, std::vector<DriveFra
   }
   if (f.data[1] != 0 && f.data[1] != setup_.node_id) return;
   if (booting_) return;
-  switch (static_cast<canopen::NmtCommand>(f.data[0])) {
-    case canopen::NmtCommand::Start:
-      nmt_ = canopen::NmtState::Operational;
+  switch (f.data[0]) {
+    case facts::nmt::kStart:
+      nmt_ = Nmt::Operational;
+      if (boot_warning_) {  // gone once operational: error reset
+        boot_warning_ = false;
+        warning_ = false;
+        emcy(t, 0x0000, 0, out);
+      }
       sync_count_ = 0;
       if (event_driven()) send_tpdo(t, out);
       break;
-    case canopen::NmtCommand::Stop:
-      nmt_ = canopen::NmtState::Stopped;
+    case facts::nmt::kStop:
+      nmt_ = Nmt::Stopped;
       break;
-    case canopen::NmtCommand::EnterPreOperational:
-      nmt_ = canopen::NmtState::PreOperational;
+    case facts::nmt::kEnterPreOperational:
+      nmt_ = Nmt::PreOperational;
       break;
-    case canopen::NmtCommand::ResetNode:
+    case facts::nmt::kResetNode:
       coast(t);  // the application restarts: its power stage lets go
       enter(State::SwitchOnDisabled);
       // its objects to their power-on values too (0x6041, 0x6064 and the
@@ -369,7 +404,7 @@ void VirtualDrive402::on_nmt(double t, const can::Frame& f, std::vector<DriveFra
       mode_at_ = std::numeric_limits<double>::infinity();
       reset_communication(t);
       break;
-    case canopen::NmtCommand::ResetCommunication:
+    case facts::nmt::kResetCommunication:
       reset_communication(t);
       break;
     default:
@@ -379,7 +414,7 @@ void VirtualDrive402::on_nmt(double t, const can::Frame& f, std::vector<DriveFra
 }
 
 void VirtualDrive402::on_sync(double t, std::vector<DriveFrame>& out) {
-  if (nmt_ != canopen::NmtState::Operational) return;
+  if (nmt_ != Nmt::Operational) return;
   ++counts_.sync;
   const std::uint32_t type = u32(obj::kTpdo1Comm, 2);
   if (type >= 1 && type <= 240 && ++sync_count_ % type == 0) send_tpdo(t, out);
@@ -389,12 +424,12 @@ void VirtualDrive402::on_sync(double t, std::vector<DriveFrame>& out) {
 
 void VirtualDrive402::sdo_abort(double t, std::uint32_t key, std::uint32_t code,
                                 std::vector<DriveFrame>& out) {
-  can::Frame r = frame8(canopen::kSdoTxBase + setup_.node_id);
+  can::Frame r = frame8(cob::kSdoTx + setup_.node_id);
   r.data[0] = 0x80;
   put_le(r.data, 1, 2, index_of(key));
   r.data[3] = sub_of(key);
   put_le(r.data, 4, 4, code);
-  emit(t, r, out);
+  answer_sdo(t, r, out);
   ++counts_.sdo_aborts;
   sdo_.active = false;
 }
@@ -437,10 +472,11 @@ std::uint32_t VirtualDrive402::write(double t, std::uint32_t key,
   if (v > e.max) return ac::kValueHigh;
   const std::uint16_t index = index_of(key);
   const std::uint8_t sub = sub_of(key);
-  if (index == obj::kModesOfOperation && v != 1) return ac::kValueRange;  // profile position only
+  if (index == obj::kModesOfOperation && v != obj::kProfilePosition)
+    return ac::kValueRange;  // profile position only
   if (index == obj::kProfileVelocity && v > u32(obj::kMaxProfileVelocity)) return ac::kValueHigh;
   if (index == obj::kRpdo1Map || index == obj::kTpdo1Map || index == obj::kTpdo2Map) {
-    if (nmt_ == canopen::NmtState::Operational) return ac::kDeviceState;
+    if (nmt_ == Nmt::Operational) return ac::kDeviceState;
     const std::uint16_t comm = static_cast<std::uint16_t>(index - 0x200);  // 0x1A0n -> 0x180n
     if ((u32(comm, 1) & 0x80000000u) == 0) return ac::kUnsupportedAccess;  // PDO valid
     auto mappable = [&](std::uint32_t entry) {
@@ -482,12 +518,12 @@ void VirtualDrive402::on_sdo(double t, const can::Frame& f, std::vector<DriveFra
     ++counts_.malformed;
     return;
   }
-  if (booting_ || nmt_ == canopen::NmtState::Stopped) return;
+  if (booting_ || nmt_ == Nmt::Stopped) return;
   const std::uint8_t b0 = f.data[0];
   const std::uint8_t ccs = b0 >> 5;
   const std::uint32_t key =
       key_of(static_cast<std::uint16_t>(get_le(f.payload(), 1, 2)), f.data[3]);
-  can::Frame r = frame8(canopen::kSdoTxBase + setup_.node_id);
+  can::Frame r = frame8(cob::kSdoTx + setup_.node_id);
   auto respond_initiate = [&](std::uint8_t cmd) {
     r.data[0] = cmd;
     r.data[1] = f.data[1];
@@ -508,7 +544,7 @@ void VirtualDrive402::on_sdo(double t, const can::Frame& f, std::vector<DriveFra
         if (const std::uint32_t code = write(t, key, data, out); code != 0)
           return sdo_abort(t, key, code, out);
         respond_initiate(0x60);
-        emit(t, r, out);
+        answer_sdo(t, r, out);
         return;
       }
       const auto it = od_.find(key);
@@ -518,9 +554,9 @@ void VirtualDrive402::on_sdo(double t, const can::Frame& f, std::vector<DriveFra
       sdo_.active = true;
       sdo_.key = key;
       sdo_.size_known = (b0 & 0x01) != 0;
-      sdo_.expected = sdo_.size_known ? get_le(f.payload(), 4, 4) : 0;
+      sdo_.expected = sdo_.size_known ? static_cast<std::uint32_t>(get_le(f.payload(), 4, 4)) : 0;
       respond_initiate(0x60);
-      emit(t, r, out);
+      answer_sdo(t, r, out);
       return;
     }
     case 0: {  // download segment
@@ -539,7 +575,7 @@ void VirtualDrive402::on_sdo(double t, const can::Frame& f, std::vector<DriveFra
           return sdo_abort(t, sdo_.key, code, out);
       }
       sdo_.toggle = !sdo_.toggle;
-      emit(t, r, out);
+      answer_sdo(t, r, out);
       return;
     }
     case 2: {  // initiate upload
@@ -559,7 +595,7 @@ void VirtualDrive402::on_sdo(double t, const can::Frame& f, std::vector<DriveFra
         sdo_.key = key;
         sdo_.buf = std::move(data);
       }
-      emit(t, r, out);
+      answer_sdo(t, r, out);
       return;
     }
     case 3: {  // upload segment
@@ -574,7 +610,7 @@ void VirtualDrive402::on_sdo(double t, const can::Frame& f, std::vector<DriveFra
       sdo_.offset += n;
       sdo_.toggle = !sdo_.toggle;
       if (last) sdo_.active = false;
-      emit(t, r, out);
+      answer_sdo(t, r, out);
       return;
     }
     default:
@@ -609,7 +645,7 @@ void VirtualDrive402::unsent(const can::Frame& f) {
 bool VirtualDrive402::commanded_by(const can::Frame& f) const {
   if (f.extended || f.error || f.remote || f.fd) return false;
   const std::uint32_t rpdo = u32(obj::kRpdo1Comm, 1);
-  return f.id == canopen::kNmtId || f.id == canopen::kSdoRxBase + setup_.node_id ||
+  return f.id == cob::kNmt || f.id == cob::kSdoRx + setup_.node_id ||
          ((rpdo & 0x80000000u) == 0 && f.id == (rpdo & 0x7FF));
 }
 
@@ -639,7 +675,7 @@ bool VirtualDrive402::timed_on_the_bus(const can::Frame& f) const {
 }
 
 void VirtualDrive402::send_tpdo(double t, std::vector<DriveFrame>& out) {
-  if (nmt_ != canopen::NmtState::Operational || booting_ || !tpdo_valid()) return;
+  if (nmt_ != Nmt::Operational || booting_ || !tpdo_valid()) return;
   const bool in_fault = state_ == State::Fault || state_ == State::FaultReactionActive;
   if (in_fault && faults_.stale == StalePdo::Silent) return;
   if (in_fault && faults_.stale == StalePdo::Frozen && frozen_) {
@@ -706,7 +742,7 @@ void VirtualDrive402::cycle(double t, std::vector<DriveFrame>& out) {
 }
 
 void VirtualDrive402::on_rpdo(double t, const can::Frame& f, std::vector<DriveFrame>& out) {
-  if (nmt_ != canopen::NmtState::Operational) return;
+  if (nmt_ != Nmt::Operational) return;
   if (setup_.cycle_s > 0) {
     rpdo_buf_ = f;  // an overwrite buffer: the next cycle sees the last one
     return;
@@ -715,7 +751,7 @@ void VirtualDrive402::on_rpdo(double t, const can::Frame& f, std::vector<DriveFr
 }
 
 void VirtualDrive402::apply_rpdo(double t, const can::Frame& f, std::vector<DriveFrame>& out) {
-  if (nmt_ != canopen::NmtState::Operational) return;
+  if (nmt_ != Nmt::Operational) return;
   const std::uint32_t n = u32(obj::kRpdo1Map, 0);
   if (n == 0) return;
   std::size_t total = 0;
@@ -794,9 +830,9 @@ void VirtualDrive402::start_move(double t, std::int64_t target) {
 }
 
 void VirtualDrive402::take_set_point(double t, std::uint16_t c) {
-  if (faults_.refuse_moves || set_point_ack_) return;
+  if (faults_.refuse_moves || set_point_ack_ || enable_ack_) return;
   const auto target = static_cast<std::int32_t>(u32(obj::kTargetPosition));
-  const bool relative = (c & cia402::cw::kRelative) != 0;
+  const bool relative = (c & facts::cw::kRelative) != 0;
   const bool in_motion = motion_kind_ == Motion::Move && t < rest_at_;
   // 0x60F2 bits 0-1: 00 from the last target (also after a halt or a quick
   // stop), 01 from position actual (the demand while moving)
@@ -811,7 +847,7 @@ void VirtualDrive402::take_set_point(double t, std::uint16_t c) {
     faults_.warning_at_s = t + faults_.warning_after_move_s;
     faults_.warning_after_move_s = NAN;
   }
-  if (in_motion && (c & cia402::cw::kChangeImmediately) == 0) {
+  if (in_motion && (c & facts::cw::kChangeImmediately) == 0) {
     buffered_ = SetPoint{abs};
     return;
   }
@@ -821,18 +857,18 @@ void VirtualDrive402::take_set_point(double t, std::uint16_t c) {
 }
 
 void VirtualDrive402::on_controlword(double t, std::uint16_t c, std::vector<DriveFrame>& out) {
-  namespace cw = cia402::cw;
+  namespace cw = facts::cw;
   const std::uint16_t prev = cw_;
   cw_ = c;
   set(obj::kControlword, 0, c);
-  using C = cia402::Command;
+  using C = facts::Command;
   // Bit 7's edge resets a fault; outside Fault this drive reads the word's
   // other bits as usual, bit 7 high or not, as many drives do (0x0080 is
   // then Disable voltage).
   constexpr auto kOthers = static_cast<std::uint16_t>(~cw::kFaultReset);
-  const cia402::Command cmd = state_ == State::Fault
-                                  ? cia402::decode_command(c, prev)
-                                  : cia402::decode_command(c & kOthers, prev & kOthers);
+  const facts::Command cmd = state_ == State::Fault
+                                 ? facts::command_of(c, prev)
+                                 : facts::command_of(c & kOthers, prev & kOthers);
   const State before = state_;
   const std::uint32_t quick = u32(obj::kQuickStopDeceleration);
   switch (state_) {
@@ -894,13 +930,22 @@ void VirtualDrive402::on_controlword(double t, std::uint16_t c, std::vector<Driv
     default:
       break;
   }
-  if (state_ != State::OperationEnabled) return;
+  if (state_ != State::OperationEnabled) {
+    enable_ack_ = false;
+    enable_ack_until_ = std::numeric_limits<double>::infinity();
+    return;
+  }
   if (before != State::OperationEnabled) {
     demand_ = position_counts(t);
     target_reached_ = true;
     set_point_ack_ = false;
+    if (setup_.set_point_ack_after_enable_s > 0) {
+      enable_ack_ = true;
+      enable_ack_until_ = t + setup_.set_point_ack_after_enable_s;
+    }
   }
-  if (u32(obj::kModesDisplay) != 1) return;  // profile position only, once switched
+  if (static_cast<std::int8_t>(u32(obj::kModesDisplay)) != obj::kProfilePosition)
+    return;  // profile position only, once switched
   const bool halt = (c & cw::kHalt) != 0;
   if (halt && (prev & cw::kHalt) == 0) stop_motion(t, u32(obj::kProfileDeceleration), Motion::Halt);
   if ((c & cw::kNewSetPoint) != 0 && (prev & cw::kNewSetPoint) == 0 && !halt) take_set_point(t, c);
@@ -928,7 +973,7 @@ void VirtualDrive402::host_heartbeat_lost(double t, std::vector<DriveFrame>& out
     enter(State::SwitchOnDisabled);
   } else if (option == 3 && state_ == State::OperationEnabled) {
     // the quick stop command, as from the controlword
-    const std::uint16_t c = cw_ & static_cast<std::uint16_t>(~cia402::cw::kQuickStop);
+    const std::uint16_t c = cw_ & static_cast<std::uint16_t>(~facts::cw::kQuickStop);
     on_controlword(t, c, out);
   }
 }

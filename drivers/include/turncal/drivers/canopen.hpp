@@ -138,7 +138,10 @@ struct SdoResult {
 /// Frames the client could not use, counted and skipped.
 struct SdoCounts {
   std::uint64_t malformed = 0;   ///< wrong length
-  std::uint64_t unexpected = 0;  ///< a response while no transfer was under way
+  std::uint64_t unexpected = 0;  ///< a response while no transfer was under way, or another's
+  /// Of them, initiate responses for another object than the transfer's:
+  /// late answers to a transfer already ended.
+  std::uint64_t late = 0;
   std::uint64_t timeouts = 0;
   std::uint64_t aborts_sent = 0;
   std::uint64_t aborts_received = 0;

@@ -93,6 +93,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "turncal/can/dbc.hpp"
@@ -273,6 +274,20 @@ struct VelocityPdoLayout {
 
 // ---- the master ----
 
+/// The EMCY codes that warn by default, from the classes of CiA 301's
+/// table 21 (and CiA 402's codes in them): temperature (0x4xxx: a drive
+/// hot enough to stop says so by its fault bit), and the CAN controller's
+/// overrun (0x8110), error passive (0x8120) and recovery from bus off
+/// (0x8140), which the frames that follow tell better. Current, voltage,
+/// hardware, software, monitoring (0x8130 our heartbeat lost, 0x86xx
+/// following error), external and device-specific codes are faults.
+inline const std::vector<std::pair<std::uint16_t, std::uint16_t>> kDefaultEmcyWarnings = {
+    {0x4000, 0x4FFF}, {0x8110, 0x8110}, {0x8120, 0x8120}, {0x8140, 0x8140}};
+
+/// Whether an EMCY code only warns, by these ranges.
+[[nodiscard]] bool emcy_warns(std::uint16_t code,
+                              const std::vector<std::pair<std::uint16_t, std::uint16_t>>& warnings);
+
 struct MasterSettings {
   std::uint8_t node_id = 1;         ///< the drive's
   std::uint8_t host_node_id = 127;  ///< ours, for our heartbeat (0x700 + host)
@@ -300,6 +315,10 @@ struct MasterSettings {
   std::int16_t quick_stop_option = 6;
   /// 0x6007 on a lost host heartbeat: 1 fault, 2 disable voltage, 3 quick stop.
   std::int16_t abort_connection_option = 3;
+  /// EMCY codes that only warn (ranges, both ends in): told as a notice,
+  /// the run goes on. Any other code is a fault. The statusword's fault bit
+  /// is a fault whatever the EMCY before it said.
+  std::vector<std::pair<std::uint16_t, std::uint16_t>> emcy_warnings = kDefaultEmcyWarnings;
   /// Controlword bit 5 with every set-point.
   bool change_set_immediately = false;
   /// Write the PDO mappings (0x1600, 0x1A00) and TPDO1's transmission;
@@ -402,6 +421,7 @@ struct MasterCounts {
   std::uint64_t tpdo = 0;
   std::uint64_t velocity_pdo = 0;
   std::uint64_t emcy = 0;
+  std::uint64_t emcy_warnings = 0;  ///< of them, codes that only warn (MasterSettings)
   std::uint64_t heartbeats = 0;
   std::uint64_t malformed = 0;  ///< a TPDO, EMCY, heartbeat or SYNC of a wrong length
   /// With SYNC: TPDO1s with no SYNC of their own within half a period
@@ -669,6 +689,11 @@ class Master final : private ModeHost {
   void on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
   void on_heartbeat(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
   void on_emcy(const can::Frame& f, double t_s);
+  /// The drive's statusword read after an EMCY that only warns: in fault,
+  /// the EMCY is the fault; not read, taken for one.
+  /// A quick stop complete: the table at rest, by bit 10 or by its positions.
+  [[nodiscard]] bool quick_stop_done(std::uint16_t word) const;
+  void warning_checked(const canopen::SdoResult& r, const std::string& emcy);
   /// Acks, the set-point handshake, the fault latch and the controlword
   /// towards the goal, from what is known now.
   /// `timeouts`: from tick() (the set-point's time judged only there,
@@ -823,6 +848,7 @@ class Master final : private ModeHost {
   [[nodiscard]] Rest over(const PosWindow& w) const;
   std::vector<EncoderSample> samples_;
   std::vector<canopen::Emcy> emcy_;
+  std::string last_warning_;  // the last EMCY that only warned, its text; empty: none
   std::vector<std::string> notices_;
   MasterCounts counts_;
 };
