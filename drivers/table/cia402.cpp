@@ -588,6 +588,11 @@ void Master::reset_comm(double now_s, std::vector<can::Frame>& out) {
   mode_poll_at_ = INFINITY;  // a poll of the configuration that ends here
   config_complete_ = false;
   mode_->reset();
+  // a warning's statusword read ends here too (its callback a stale
+  // generation): read again once the drive runs
+  ++warning_gen_;
+  if (warning_in_flight_) warning_read_at_ = std::min(warning_read_at_, now_s);
+  warning_in_flight_ = false;
   sdo_.cancel_all(out);
   out.push_back(canopen::nmt_frame(canopen::NmtCommand::ResetCommunication, s_.node_id));
   ++counts_.nmt_resets;
@@ -777,7 +782,15 @@ void Master::check_options(std::uint64_t gen,
   const ConfigCheck& c = (*checks)[i];
   sdo_.upload(c.index, c.sub, [this, gen, checks, i](const canopen::SdoResult& r) {
     if (gen != config_generation_) return;
-    if (!r.ok()) return config_failed(r, "");
+    // CiA 301: 0x06020000 the object, 0x06090011 the sub-index does not exist
+    const bool absent = r.aborted_by_server && (r.abort == 0x06020000u || r.abort == 0x06090011u);
+    if (!r.ok() && (*checks)[i].optional && absent) {
+      const char* name = object_name(r.index);
+      notice(r.describe() + (name != nullptr ? std::string(" [") + name + "]" : "") +
+             ": optional in CiA 402, not needed; the drive's own behaviour stands");
+    } else if (!r.ok()) {
+      return config_failed(r, "");
+    }
     if (std::string why = (*checks)[i].verdict(r); !why.empty()) return config_failed(r, why);
     check_options(gen, checks, i + 1);
   });
@@ -871,6 +884,7 @@ void Master::tick(double now_s, std::vector<can::Frame>& out) {
     else
       check_mode(config_generation_);
   }
+  read_after_warning(now_s);
   sdo_.tick(now_s, out);
   if (phase_ == CommPhase::Running && !drive_hb_lost_ &&
       now_s - last_drive_hb_ > s_.drive_heartbeat_timeout_s) {
@@ -1024,48 +1038,77 @@ void Master::on_emcy(const can::Frame& f, double t_s) {
     emcy_.push_back(*e);
   else
     emcy_.back() = *e;
-  if (e->code == 0) return;  // error reset or no error: no news of a fault
-  if (fault_ == FaultCode::DriveFault) {
-    // the statusword said fault first; the EMCY says why, whatever its class
+  if (e->code == 0) {       // error reset or no error: no news of a fault
+    last_warning_.clear();  // nor of the warnings before it
+    return;
+  }
+  const bool warns = emcy_warns(e->code, s_.emcy_warnings);
+  if (fault_ == FaultCode::DriveFault && !warns) {
+    // the statusword said fault first; the EMCY says why
     ++emcy_errors_;
     fault_ = FaultCode::Emcy;
     fault_name_ = e->text;
     fault_base_ = fault_name_;
     return;
   }
-  if (emcy_warns(e->code, s_.emcy_warnings)) {
-    // A warning by its code: told, and the drive's statusword decides
-    // whether it is more. Its TPDO's fault bit latches the fault (on_tpdo),
-    // but a TPDO may be stale (silent or frozen in fault): the drive's own
-    // statusword is read by SDO too.
-    ++counts_.emcy_warnings;
-    last_warning_ = e->text;
-    notice("the drive warned: " + e->text +
-           " (a warning by table.cia402.emcy_warnings; the run "
-           "goes on unless the drive's statusword shows a fault)");
-    const std::uint64_t gen = config_generation_;
-    sdo_.upload(obj::kStatusword, 0, [this, gen, text = e->text](const canopen::SdoResult& r) {
-      if (gen == config_generation_) warning_checked(r, text);
-    });
+  if (!warns) {
+    ++emcy_errors_;
+    latch(FaultCode::Emcy, e->text);
     return;
   }
-  ++emcy_errors_;
-  latch(FaultCode::Emcy, e->text);
+  // A warning by its code: told, and the drive's statusword decides
+  // whether it is more. Its TPDO's fault bit latches the fault (on_tpdo),
+  // but a TPDO may be stale (silent or frozen in fault), and a drive may
+  // send its EMCY before its statusword shows the fault: the drive's own
+  // statusword is read by SDO, at once and again kWarningRecheckS later.
+  ++counts_.emcy_warnings;
+  last_warning_ = e->text;
+  warning_text_ = e->text;
+  notice("the drive warned: " + e->text +
+         " (a warning by table.cia402.emcy_warnings; the run "
+         "goes on unless the drive's statusword shows a fault)");
+  warning_reads_left_ = 2;
+  warning_read_at_ = std::min(warning_read_at_, t_s);  // one read at a time (tick)
+}
+
+void Master::read_after_warning(double now_s) {
+  // one at a time, in operation: during a reset or the configuration the
+  // drive's answer would be no answer (it boots), and the configuration
+  // reads its state anyway
+  if (warning_read_at_ > now_s || warning_in_flight_ || phase_ != CommPhase::Running) return;
+  warning_read_at_ = INFINITY;
+  warning_in_flight_ = true;
+  const std::uint64_t gen = ++warning_gen_;
+  sdo_.upload(obj::kStatusword, 0, [this, gen](const canopen::SdoResult& r) {
+    if (gen != warning_gen_) return;
+    warning_in_flight_ = false;
+    warning_checked(r, warning_text_);
+  });
 }
 
 void Master::warning_checked(const canopen::SdoResult& r, const std::string& emcy) {
   if (!r.ok() || r.data.size() < 2) {
-    // not known: taken for a fault, the table stopped
-    latch(FaultCode::Emcy,
-          emcy + "; the drive's statusword could not be read after it (" + r.describe() + ")");
+    // not known: taken for a fault, the table stopped (and a reset under
+    // way reads the drive again: emcy_errors_)
+    ++emcy_errors_;
+    warning_reads_left_ = 0;
+    latch(FaultCode::Emcy, emcy + "; the drive's statusword could not be read after it (" +
+                               (r.ok() ? std::to_string(r.data.size()) + " bytes" : r.describe()) +
+                               ")");
     return;
   }
   const auto word = static_cast<std::uint16_t>(get_le(r.data, 0, 2));
   const State s = decode_state(word);
-  if (s == State::Fault || s == State::FaultReactionActive) {
+  // the fault bit (or the mode's error bits) decides, and a word that is
+  // no state of CiA 402's is no proof of health
+  if ((word & (sw::kFault | mode_->error_bits())) != 0 || s == State::Unknown ||
+      s == State::Fault || s == State::FaultReactionActive) {
     ++emcy_errors_;
-    latch(FaultCode::Emcy, emcy);  // the EMCY names the fault its statusword shows
+    warning_reads_left_ = 0;
+    latch(FaultCode::Emcy, emcy + " (statusword " + hex(word, 4) + " read after it)");
+    return;
   }
+  if (--warning_reads_left_ > 0) warning_read_at_ = now_ + kWarningRecheckS;
 }
 
 bool emcy_warns(std::uint16_t code,

@@ -3,9 +3,12 @@
 // SDO when it differs from what the drive holds), its target the target
 // position (0x607A) in RPDO1, and the set-point handshake is controlword
 // bit 4 (new set-point) held until statusword bit 12 (set-point
-// acknowledge), then bit 10 (target reached) ends the move. Bit 6 makes the
-// target relative; 0x60F2 bits 0-1 = 01 make it count from the actual
-// position, which is written at configuration and read back.
+// acknowledge), then bit 10 (target reached) ends the move. Every target is
+// absolute (controlword bit 6 low): a relative move's is computed here from
+// the position the master tracks, so nothing depends on 0x60F2, which CiA
+// 402 makes optional and whose default differs between drives. Where the
+// drive has it, it is read and left as it is, unless it would move the
+// table otherwise than planned (bits 4-7).
 #include <cmath>
 #include <limits>
 #include <memory>
@@ -25,8 +28,20 @@ using detail::to_u32_counts;
 
 namespace {
 
-/// 0x60F2 bits 0-1 = 01: relative to the actual position (CiA 402).
-constexpr std::uint16_t kPositioningRelativeToActual = 0x0001;
+/// 0x60F2 (positioning option code, CiA 402-2 6.2.x), its bits:
+///   1-0  relative option: how a relative target counts (00 from the last
+///        target, 01 from the position demand value, 10 from position
+///        actual); unused here, every target being absolute
+///   3-2  change immediately option: what a set-point during a move does
+///        without controlword bit 5; unused (no set-point during a move
+///        without bit 5)
+///   5-4  request-response option: 00 is the handshake of bits 4 and 12
+///        the master follows; others change it
+///   7-6  rotary axis direction option: 00 positions as a linear axis;
+///        01 negative only, 10 positive only, 11 the shortest way would
+///        turn the table by other angles or ways than the plan's
+///   15-8 reserved and manufacturer-specific
+constexpr std::uint32_t kPositioningOptionsUsed = 0x00F0;
 
 class ProfilePosition final : public OperationMode {
  public:
@@ -41,11 +56,6 @@ class ProfilePosition final : public OperationMode {
   [[nodiscard]] const char* name() const override { return "profile position"; }
 
   void configuration(std::vector<ConfigWrite>& writes) const override {
-    // Positioning option code, bits 0-1 = 01: a relative target counts from
-    // the actual position (CiA 402), not from the last target (00, the
-    // default of many drives), so a move after a halt or a quick stop goes
-    // by the delta asked from where the table is. Read back by checks().
-    writes.push_back({obj::kPositioningOption, 0, le_bytes(kPositioningRelativeToActual, 2)});
     // (counted by the master's start-up budget whatever the settings; sent
     // only when they pass MasterSettings::check(), which proves it fits)
     writes.push_back({obj::kProfileVelocity, 0, le_bytes(configured_velocity_.value_or(0), 4)});
@@ -54,14 +64,25 @@ class ProfilePosition final : public OperationMode {
   void configured() override { velocity_written_ = configured_velocity_.value_or(0); }
 
   [[nodiscard]] std::vector<ConfigCheck> checks() const override {
-    return {{obj::kPositioningOption, 0, [](const canopen::SdoResult& r) -> std::string {
-               const std::uint32_t v =
-                   r.data.empty() ? 0xFFFFFFFFu : get_le(r.data, 0, r.data.size());
-               if (r.data.empty() || r.data.size() > 2 || (v & 0x3) != kPositioningRelativeToActual)
+    // 0x60F2 is optional (CiA 402-2): a drive without it positions as the
+    // standard's defaults say (a linear axis, the handshake of bits 4 and
+    // 12); one with it is read, never written
+    return {{obj::kPositioningOption, 0,
+             [](const canopen::SdoResult& r) -> std::string {
+               if (!r.ok()) return {};  // absent: the master was told, and goes on
+               if (r.data.empty() || r.data.size() > 2)
+                 return "positioning option code (0x60F2) reads " + std::to_string(r.data.size()) +
+                        " bytes, not 2";
+               const std::uint32_t v = get_le(r.data, 0, r.data.size());
+               if ((v & kPositioningOptionsUsed) != 0)
                  return "positioning option code (0x60F2) reads " + hex(v, 4) +
-                        ": relative moves would not count from the actual position";
+                        ": bits 4-5 (request-response option) and 6-7 (rotary axis direction "
+                        "option) must be 0, a linear axis with the handshake of bits 4 and 12; "
+                        "with others the table would not turn as planned: set them to 0 in the "
+                        "drive";
                return {};
-             }}};
+             },
+             true}};
   }
 
   [[nodiscard]] std::uint16_t error_bits() const override { return sw::kFollowingError; }
@@ -89,12 +110,12 @@ class ProfilePosition final : public OperationMode {
     // A set-point waits for bit 12 low before its bit 4 goes up (CiA 402's
     // handshake); a drive that keeps bit 12 up with no set-point of ours
     // would hold it forever: as long as a set-point may take to be taken
-    if (step_ != Step::Ready) {
+    // (timed from the first statusword that shows it so)
+    if (step_ != Step::Ready || (word & sw::kSetPointAcknowledge) == 0) {
       ready_since_.reset();
     } else if (!ready_since_) {
       ready_since_ = now_s;
-    } else if (timeouts && (word & sw::kSetPointAcknowledge) != 0 &&
-               now_s - *ready_since_ > s_.set_point_timeout_s) {
+    } else if (timeouts && now_s - *ready_since_ > s_.set_point_timeout_s) {
       step_ = Step::None;
       ready_since_.reset();
       p.fault =
@@ -213,10 +234,15 @@ Status ProfilePosition::move(TableCommandCode code, std::uint8_t seq, double tar
     return make_error(std::string(what) + " " + num(target_rad * kRadToDeg) + " deg is " + num(c) +
                       " counts, beyond the drive's 32-bit target position (" +
                       hex(obj::kTargetPosition, 4) + ")");
-  if (const auto at = host_.position_counts(); relative && at) {
-    const double end = static_cast<double>(*at) + c;
-    if (!(end >= lo && end <= hi))
-      return make_error("move by " + num(target_rad * kRadToDeg) + " deg ends at " + num(end) +
+  // every target absolute: a relative one from where the table is, or from
+  // the target of the move under way (change set immediately)
+  const auto at = host_.position_counts();
+  const bool under_way = step_ == Step::Acked || step_ == Step::Halting;
+  double target = c;
+  if (relative && at) {
+    target = static_cast<double>(under_way ? pending_.target : *at) + c;
+    if (!(target >= lo && target <= hi))
+      return make_error("move by " + num(target_rad * kRadToDeg) + " deg ends at " + num(target) +
                         " counts, beyond the drive's 32-bit position");
   }
   if (std::string why = host_.why_no_move(); !why.empty()) return make_error(std::move(why));
@@ -224,9 +250,11 @@ Status ProfilePosition::move(TableCommandCode code, std::uint8_t seq, double tar
     return make_error("the last set-point is not yet acknowledged by the drive");
   if ((step_ == Step::Acked || step_ == Step::Halting) && !s_.change_set_immediately)
     return make_error("a move is under way (change set immediately is off)");
-  pending_ = {seq, static_cast<std::int32_t>(c)};
-  flags_ = static_cast<std::uint16_t>((relative ? cw::kRelative : 0) |
-                                      (s_.change_set_immediately ? cw::kChangeImmediately : 0));
+  if (relative && !at)
+    return make_error("move by " + num(target_rad * kRadToDeg) +
+                      " deg: the table's position is not known yet (no TPDO1 since the start)");
+  pending_ = {seq, static_cast<std::int32_t>(target)};
+  flags_ = static_cast<std::uint16_t>(s_.change_set_immediately ? cw::kChangeImmediately : 0);
   if (vel == velocity_written_) {
     step_ = Step::Ready;
     return Ok{};

@@ -118,8 +118,9 @@ struct Cia402Settings {
   bool change_set_immediately = false;  ///< controlword bit 5 with every set-point
   double sdo_timeout_s = 0.5;
   double boot_timeout_s = 2.0;  ///< from the NMT reset to the drive's boot-up
-  /// EMCY codes that only warn, as ranges (both ends in); empty: the
-  /// master's defaults (drivers/cia402.hpp, kDefaultEmcyWarnings).
+  /// EMCY codes that only warn, as ranges (both ends in); none given (no
+  /// key): the master's defaults (drivers/cia402.hpp, kDefaultEmcyWarnings);
+  /// an empty list: every code a fault.
   std::optional<std::vector<std::pair<std::uint16_t, std::uint16_t>>> emcy_warnings;
 };
 
@@ -212,7 +213,8 @@ struct DaemonConfig {
   std::filesystem::path profiles_directory;
   bool observe = false;  ///< follow a stand someone else drives
   double heartbeat_hz = 10;
-  std::uint32_t max_clients = 16;  ///< control connections at once; more are refused
+  std::uint32_t max_clients =
+      16;  ///< control connections at once; a new one closes another (make_room)
   /// A control client that leaves replies unread this long, or sends nothing
   /// and watches nothing this long, is dropped (real seconds).
   double client_idle_s = 60;

@@ -302,6 +302,17 @@ Status read_emcy_warnings(const Reader& r, const toml::table& t, Cia402Settings&
     if (*lo == 0)
       return r.error_at(e, "emcy_warnings",
                         "0x0000 is the error reset, no warning: begin the range at 0x0001");
+    // the codes by which the drive says it stopped for the host's sake or
+    // lost the table's position: never a mere warning
+    for (const std::uint16_t never : {std::uint16_t{0x8130}, std::uint16_t{0x8611}})
+      if (*lo <= never && never <= *hi)
+        return r.error_at(e, "emcy_warnings",
+                          "\"" + v + "\" takes in " +
+                              (never == 0x8130 ? "0x8130 (the drive lost "
+                                                 "our heartbeat)"
+                                               : "0x8611 (following "
+                                                 "error)") +
+                              ", which is always a fault");
     ranges.emplace_back(*lo, *hi);
   }
   c.emcy_warnings = std::move(ranges);

@@ -11,6 +11,7 @@
 #include <map>
 #include <memory>
 #include <string>
+#include <tuple>
 
 namespace turncal::daemon {
 
@@ -58,30 +59,40 @@ void Daemon::reap_clients() {
 
 /// At max_clients, one client closed to let a new one in: of the peer
 /// (uid) that holds the most connections, so that one peer's flood costs
-/// that peer alone, the one idle longest, a watcher only when that peer
-/// has no other; never one in the middle of a request. False: none can go.
+/// that peer alone; of those, a watcher last, one with replies still going
+/// out last, one with a request line begun last, then the one idle
+/// longest. A connection accepted under kFreshGraceUs ago that has not
+/// spoken yet is never closed: an operator's abort, connected, is read
+/// before a flood can push it out. False: none can go.
 bool Daemon::make_room() {
+  std::erase_if(clients, [](const auto& c) { return c->done(); });  // dead slots first
+  if (clients.size() < cfg.daemon.max_clients) return true;
+  const std::uint64_t now = monotonic_us();
   std::map<long long, std::size_t> held;
   for (const auto& c : clients) ++held[c->uid];
-  Client* victim = nullptr;
-  auto better = [&](const Client& a, const Client* b) {
-    if (b == nullptr) return true;
-    if (held[a.uid] != held[b->uid]) return held[a.uid] > held[b->uid];
-    if (a.watching != b->watching) return !a.watching;
-    return a.last_request_us < b->last_request_us;
+  auto key = [&](const Client& c) {
+    // smaller goes first
+    return std::make_tuple(-static_cast<long long>(held[c.uid]), c.watching, !c.out.empty(),
+                           !c.in.empty(), c.last_request_us);
   };
-  for (const auto& c : clients)
-    if (!c->done() && !c->close_after && c->in.empty() && better(*c, victim)) victim = c.get();
+  Client* victim = nullptr;
+  for (const auto& c : clients) {
+    if (c->close_after || (!c->ever_read && now - c->accepted_us < kFreshGraceUs)) continue;
+    if (victim == nullptr || key(*c) < key(*victim)) victim = c.get();
+  }
   if (victim == nullptr) return false;
-  const std::uint64_t idle_us = monotonic_us() - victim->last_request_us;
+  const std::uint64_t idle_us = now - victim->last_request_us;
   const std::string why =
       "control connection closed to make room for a new one: " + std::to_string(clients.size()) +
       " open (max_clients), " + std::to_string(held[victim->uid]) + " of them uid " +
       std::to_string(victim->uid) + "'s; this one " + (victim->watching ? "watching, " : "") +
       "idle for " + std::to_string(idle_us / 1000000) + " s";
-  // told why, if it reads at all; its replies not yet taken are lost with it
-  const std::string line = json({{"ok", false}, {"error", why}}).dump() + "\n";
-  (void)!::send(victim->fd, line.data(), line.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
+  // told why, if it reads at all, and if no reply of ours is half sent
+  // (a line in the middle of one would garble both)
+  if (victim->out.empty()) {
+    const std::string line = json({{"ok", false}, {"error", why}}).dump() + "\n";
+    (void)!::send(victim->fd, line.data(), line.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
+  }
   info(why);
   std::erase_if(clients, [&](const auto& p) { return p.get() == victim; });
   return true;
@@ -127,6 +138,7 @@ int Daemon::on_client(sd_event_source*, int fd, uint32_t revents, void* u) {
             // the client closed: what it asked is answered, then it is dropped
             c->close_after = true;
           } else if (n > 0) {
+            c->ever_read = true;
             c->last_request_us = monotonic_us();
             if (c->in.empty()) c->partial_since_us = c->last_request_us;
             c->in.append(buf, static_cast<std::size_t>(n));
@@ -211,13 +223,14 @@ int Daemon::on_accept(sd_event_source*, int fd, uint32_t, void* u) {
     // connect and never ask anything would lock the operator out, and an
     // abort with them
     if (d->clients.size() >= d->cfg.daemon.max_clients && !d->make_room()) {
-      const std::string msg = "{\"ok\":false,\"error\":\"too many control connections (" +
-                              std::to_string(d->cfg.daemon.max_clients) +
-                              "), each in the middle of a request\"}\n";
+      const std::string msg =
+          "{\"ok\":false,\"error\":\"too many control connections (" +
+          std::to_string(d->cfg.daemon.max_clients) +
+          "), none to close now: each new and not yet heard from; try again in a second\"}\n";
       (void)!::send(cfd, msg.data(), msg.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
       ::close(cfd);
       d->warn("control connection refused: " + std::to_string(d->clients.size()) +
-              " open, each in the middle of a request");
+              " open, each new and not yet heard from");
       return;
     }
     auto c = std::make_unique<Client>();
@@ -225,6 +238,7 @@ int Daemon::on_accept(sd_event_source*, int fd, uint32_t, void* u) {
     c->fd = cfd;
     c->uid = known ? static_cast<long long>(cred.uid) : -1;
     c->last_request_us = monotonic_us();
+    c->accepted_us = c->last_request_us;
     if (sd_event_add_io(d->ev, c->src.out(), cfd, EPOLLIN, on_client, c.get()) < 0) {
       d->warn("cannot watch a control connection");
       return;  // the destructor closes it

@@ -23,6 +23,8 @@ struct Client {
   bool watching = false;
   /// The peer's user, by SO_PEERCRED; -1: not known.
   long long uid = -1;
+  std::uint64_t accepted_us = 0;      ///< monotonic
+  bool ever_read = false;             ///< a byte of it read: it has spoken
   std::uint64_t last_request_us = 0;  ///< monotonic; at accept until its first request
   std::uint64_t unread_since_us = 0;  ///< monotonic; 0: nothing waits
   /// monotonic: when the unfinished request line in `in` began (its first

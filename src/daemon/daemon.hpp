@@ -54,6 +54,9 @@ inline constexpr std::size_t kMaxRequest = 64 * 1024;
 inline constexpr std::size_t kMaxQueued = 4 << 20;
 /// Out of descriptors: accept again after this, us.
 inline constexpr std::uint64_t kAcceptBackoffUs = 1000000;
+/// A control connection not yet heard from is not closed to make room for
+/// another this long after its accept (make_room): time for its first read.
+inline constexpr std::uint64_t kFreshGraceUs = 1000000;
 
 /// Whether say() writes structured journal entries (under systemd).
 void log_to_journal(bool on);

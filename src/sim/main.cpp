@@ -97,9 +97,13 @@ constexpr const char* kFaultHelp =
     "a CiA 402 drive's ways, as real drives have them (--drive NAME[=VALUE], repeatable):\n"
     "  sdo-answer=MIN_MS:MAX_MS   each SDO answer this late, spread between the two\n"
     "  no-target-reached-in-quick-stop  statusword bit 10 never set in quick stop active\n"
+    "  quick-stop-bit-where-free  statusword bit 5 set where CiA 402 leaves it free\n"
+    "                             (switch on disabled 0x0260, fault 0x0228)\n"
     "  set-point-ack-after-enable=S  statusword bit 12 up S s after each enable (inf: for\n"
     "                             good), a set-point's bit 4 meanwhile not taken\n"
-    "  warning-at-boot=CODE       an EMCY that only warns after each boot-up (hex)\n";
+    "  warning-at-boot=CODE       an EMCY that only warns after each boot-up (hex)\n"
+    "  absent=INDEX[:INDEX...]    objects the drive does not have (hex; every access\n"
+    "                             aborted with 0x06020000), as 60F2, 605B, 605C\n";
 
 /// Numbers separated by ':'.
 bool numbers(const std::string& text, std::vector<double>& out) {
@@ -129,6 +133,8 @@ Status apply_drive_way(const std::string& spec, stand::StandSetup& s) {
   stand::Drive402Setup& d = s.drive;
   if (name == "no-target-reached-in-quick-stop" && value.empty()) {
     d.target_reached_in_quick_stop = false;
+  } else if (name == "quick-stop-bit-where-free" && value.empty()) {
+    d.quick_stop_bit_where_free = true;
   } else if (name == "set-point-ack-after-enable") {
     char* end = nullptr;
     const double v = std::strtod(value.c_str(), &end);
@@ -140,6 +146,19 @@ Status apply_drive_way(const std::string& spec, stand::StandSetup& s) {
       return bad();
     d.sdo_answer_min_s = v[0] / 1000;
     d.sdo_answer_max_s = v[1] / 1000;
+  } else if (name == "absent") {
+    std::size_t pos = 0;
+    while (pos <= value.size()) {
+      const std::size_t end = std::min(value.find(':', pos), value.size());
+      const std::string part = value.substr(pos, end - pos);
+      char* stop = nullptr;
+      const unsigned long index = std::strtoul(part.c_str(), &stop, 16);
+      if (part.empty() || *stop != '\0' || index < 0x1000 || index > 0xFFFF) return bad();
+      // every sub-index of it (CiA 301: the object does not exist)
+      for (std::uint32_t sub = 0; sub < 256; ++sub)
+        s.drive_faults.refuse_objects[static_cast<std::uint32_t>(index) << 8 | sub] = 0x06020000;
+      pos = end + 1;
+    }
   } else if (name == "warning-at-boot") {
     char* end = nullptr;
     const unsigned long code = std::strtoul(value.c_str(), &end, 16);

@@ -51,18 +51,19 @@ inline std::string slurp(const hil::fs::path& p) {
   return ss.str();
 }
 
-/// A short plan (20 s alignment, +180 deg at `turn_s`, 54 s of hold after
+/// A short plan (20 s alignment, +180 deg at `turn_s`, 53 s of hold after
 /// the turn, 120 s at most) in `dir`,
 /// as `name`. The turn's rate limit is 30 deg/s (7 s of stand time, 1.75 s
 /// of real time at 4x); a test that acts while the table turns gives itself
 /// a slower one, so that a guest slow to answer does not find the turn over.
 /// The plan's whole length, s: hold 2 as long as the reference's (turn at
-/// 60 s, 30 deg/s, 120 s in all: 54 s), not longer; a plan that turns
-/// earlier ends earlier, and the tier spends less of its time in holds
-/// that check nothing more.
+/// 60 s, 30 deg/s, 7 s of turn, 120 s in all: 53 s), not longer; a plan
+/// that turns earlier ends earlier, and the tier spends less of its time
+/// in holds that check nothing more.
 inline int plan_duration_s(int turn_s = 60, int turn_rate_dps = 30) {
+  REQUIRE(turn_rate_dps > 0);
   const int turn_time_s = 180 / turn_rate_dps + 1;  // the ramps: 1 s at 30 deg/s^2
-  return std::min(120, turn_s + turn_time_s + 54);
+  return std::min(120, turn_s + turn_time_s + 53);
 }
 
 inline void write_plan(const hil::fs::path& dir, const std::string& name, int turn_s = 60,

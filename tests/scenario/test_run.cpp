@@ -2398,14 +2398,20 @@ TEST_SUITE("run engine on the virtual CiA 402 stand") {
     stand::StandSetup s = cia402_setup_of(plan, 7);
     s.drive_faults.warning_at_s = 85;
     bool warns = false;
-    SUBCASE("0x4210, excess temperature: a warning by the default classes") {
+    Stand stand = cia402_stand();
+    SUBCASE("0x4210, excess temperature: a warning, as the stand's configuration lists it") {
       s.drive_faults.warning_code = 0x4210;
+      stand.cfg.can.table.cia402.emcy_warnings =
+          std::vector<std::pair<std::uint16_t, std::uint16_t>>{{0x4210, 0x4210}};
       warns = true;
     }
-    SUBCASE("0x2310, continuous overcurrent: a fault, whatever the drive made of it") {
-      s.drive_faults.warning_code = 0x2310;
+    SUBCASE("0x4210 again, with the default classes: a fault, whatever the drive made of it") {
+      s.drive_faults.warning_code = 0x4210;
     }
-    ClosedLoop c(plan, s, cia402_stand(), cia402_roles());
+    // the copy's roles, into its own databases
+    const auto roles = resolve_roles(stand.cfg.can, stand.db);
+    REQUIRE(roles.ok());
+    ClosedLoop c(plan, s, stand, *roles);
     // when the engine runs it
     c.run_until(200);
     const stand::VirtualDrive402* d = c.loop.stand().drive();
@@ -2430,7 +2436,7 @@ TEST_SUITE("run engine on the virtual CiA 402 stand") {
       // the drive was stopped by us, in the turn: quick stop active, at
       // rest short of the target, never in fault of its own
       CHECK(c.phase() == run::Phase::Failed);
-      CHECK_MESSAGE(c.course().reason.find("0x2310") != std::string::npos, c.course().reason);
+      CHECK_MESSAGE(c.course().reason.find("0x4210") != std::string::npos, c.course().reason);
       CHECK(c.course().quick_stop_acked);
       CHECK_FALSE(c.course().quick_stop_gave_up);
       CHECK(d->counts().quick_stops >= 1);

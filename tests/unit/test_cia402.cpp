@@ -29,13 +29,13 @@ constexpr double kTwoPi = 6.283185307179586;
 // the master's rate window (0.1 to 0.2 s at this drive's counts) and a TPDO
 constexpr double kRateWindowS = 0.25;
 
-/// 10000 counts per motor turn, 100 motor turns per table turn: 1e6
-/// counts per table revolution, one count 6.3e-6 rad.
 /// An EMCY code the master takes for a fault (current, CiA 301 0x23xx)
 /// sent by a drive that goes on, no fault bit in its statusword: a drive
 /// that classes its codes otherwise than the master does.
 constexpr std::uint16_t kFaultClassCode = 0x2310;
 
+/// 10000 counts per motor turn, 100 motor turns per table turn: 1e6
+/// counts per table revolution, one count 6.3e-6 rad.
 cia402::MasterSettings master_settings() {
   cia402::MasterSettings s;
   s.node_id = 5;
@@ -495,7 +495,7 @@ TEST_SUITE("cia402") {
     const auto before = l.drive.sdo_writes().size();
     REQUIRE(l.running());
     CHECK(l.master.counts().configurations == 1);
-    CHECK(l.drive.sdo_writes().size() >= before + 12);  // the whole configuration again
+    CHECK(l.drive.sdo_writes().size() >= before + 11);  // the whole configuration again
     CHECK(*l.drive.value(0x605B, 0) == 1);
     CHECK(*l.drive.value(0x1016, 1) == (127 << 16 | 500));
     CHECK(l.master.status().fault == FaultCode::DriveNmtState);  // said, then cleared by Enable
@@ -531,14 +531,14 @@ TEST_SUITE("cia402") {
     REQUIRE(l.running());
     CHECK(l.drive.nmt() == stand::facts::Nmt::Operational);
     using W = std::pair<std::uint16_t, std::uint8_t>;
-    const std::vector<W> order{{0x6060, 0}, {0x60F2, 0}, {0x6081, 0}, {0x6083, 0},
-                               {0x6084, 0}, {0x6085, 0}, {0x605A, 0}, {0x605B, 0},
-                               {0x605C, 0}, {0x6007, 0}, {0x1016, 1}, {0x1017, 0}};
+    const std::vector<W> order{{0x6060, 0}, {0x6081, 0}, {0x6083, 0}, {0x6084, 0},
+                               {0x6085, 0}, {0x605A, 0}, {0x605B, 0}, {0x605C, 0},
+                               {0x6007, 0}, {0x1016, 1}, {0x1017, 0}};
     CHECK(l.drive.sdo_writes() == order);
     const double cpr = 1e6 / kTwoPi;
     CHECK(*l.drive.value(0x6060, 0) == 1);
     CHECK(*l.drive.value(0x6061, 0) == 1);
-    CHECK(*l.drive.value(0x60F2, 0) == 1);  // relative to the actual position
+    CHECK(*l.drive.value(0x60F2, 0) == 0);  // read, never written: the drive's own
     CHECK(*l.drive.value(0x6081, 0) == std::llround(30 * kDeg * cpr));
     CHECK(*l.drive.value(0x6083, 0) == std::llround(60 * kDeg * cpr));
     CHECK(*l.drive.value(0x6084, 0) == std::llround(40 * kDeg * cpr));
@@ -967,6 +967,26 @@ TEST_SUITE("cia402") {
     }
   }
 
+  TEST_CASE("statusword bit 5 set where CiA 402 leaves it free: the states read the same") {
+    stand::Drive402Setup ds = drive_setup();
+    ds.quick_stop_bit_where_free = true;
+    stand::Drive402Faults df;
+    df.fault_at_s = 1.0;
+    Loop l(master_settings(), ds, df);
+    l.start();
+    REQUIRE(l.running());
+    CHECK((l.drive.statusword() & 0x6F) == 0x60);  // switch on disabled, bit 5 up
+    CHECK(l.master.drive_state() == State::SwitchOnDisabled);
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.run_until([&] { return l.drive.state() == DriveState::Fault; }, 2.0));
+    l.run_for(0.05);
+    CHECK((l.drive.statusword() & 0x6F) == 0x28);  // fault, bit 5 up
+    CHECK(l.master.drive_state() == State::Fault);
+    CHECK(l.master.status().state == TableState::Fault);
+    REQUIRE(l.enabled(2));  // reset, through switch on disabled (0x0260) again
+    CHECK(l.drive.counts().fault_resets == 1);
+  }
+
   TEST_CASE("a warning EMCY at each boot-up, reset once operational: told, the run as usual") {
     stand::Drive402Setup ds = drive_setup();
     ds.boot_warning_code = 0x8120;  // CAN in error passive: a warning by the default classes
@@ -1031,7 +1051,7 @@ TEST_SUITE("cia402") {
       CHECK(st.fault_name.find("profile acceleration") != std::string::npos);
       // the drive: what came before was written, nothing after, never started
       using W = std::pair<std::uint16_t, std::uint8_t>;
-      CHECK(l.drive.sdo_writes() == std::vector<W>{{0x6060, 0}, {0x60F2, 0}, {0x6081, 0}});
+      CHECK(l.drive.sdo_writes() == std::vector<W>{{0x6060, 0}, {0x6081, 0}});
       CHECK(l.drive.nmt() == stand::facts::Nmt::PreOperational);
       // a move is refused with the reason, and sends nothing
       l.from_master.clear();
@@ -1100,7 +1120,7 @@ TEST_SUITE("cia402") {
     CHECK((l.drive.statusword() & 0x0400) != 0);
     // the handshake is closed: bit 4 cleared by us, bit 12 by the drive
     CHECK((l.drive.controlword() & 0x10) == 0);
-    CHECK((l.drive.controlword() & 0x40) != 0);  // it was relative
+    CHECK((l.drive.controlword() & 0x40) == 0);  // relative, sent as an absolute target
     CHECK((l.drive.statusword() & 0x1000) == 0);
     // absolute to -45 deg at 20 deg/s: the profile velocity goes first by SDO
     REQUIRE(l.command(TableCommandCode::MoveAbsolute, 3, -45 * kDeg, 20 * kDeg));
@@ -1325,13 +1345,28 @@ TEST_SUITE("cia402") {
     stand::Drive402Faults df;
     df.fault_at_s = 0.5;
     df.fault_code = 0x4310;
+    cia402::MasterSettings ms = master_settings();
+    // a stand that lists temperature codes as warnings: the fault is found
+    // by the statusword read by SDO after the EMCY, not by the EMCY itself
+    const std::vector<std::pair<std::uint16_t, std::uint16_t>> warm = {{0x4000, 0x4FFF}};
+    bool listed = false;
     SUBCASE("TPDO silent in fault") {
       df.stale = stand::StalePdo::Silent;
     }
     SUBCASE("TPDO frozen at its last value") {
       df.stale = stand::StalePdo::Frozen;
     }
-    Loop l(master_settings(), drive_setup(), df);
+    SUBCASE("TPDO silent in fault, its EMCY's code a warning") {
+      df.stale = stand::StalePdo::Silent;
+      ms.emcy_warnings = warm;
+      listed = true;
+    }
+    SUBCASE("TPDO frozen at its last value, its EMCY's code a warning") {
+      df.stale = stand::StalePdo::Frozen;
+      ms.emcy_warnings = warm;
+      listed = true;
+    }
+    Loop l(ms, drive_setup(), df);
     l.start();
     REQUIRE(l.running());
     REQUIRE(l.enabled(1));
@@ -1350,7 +1385,11 @@ TEST_SUITE("cia402") {
     }
     // ... but the EMCY is fresher
     CHECK(l.master.status().state == TableState::Fault);
-    CHECK(l.master.status().fault_name == "EMCY 0x4310 excess temperature drive");
+    if (!listed)
+      CHECK(l.master.status().fault_name == "EMCY 0x4310 excess temperature drive");
+    else  // a warning's code: the fault is the statusword's, read after it
+      CHECK(l.master.status().fault_name ==
+            "EMCY 0x4310 excess temperature drive (statusword 0x0208 read after it)");
     CHECK_FALSE(l.command(TableCommandCode::MoveAbsolute, 2, 0.5, 0.1).ok());
     // only the fault reset and a statusword after it clear it
     REQUIRE(l.enabled(3));
@@ -1386,7 +1425,7 @@ TEST_SUITE("cia402") {
     CHECK(l.master.counts().nmt_resets == 2);
     CHECK(l.drive.counts().nmt_resets == 1);
     CHECK(l.master.counts().configurations == configs + 1);
-    CHECK(l.drive.sdo_writes().size() == writes + 12);      // the configuration again
+    CHECK(l.drive.sdo_writes().size() == writes + 11);      // the configuration again
     CHECK(*l.drive.value(0x1016, 1) == (127 << 16 | 500));  // watched again
     CHECK(*l.drive.value(0x1017, 0) == 100);
     CHECK(l.drive.state() == DriveState::OperationEnabled);
@@ -1603,14 +1642,14 @@ TEST_SUITE("cia402") {
   }
 
   TEST_CASE("the start-up budget: every transfer of a configuration, inert settings too") {
-    // 11 writes of the master's, 2 of profile position's, 3 PDOs of at most
-    // 6 + 8 transfers, the 0x60F2 read-back and 0x6061: 57 SDO timeouts,
-    // besides the boot-up and the mode switch
+    // 11 writes of the master's, 1 of profile position's (0x6081), 3 PDOs
+    // of at most 6 + 8 transfers, the 0x60F2 read and 0x6061: 56 SDO
+    // timeouts, besides the boot-up and the mode switch
     cia402::MasterSettings s = master_settings();
     s.boot_timeout_s = 2;
     s.sdo_timeout_s = 0.5;
     s.mode_switch_timeout_s = 0.2;
-    const double budget = 2 + 57 * 0.5 + 0.2;
+    const double budget = 2 + 56 * 0.5 + 0.2;
     CHECK(cia402::Master(s).start_up_budget_s() == doctest::Approx(budget).epsilon(1e-12));
     // a profile velocity beyond the drive's u32 counts: settings that fail,
     // a master that sends nothing, and whose budget is still a number
@@ -2164,20 +2203,32 @@ TEST_SUITE("cia402") {
   TEST_CASE("an EMCY that warns, in a move: told once, nothing latched, the move goes on") {
     stand::Drive402Faults df;
     df.warning_at_s = 1.0;
-    df.warning_code = 0x4210;  // excess temperature device: a warning by the default classes
     cia402::MasterSettings ms = master_settings();
-    SUBCASE("by the default classes") {}
-    SUBCASE("by a class of the configuration's (0x4200-0x42FF)") {
+    SUBCASE("0x8120, CAN error passive: a warning by the default classes") {
+      df.warning_code = 0x8120;
+    }
+    SUBCASE("0x4210, excess temperature: a warning by the configuration's 0x4200-0x42FF") {
+      df.warning_code = 0x4210;
       ms.emcy_warnings = {{0x4200, 0x42FF}};
     }
     Loop l(ms, drive_setup(), df);
-    REQUIRE(l.turning(1.5));
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
+    const auto from = l.sent.size();
+    REQUIRE(l.t < 1.0);
+    l.run_for(1.5);  // the warning at 1 s
     CHECK(l.master.status().fault == FaultCode::None);
     CHECK(l.master.counts().emcy == 1);
     CHECK(l.master.counts().emcy_warnings == 1);
     const auto& told = l.master.notices();
     REQUIRE(!told.empty());
-    CHECK(told.back().find("the drive warned: EMCY 0x4210") == 0);
+    char code[8];
+    std::snprintf(code, sizeof code, "0x%04X", static_cast<unsigned>(df.warning_code));
+    CHECK(told.back().find(std::string("the drive warned: EMCY ") + code) == 0);
+    // the drive's own statusword was read after it (its TPDO may be stale)
+    CHECK(l.statusword_reads(from) >= 1);
     CHECK(l.drive.moving(l.t));
     CHECK(l.master.status().state == TableState::Moving);
     // the move ends where it was headed, in position, with no quick stop
@@ -2186,24 +2237,69 @@ TEST_SUITE("cia402") {
     CHECK(l.drive.angle(l.t) == doctest::Approx(2 * M_PI).epsilon(1e-6));
   }
 
+  TEST_CASE(
+      "a warning's code from a drive whose statusword shows the fault later: the second "
+      "read finds it") {
+    // its TPDO silent in fault, its statusword in fault 50 ms after its
+    // EMCY: the read at once finds it enabled, the one 0.1 s later in fault
+    stand::Drive402Faults df;
+    df.fault_at_s = 1.0;
+    df.fault_code = 0x4310;
+    df.fault_state_after_emcy_s = 0.05;
+    df.stale = stand::StalePdo::Silent;
+    cia402::MasterSettings ms = master_settings();
+    ms.emcy_warnings = {{0x4000, 0x4FFF}};
+    Loop l(ms, drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
+    const auto from = l.sent.size();
+    REQUIRE(l.run_until([&] { return l.master.status().fault != FaultCode::None; }, 1.0));
+    CHECK(l.t > 1.0 + cia402::Master::kWarningRecheckS - 0.01);
+    CHECK(l.t < 1.0 + cia402::Master::kWarningRecheckS + 0.05);
+    CHECK(l.master.status().fault == FaultCode::Emcy);
+    CHECK(l.master.status().fault_name.find("EMCY 0x4310") == 0);
+    CHECK(l.master.status().fault_name.find("read after it") != std::string::npos);
+    CHECK(l.statusword_reads(from) == 2);
+    CHECK(l.drive.state() != DriveState::OperationEnabled);
+  }
+
+  TEST_CASE("a warning's code, and the drive's statusword cannot be read: taken for a fault") {
+    stand::Drive402Faults df;
+    df.warning_at_s = 1.0;
+    df.warning_code = 0x8120;
+    df.refuse_objects[0x604100] = 0x08000000;  // general error
+    Loop l(master_settings(), drive_setup(), df);
+    REQUIRE(l.turning(1.2));
+    CHECK(l.master.status().fault == FaultCode::Emcy);
+    const std::string name = l.master.status().fault_name;
+    CAPTURE(name);
+    CHECK(name.find("EMCY 0x8120") == 0);
+    CHECK(name.find("the drive's statusword could not be read after it (read 0x6041:00: "
+                    "0x08000000") != std::string::npos);
+  }
+
   TEST_CASE("an EMCY's class is the configuration's: no ranges, every code a fault") {
     stand::Drive402Faults df;
     df.warning_at_s = 1.0;
-    df.warning_code = 0x4210;
+    df.warning_code = 0x8120;  // a warning by the default classes
     cia402::MasterSettings ms = master_settings();
     ms.emcy_warnings.clear();
     Loop l(ms, drive_setup(), df);
     REQUIRE(l.turning(1.5));
     CHECK(l.master.status().fault == FaultCode::Emcy);
-    CHECK(l.master.status().fault_name.find("EMCY 0x4210") == 0);
+    CHECK(l.master.status().fault_name.find("EMCY 0x8120") == 0);
     CHECK(l.master.counts().emcy_warnings == 0);
   }
 
   TEST_CASE("a drive fault whose EMCY code alone warns: the statusword's fault bit decides") {
     stand::Drive402Faults df;
     df.fault_at_s = 1.0;
-    df.fault_code = 0x4310;  // excess temperature drive: a warning's class, but the drive faults
-    Loop l(master_settings(), drive_setup(), df);
+    df.fault_code = 0x4310;  // excess temperature drive: a warning by the stand's classes
+    cia402::MasterSettings ms = master_settings();
+    ms.emcy_warnings = {{0x4000, 0x4FFF}};
+    Loop l(ms, drive_setup(), df);
     REQUIRE(l.turning(1.5));
     REQUIRE(l.drive.state() == DriveState::Fault);
     CHECK(l.master.status().fault == FaultCode::DriveFault);
@@ -2217,15 +2313,18 @@ TEST_SUITE("cia402") {
 
   TEST_CASE("emcy_warns: inside a range, both ends in; outside it, a fault") {
     const auto& d = cia402::kDefaultEmcyWarnings;
-    for (const int warn : {0x4000, 0x4210, 0x4FFF, 0x8110, 0x8120, 0x8140}) {
+    for (const int warn : {0x8110, 0x8120, 0x8140}) {
       CAPTURE(warn);
       CHECK(cia402::emcy_warns(static_cast<std::uint16_t>(warn), d));
     }
-    for (const int fault : {0x1000, 0x2310, 0x3FFF, 0x5000, 0x8130, 0x8611, 0xFF00}) {
+    for (const int fault : {0x1000, 0x2310, 0x4210, 0x4310, 0x8100, 0x8130, 0x8611, 0xFF00}) {
       CAPTURE(fault);
       CHECK_FALSE(cia402::emcy_warns(static_cast<std::uint16_t>(fault), d));
     }
-    CHECK_FALSE(cia402::emcy_warns(0x4210, {}));
+    CHECK_FALSE(cia402::emcy_warns(0x8120, {}));
+    CHECK(cia402::emcy_warns(0x4200, {{0x4200, 0x42FF}}));
+    CHECK(cia402::emcy_warns(0x42FF, {{0x4200, 0x42FF}}));
+    CHECK_FALSE(cia402::emcy_warns(0x4300, {{0x4200, 0x42FF}}));
   }
 
   TEST_CASE("an EMCY fault from a drive that goes on: the quick stop waits for its statusword") {
@@ -2784,13 +2883,18 @@ TEST_SUITE("cia402") {
     CHECK(l.samples.back().angle_rad == doctest::Approx(60 * kDeg).epsilon(1e-5));
   }
 
-  TEST_CASE("relative moves count from the actual position (0x60F2), not the last target") {
+  TEST_CASE("relative moves go from where the table is, whatever 0x60F2 says: absolute targets") {
     stand::Drive402Setup ds = drive_setup();
-    ds.positioning_option = 0;  // as many drives: from the last target
+    SUBCASE("0x60F2 = 0, from the last target (the default of many drives)") {
+      ds.positioning_option = 0;
+    }
+    SUBCASE("0x60F2 = 1, from the position demand value") {
+      ds.positioning_option = 1;
+    }
     Loop l(master_settings(), ds);
     l.start();
     REQUIRE(l.running());
-    CHECK(*l.drive.value(0x60F2, 0) == 1);
+    CHECK(*l.drive.value(0x60F2, 0) == ds.positioning_option);  // read, never written
     REQUIRE(l.enabled(1));
     REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
     l.run_for(1.5);
@@ -2802,6 +2906,50 @@ TEST_SUITE("cia402") {
     REQUIRE(l.command(TableCommandCode::MoveRelative, 5, 10 * kDeg, 30 * kDeg));
     REQUIRE(l.in_position(5, 3));
     CHECK(l.drive.position_counts(l.t) == stopped + 27778);
+    // no relative target ever went out (controlword bit 6)
+    for (const can::Frame& f : l.sent)
+      if (f.id == canopen::kRpdo1Base + 5) CHECK((f.data[0] & 0x40) == 0);
+  }
+
+  TEST_CASE(
+      "0x60F2 optional: a drive without it runs, told; one that would not turn as planned "
+      "is refused") {
+    stand::Drive402Setup ds = drive_setup();
+    stand::Drive402Faults df;
+    SUBCASE("absent (0x06020000): configured, the notice names it, a move done") {
+      df.refuse_objects[0x60F200] = 0x06020000;
+      Loop l(master_settings(), ds, df);
+      l.start();
+      REQUIRE(l.running());
+      const auto& told = l.master.notices();
+      CHECK(std::any_of(told.begin(), told.end(), [](const std::string& n) {
+        return n.starts_with("read 0x60F2:00: 0x06020000") &&
+               n.find("optional in CiA 402") != std::string::npos;
+      }));
+      REQUIRE(l.enabled(1));
+      REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 90 * kDeg, 30 * kDeg));
+      REQUIRE(l.in_position(2, 10));
+      CHECK(l.drive.angle(l.t) == doctest::Approx(M_PI / 2).epsilon(1e-6));
+    }
+    SUBCASE("a rotary axis the shortest way (bits 6-7 = 11): refused before anything moves") {
+      ds.positioning_option = 0x00C0;
+      Loop l(master_settings(), ds, df);
+      l.start();
+      REQUIRE(l.run_until([&] { return l.master.phase() == cia402::CommPhase::Failed; }, 2.0));
+      const std::string why = l.master.status().fault_name;
+      CAPTURE(why);
+      CHECK(why.find("positioning option code (0x60F2) reads 0x00C0") == 0);
+      CHECK(why.find("rotary axis direction option") != std::string::npos);
+      CHECK(l.drive.nmt() != stand::facts::Nmt::Operational);
+      CHECK(l.drive.counts().set_points == 0);
+    }
+    SUBCASE("refused otherwise (0x08000000): the configuration fails with it") {
+      df.refuse_objects[0x60F200] = 0x08000000;
+      Loop l(master_settings(), ds, df);
+      l.start();
+      REQUIRE(l.run_until([&] { return l.master.phase() == cia402::CommPhase::Failed; }, 2.0));
+      CHECK(l.master.status().fault_name.find("0x60F2:00") != std::string::npos);
+    }
   }
 
   TEST_CASE("heartbeat lost while the drive stays enabled: no reset after reconfiguration") {

@@ -470,6 +470,9 @@ TEST_CASE("config: [table] protocol = \"cia402\" and [table.cia402]") {
            Bad{"emcy_warnings = [0x4210]\n", "table.cia402.emcy_warnings", 4},
            Bad{"emcy_warnings = [\"0x4FFF-0x4000\"]\n", "table.cia402.emcy_warnings", 4},
            Bad{"emcy_warnings = [\"0x0000-0x4FFF\"]\n", "table.cia402.emcy_warnings", 4},
+           Bad{"emcy_warnings = [\"0x0001-0xFFFF\"]\n", "table.cia402.emcy_warnings", 4},
+           Bad{"emcy_warnings = [\"0x8130\"]\n", "table.cia402.emcy_warnings", 4},
+           Bad{"emcy_warnings = [\"0x8600-0x86FF\"]\n", "table.cia402.emcy_warnings", 4},
        }) {
     CAPTURE(b.text);
     Error e = parse_error(head + b.text);
@@ -478,14 +481,14 @@ TEST_CASE("config: [table] protocol = \"cia402\" and [table.cia402]") {
     CHECK(e.message.find(b.key) != std::string::npos);
   }
   SUBCASE("the EMCY codes that only warn: codes and ranges; none; the master's defaults") {
-    auto c = parse_config(head + "emcy_warnings = [\"0x4210\", \"0x8100-0x81ff\"]\n",
+    auto c = parse_config(head + "emcy_warnings = [\"0x4210\", \"0x8110-0x812f\"]\n",
                           "/etc/turncal/turncal.toml");
     REQUIRE(c.ok());
     const auto& w = c->can.table.cia402.emcy_warnings;
     REQUIRE(w.has_value());
     REQUIRE(w->size() == 2);
     CHECK((*w)[0] == std::pair<std::uint16_t, std::uint16_t>{0x4210, 0x4210});
-    CHECK((*w)[1] == std::pair<std::uint16_t, std::uint16_t>{0x8100, 0x81FF});
+    CHECK((*w)[1] == std::pair<std::uint16_t, std::uint16_t>{0x8110, 0x812F});
     auto none = parse_config(head + "emcy_warnings = []\n", "/etc/turncal/turncal.toml");
     REQUIRE(none.ok());
     REQUIRE(none->can.table.cia402.emcy_warnings.has_value());

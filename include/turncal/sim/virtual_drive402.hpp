@@ -102,6 +102,11 @@ struct Drive402Setup {
   /// once it is operational (a drive that reports its DC link charging, or
   /// the CAN controller's error passive while the bus came up).
   std::uint16_t boot_warning_code = 0;
+  /// Statusword bit 5 (quick stop) set where CiA 402's table 30 leaves it
+  /// free (not ready to switch on, switch on disabled, fault reaction
+  /// active, fault: 0x0260 and 0x0228 rather than 0x0240 and 0x0208), as
+  /// many drives send it.
+  bool quick_stop_bit_where_free = false;
 };
 
 /// What TPDO1 does while the drive is in fault (the stale-PDO trap).
@@ -115,6 +120,9 @@ enum class StalePdo : std::uint8_t {
 struct Drive402Faults {
   double fault_at_s = NAN;  ///< a drive fault with EMCY fault_code
   std::uint16_t fault_code = 0x2310;
+  /// The injected fault's state this long after its EMCY (a drive whose
+  /// EMCY goes out from its fast task, its statusword from a slower one).
+  double fault_state_after_emcy_s = 0;
   StalePdo stale = StalePdo::None;
   double silent_at_s = NAN;  ///< the drive neither sends nor hears anything from then ...
   double silent_until_s = std::numeric_limits<double>::infinity();  ///< ... to then
@@ -311,6 +319,7 @@ class VirtualDrive402 {
   bool following_error_ = false;
   bool warning_ = false;
   bool boot_warning_ = false;  // warning_ is the boot-up's (boot_warning_code)
+  double fault_state_at_ = std::numeric_limits<double>::infinity();  // an injected fault's state
   TableMotion motion_;
   Motion motion_kind_ = Motion::Rest;
   double rest_at_ = -std::numeric_limits<double>::infinity();

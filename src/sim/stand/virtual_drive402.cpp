@@ -198,6 +198,10 @@ std::uint16_t VirtualDrive402::statusword() const {
   if ((set_point_ack_ || enable_ack_) && state_ == State::OperationEnabled)
     s |= facts::sw::kSetPointAcknowledge;
   if (following_error_) s |= facts::sw::kFollowingError;
+  if (setup_.quick_stop_bit_where_free &&
+      (state_ == State::NotReadyToSwitchOn || state_ == State::SwitchOnDisabled ||
+       state_ == State::FaultReactionActive || state_ == State::Fault))
+    s |= 1u << 5;  // table 30: x in these states
   if (warning_) s |= facts::sw::kWarning;
   return s;
 }
@@ -265,6 +269,7 @@ void VirtualDrive402::advance(double t, std::vector<DriveFrame>& out) {
     consider(mode_at_, 8);
     consider(enable_ack_until_, 10);
     if (!sdo_due_.empty()) consider(sdo_due_.front().t_s, 11);
+    consider(fault_state_at_, 12);
     const std::uint16_t hb_ms = static_cast<std::uint16_t>(u32(obj::kProducerHeartbeat));
     const double when = next.when();
     switch (next.which()) {
@@ -288,7 +293,20 @@ void VirtualDrive402::advance(double t, std::vector<DriveFrame>& out) {
         break;
       case 3:
         faults_.fault_at_s = NAN;
-        fault(when, faults_.fault_code, out);
+        if (faults_.fault_state_after_emcy_s > 0) {
+          emcy(when, faults_.fault_code, 0x01, out);
+          fault_state_at_ = when + faults_.fault_state_after_emcy_s;
+        } else {
+          fault(when, faults_.fault_code, out);
+        }
+        break;
+      case 12:
+        fault_state_at_ = kInf;
+        if (state_ != State::Fault && state_ != State::FaultReactionActive) {
+          set_point_ack_ = false;
+          enter(State::FaultReactionActive);
+          stop_motion(when, u32(obj::kQuickStopDeceleration), Motion::FaultStop);
+        }
         break;
       case 4:
         faults_.following_error_at_s = NAN;

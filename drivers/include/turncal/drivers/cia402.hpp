@@ -10,17 +10,19 @@
 // What it does, in order:
 //   NMT reset communication -> the drive's boot-up (0x700+node, 0x00) ->
 //   NMT enter pre-operational -> configuration by SDO (0x6060 = the mode,
-//   the mode's objects (profile position: 0x60F2 = 1, 0x6081), 0x6083,
+//   the mode's objects (profile position: 0x6081), 0x6083,
 //   0x6084, 0x6085, 0x605A, 0x605B, 0x605C, 0x6007, 0x1016:01, 0x1017, then
 //   the PDO mappings 0x1600 / 0x1A00 [/ 0x1A01] when the settings ask; then
-//   the mode's objects read back (profile position: 0x60F2), and 0x6061 read
+//   the mode's objects read back (profile position: 0x60F2, if it has it),
+//   and 0x6061 read
 //   until the drive shows the mode) -> NMT start.
 //
-// Relative moves (profile position): 0x60F2 (positioning option code) bits
-// 0-1 = 01 makes a relative target count from the actual position (CiA
-// 402); many drives default to 00, from the last target, which after a
-// halt or a quick stop is not where the table is. The configuration fails
-// when the drive does not keep 01.
+// Moves (profile position) are absolute targets; a relative move's is
+// computed from the position the master tracks, so that nothing depends on
+// 0x60F2 (positioning option code: optional in CiA 402, its relative
+// option's default differs between drives). Where the drive has it, it is
+// read, never written, and refused only when it would move the table
+// otherwise than planned (its request-response or rotary axis options).
 // From then on RPDO1 (controlword + target position) goes out, TPDO1
 // (statusword + position actual) and, when asked, TPDO2 (velocity actual)
 // come in, the drive's heartbeat is watched, its EMCYs are decoded and
@@ -43,9 +45,11 @@
 //   Quick stop active                 | QuickStopped
 //   Fault reaction active, Fault      | Fault
 //   any, with a latched fault (EMCY   | Fault, until an Enable's fault reset is
-//   with a non-zero code, heartbeat   | followed by a statusword without fault
-//   lost, following error, SDO abort  |
-//   during configuration, ...)        |
+//   of a fault's code, a warning's    | followed by a statusword without fault
+//   whose statusword read after it    |
+//   shows a fault, heartbeat lost,    |
+//   following error, SDO abort during |
+//   configuration, ...)               |
 //
 // The acknowledgement (status().ack) is the seq of the last command the
 // drive accepted: Enable when Operation enabled is reached, Disable when
@@ -58,11 +62,13 @@
 // answer to the SDO write of 0x6040 (refused while the drive boots).
 // Disable is Shutdown (transition 8: the drive stops on its ramp), refused
 // while a move is under way; Quick stop active is left (transition 12)
-// only once the quick stop is complete (bit 10).
+// only once the quick stop is complete (bit 10, or the table at rest by
+// its positions: not every drive sets bit 10 there).
 //
 // The stale-PDO trap: a drive in fault may keep (or stop sending) a last
 // TPDO that says Operation enabled. The master judges by the freshest
-// information: an EMCY with a non-zero code, the drive's heartbeat lost, or
+// information: an EMCY of a fault's code (a warning's: the statusword read
+// by SDO after it, at once and 0.1 s later), the drive's heartbeat lost, or
 // its NMT state leaving operational latches a fault whatever the last
 // statusword said, and only Switch on disabled (transition 15), in a
 // statusword received after the fault reset that an Enable sends, can
@@ -274,15 +280,16 @@ struct VelocityPdoLayout {
 
 // ---- the master ----
 
-/// The EMCY codes that warn by default, from the classes of CiA 301's
-/// table 21 (and CiA 402's codes in them): temperature (0x4xxx: a drive
-/// hot enough to stop says so by its fault bit), and the CAN controller's
-/// overrun (0x8110), error passive (0x8120) and recovery from bus off
-/// (0x8140), which the frames that follow tell better. Current, voltage,
-/// hardware, software, monitoring (0x8130 our heartbeat lost, 0x86xx
-/// following error), external and device-specific codes are faults.
+/// The EMCY codes that warn by default. CiA 301's table 21 groups codes by
+/// subject, not into warnings and faults, and a drive's manual says which
+/// of its own only warn (temperature codes are trips on some drives,
+/// warnings on others): by default only the CAN controller's reports of
+/// the bus, which say nothing of the drive's power stage and which the
+/// frames that follow tell better: overrun (0x8110), error passive
+/// (0x8120), recovered from bus off (0x8140). Every other code is a fault
+/// until the stand's configuration lists it (table.cia402.emcy_warnings).
 inline const std::vector<std::pair<std::uint16_t, std::uint16_t>> kDefaultEmcyWarnings = {
-    {0x4000, 0x4FFF}, {0x8110, 0x8110}, {0x8120, 0x8120}, {0x8140, 0x8140}};
+    {0x8110, 0x8110}, {0x8120, 0x8120}, {0x8140, 0x8140}};
 
 /// Whether an EMCY code only warns, by these ranges.
 [[nodiscard]] bool emcy_warns(std::uint16_t code,
@@ -367,11 +374,11 @@ struct MasterSettings {
 /// Why the master is in fault (status().fault).
 enum class FaultCode : std::uint8_t {
   None = 0,
-  Emcy = 1,                ///< an EMCY with a non-zero error code
+  Emcy = 1,                ///< an EMCY of a fault (MasterSettings::emcy_warnings)
   DriveHeartbeatLost = 2,  ///< "drive heartbeat lost"
   DriveNmtState = 3,       ///< the drive left operational, or booted again
   FollowingError = 4,      ///< statusword bit 13
-  DriveFault = 5,          ///< statusword Fault without an EMCY
+  DriveFault = 5,          ///< statusword Fault without an EMCY of a fault
   Configuration = 6,       ///< an SDO abort (or timeout) during configuration
   NoBootUp = 7,            ///< no boot-up message after the NMT reset
   Sdo = 8,                 ///< the SDO a move needed (profile velocity) failed
@@ -455,6 +462,10 @@ struct ConfigCheck {
   std::uint16_t index = 0;
   std::uint8_t sub = 0;
   std::function<std::string(const canopen::SdoResult&)> verdict;
+  /// The drive may lack it (CiA 402 optional): its answer that it does
+  /// not exist is a notice, and the verdict is asked of that answer too;
+  /// any other refusal fails the configuration.
+  bool optional = false;
 };
 
 /// What a mode of operation may ask of the master it belongs to.
@@ -608,6 +619,10 @@ class Master final : private ModeHost {
   /// the last of them always the newest (counts().emcy counts them all).
   [[nodiscard]] const std::vector<canopen::Emcy>& emergencies() const { return emcy_; }
   static constexpr std::size_t kEmcyKept = 64;
+  /// After an EMCY that only warns, the drive's statusword is read at once
+  /// and again this much later, for a drive that sends its EMCY before its
+  /// statusword shows the fault.
+  static constexpr double kWarningRecheckS = 0.1;
   /// Reads whose state a later TPDO did not confirm, before a fault
   /// reset gives up.
   static constexpr int kConfirmReads = 20;
@@ -689,11 +704,14 @@ class Master final : private ModeHost {
   void on_tpdo(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
   void on_heartbeat(const can::Frame& f, double t_s, std::vector<can::Frame>& out);
   void on_emcy(const can::Frame& f, double t_s);
-  /// The drive's statusword read after an EMCY that only warns: in fault,
-  /// the EMCY is the fault; not read, taken for one.
   /// A quick stop complete: the table at rest, by bit 10 or by its positions.
   [[nodiscard]] bool quick_stop_done(std::uint16_t word) const;
+  /// The drive's statusword read after an EMCY that only warns: in fault
+  /// (its fault bit, the mode's error bits, or no state of CiA 402's), the
+  /// EMCY is the fault; not read, taken for one.
   void warning_checked(const canopen::SdoResult& r, const std::string& emcy);
+  /// Sends the read a warning asked for, when due (tick), one at a time.
+  void read_after_warning(double now_s);
   /// Acks, the set-point handshake, the fault latch and the controlword
   /// towards the goal, from what is known now.
   /// `timeouts`: from tick() (the set-point's time judged only there,
@@ -787,11 +805,12 @@ class Master final : private ModeHost {
   std::optional<canopen::SdoResult> status_read_;  // its answer, for evaluate()
   double status_read_at_ = 0;                      // not before: a drive still in fault reaction
   std::uint64_t read_sw_seq_ = 0;                  // sw_seq_ when the read went out
-  std::uint64_t emcy_errors_ = 0;                  // EMCYs with a code (not an error reset)
-  std::uint64_t read_emcy_ = 0;                    // emcy_errors_ then
-  State read_state_ = State::Unknown;              // what the read said
-  int fault_reaction_reads_ = 0;                   // reads that found fault reaction active
-  int confirm_reads_ = 0;                          // reads a TPDO then disagreed with
+  std::uint64_t emcy_errors_ = 0;      // EMCYs of a fault (a code that is no warning, or a warning
+                                       // whose statusword read showed a fault or failed)
+  std::uint64_t read_emcy_ = 0;        // emcy_errors_ then
+  State read_state_ = State::Unknown;  // what the read said
+  int fault_reaction_reads_ = 0;       // reads that found fault reaction active
+  int confirm_reads_ = 0;              // reads a TPDO then disagreed with
   // sw_seq_ of the last statusword in operation enabled, and the count a
   // controlword other than enable operation went out after (the drive's
   // way out of operation enabled was then ours)
@@ -849,6 +868,12 @@ class Master final : private ModeHost {
   std::vector<EncoderSample> samples_;
   std::vector<canopen::Emcy> emcy_;
   std::string last_warning_;  // the last EMCY that only warned, its text; empty: none
+  // the statusword's reads after a warning EMCY: one at a time, their own generation
+  std::string warning_text_;
+  int warning_reads_left_ = 0;
+  double warning_read_at_ = INFINITY;
+  bool warning_in_flight_ = false;
+  std::uint64_t warning_gen_ = 0;
   std::vector<std::string> notices_;
   MasterCounts counts_;
 };
