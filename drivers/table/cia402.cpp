@@ -593,6 +593,7 @@ void Master::reset_comm(double now_s, std::vector<can::Frame>& out) {
   ++warning_gen_;
   if (warning_in_flight_) warning_read_at_ = std::min(warning_read_at_, now_s);
   warning_in_flight_ = false;
+  warning_again_ = false;
   sdo_.cancel_all(out);
   out.push_back(canopen::nmt_frame(canopen::NmtCommand::ResetCommunication, s_.node_id));
   ++counts_.nmt_resets;
@@ -1068,7 +1069,10 @@ void Master::on_emcy(const can::Frame& f, double t_s) {
          " (a warning by table.cia402.emcy_warnings; the run "
          "goes on unless the drive's statusword shows a fault)");
   warning_reads_left_ = 2;
-  warning_read_at_ = std::min(warning_read_at_, t_s);  // one read at a time (tick)
+  // one read at a time (tick); a read under way was sampled before this
+  // EMCY, so its answer does not count for it
+  if (warning_in_flight_) warning_again_ = true;
+  warning_read_at_ = std::min(warning_read_at_, t_s);
 }
 
 void Master::read_after_warning(double now_s) {
@@ -1087,6 +1091,25 @@ void Master::read_after_warning(double now_s) {
 }
 
 void Master::warning_checked(const canopen::SdoResult& r, const std::string& emcy) {
+  if (warning_again_) {  // a warning came while this was read: read again, twice
+    warning_again_ = false;
+    warning_reads_left_ = 2;
+    warning_read_at_ = now_;
+    return;
+  }
+  // A fault latched already, or a reset under way: the reset reads the
+  // drive itself, and an answer sampled before it is no news
+  if (fault_ != FaultCode::None || recovery_ != Recovery::None) {
+    warning_reads_left_ = 0;
+    return;
+  }
+  if ((!r.ok() || r.data.size() < 2) && warning_reads_left_ > 1) {
+    // one lost or late answer (on a bus that has just reported trouble) is
+    // tried once more before it counts
+    --warning_reads_left_;
+    warning_read_at_ = now_ + kWarningRecheckS;
+    return;
+  }
   if (!r.ok() || r.data.size() < 2) {
     // not known: taken for a fault, the table stopped (and a reset under
     // way reads the drive again: emcy_errors_)
@@ -1101,8 +1124,11 @@ void Master::warning_checked(const canopen::SdoResult& r, const std::string& emc
   const State s = decode_state(word);
   // the fault bit (or the mode's error bits) decides, and a word that is
   // no state of CiA 402's is no proof of health
-  if ((word & (sw::kFault | mode_->error_bits())) != 0 || s == State::Unknown ||
-      s == State::Fault || s == State::FaultReactionActive) {
+  // (the mode's error bits only where on_tpdo judges them)
+  const bool judged = s == State::OperationEnabled || s == State::FaultReactionActive ||
+                      s == State::Fault || s == State::QuickStopActive;
+  if ((word & sw::kFault) != 0 || (judged && (word & mode_->error_bits()) != 0) ||
+      s == State::Unknown || s == State::Fault || s == State::FaultReactionActive) {
     ++emcy_errors_;
     warning_reads_left_ = 0;
     latch(FaultCode::Emcy, emcy + " (statusword " + hex(word, 4) + " read after it)");

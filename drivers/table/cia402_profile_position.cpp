@@ -70,7 +70,8 @@ class ProfilePosition final : public OperationMode {
     return {{obj::kPositioningOption, 0,
              [](const canopen::SdoResult& r) -> std::string {
                if (!r.ok()) return {};  // absent: the master was told, and goes on
-               if (r.data.empty() || r.data.size() > 2)
+               // (an expedited upload without its size says 4 bytes)
+               if (r.data.empty() || r.data.size() > 4)
                  return "positioning option code (0x60F2) reads " + std::to_string(r.data.size()) +
                         " bytes, not 2";
                const std::uint32_t v = get_le(r.data, 0, r.data.size());
@@ -88,10 +89,14 @@ class ProfilePosition final : public OperationMode {
   [[nodiscard]] std::uint16_t error_bits() const override { return sw::kFollowingError; }
   [[nodiscard]] const char* error_name() const override { return "following error"; }
 
-  void reset() override { step_ = Step::None; }
+  void reset() override {
+    step_ = Step::None;
+    reached_.reset();
+  }
 
   void left_enabled() override {
     if (step_ == Step::Sent || step_ == Step::Acked || step_ == Step::Halting) step_ = Step::None;
+    reached_.reset();
   }
 
   [[nodiscard]] bool moving() const override {
@@ -102,7 +107,10 @@ class ProfilePosition final : public OperationMode {
   Status move(TableCommandCode code, std::uint8_t seq, double target_rad, double rate_rps,
               double now_s, std::vector<can::Frame>& out) override;
 
-  void halt() override { step_ = Step::Halting; }
+  void halt() override {
+    step_ = Step::Halting;
+    reached_.reset();  // where it stops is the table's, not a target's
+  }
 
   ModeProgress on_status(std::uint16_t word, std::uint64_t sw_seq, bool fresh_after_halt,
                          double now_s, bool timeouts) override {
@@ -134,6 +142,7 @@ class ProfilePosition final : public OperationMode {
     } else if (step_ == Step::Acked && (word & sw::kSetPointAcknowledge) == 0 &&
                (word & sw::kTargetReached) != 0) {
       step_ = Step::Done;
+      reached_ = pending_.target;
     } else if (step_ == Step::Halting && fresh_after_halt && (word & sw::kTargetReached) != 0) {
       step_ = Step::Done;
     }
@@ -212,8 +221,9 @@ class ProfilePosition final : public OperationMode {
   Pending pending_;
   std::uint64_t sent_seq_ = 0;  // statuswords received when bit 4 went out
   double sent_t_ = 0;
-  std::optional<double> ready_since_;  // the first status seen with a set-point Ready
-  std::uint16_t flags_ = 0;            // relative, change immediately
+  std::optional<double> ready_since_;    // the first status seen with a set-point Ready
+  std::optional<std::int32_t> reached_;  // the target the last move reached, not halted since
+  std::uint16_t flags_ = 0;              // change immediately
   std::optional<std::uint32_t> configured_velocity_;
   std::uint32_t velocity_written_ = 0;
   std::uint64_t generation_ = 0;  // of the profile velocity's write
@@ -234,13 +244,18 @@ Status ProfilePosition::move(TableCommandCode code, std::uint8_t seq, double tar
     return make_error(std::string(what) + " " + num(target_rad * kRadToDeg) + " deg is " + num(c) +
                       " counts, beyond the drive's 32-bit target position (" +
                       hex(obj::kTargetPosition, 4) + ")");
-  // every target absolute: a relative one from where the table is, or from
-  // the target of the move under way (change set immediately)
+  // Every target absolute. The base of a relative move: the target of the move under way
+  // (change set immediately), or the target the last move reached (as a
+  // drive's 0x60F2 = 01 counts, from the position demand value: no
+  // settling residue carried from turn to turn), or, after a halt, a quick
+  // stop or anything else, the position the master tracks.
   const auto at = host_.position_counts();
-  const bool under_way = step_ == Step::Acked || step_ == Step::Halting;
   double target = c;
   if (relative && at) {
-    target = static_cast<double>(under_way ? pending_.target : *at) + c;
+    const double base = step_ == Step::Acked ? static_cast<double>(pending_.target)
+                        : reached_           ? static_cast<double>(*reached_)
+                                             : static_cast<double>(*at);
+    target = base + c;
     if (!(target >= lo && target <= hi))
       return make_error("move by " + num(target_rad * kRadToDeg) + " deg ends at " + num(target) +
                         " counts, beyond the drive's 32-bit position");
@@ -254,6 +269,7 @@ Status ProfilePosition::move(TableCommandCode code, std::uint8_t seq, double tar
     return make_error("move by " + num(target_rad * kRadToDeg) +
                       " deg: the table's position is not known yet (no TPDO1 since the start)");
   pending_ = {seq, static_cast<std::int32_t>(target)};
+  reached_.reset();  // until this one is
   flags_ = static_cast<std::uint16_t>(s_.change_set_immediately ? cw::kChangeImmediately : 0);
   if (vel == velocity_written_) {
     step_ = Step::Ready;

@@ -214,7 +214,7 @@ struct DaemonConfig {
   bool observe = false;  ///< follow a stand someone else drives
   double heartbeat_hz = 10;
   std::uint32_t max_clients =
-      16;  ///< control connections at once; a new one closes another (make_room)
+      16;  ///< control connections at once; a new one closes another (make_room), or is refused
   /// A control client that leaves replies unread this long, or sends nothing
   /// and watches nothing this long, is dropped (real seconds).
   double client_idle_s = 60;

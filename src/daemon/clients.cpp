@@ -62,14 +62,17 @@ void Daemon::reap_clients() {
 /// that peer alone; of those, a watcher last, one with replies still going
 /// out last, one with a request line begun last, then the one idle
 /// longest. A connection accepted under kFreshGraceUs ago that has not
-/// spoken yet is never closed: an operator's abort, connected, is read
-/// before a flood can push it out. False: none can go.
-bool Daemon::make_room() {
+/// spoken yet is closed only for a newcomer of another uid than one
+/// holding more connections than the newcomer's would: an operator's
+/// abort, connected, is read before a flood can push it out, and a flood
+/// of one uid cannot lock the others out. False: none can go.
+bool Daemon::make_room(long long newcomer_uid) {
   std::erase_if(clients, [](const auto& c) { return c->done(); });  // dead slots first
   if (clients.size() < cfg.daemon.max_clients) return true;
   const std::uint64_t now = monotonic_us();
   std::map<long long, std::size_t> held;
   for (const auto& c : clients) ++held[c->uid];
+  const std::size_t newcomer_holds = held[newcomer_uid] + 1;
   auto key = [&](const Client& c) {
     // smaller goes first
     return std::make_tuple(-static_cast<long long>(held[c.uid]), c.watching, !c.out.empty(),
@@ -77,7 +80,8 @@ bool Daemon::make_room() {
   };
   Client* victim = nullptr;
   for (const auto& c : clients) {
-    if (c->close_after || (!c->ever_read && now - c->accepted_us < kFreshGraceUs)) continue;
+    const bool fresh = !c->ever_read && now - c->accepted_us < kFreshGraceUs;
+    if (c->close_after || (fresh && held[c->uid] <= newcomer_holds)) continue;
     if (victim == nullptr || key(*c) < key(*victim)) victim = c.get();
   }
   if (victim == nullptr) return false;
@@ -222,7 +226,8 @@ int Daemon::on_accept(sd_event_source*, int fd, uint32_t, void* u) {
     // Full: room is made rather than the newcomer refused, or clients that
     // connect and never ask anything would lock the operator out, and an
     // abort with them
-    if (d->clients.size() >= d->cfg.daemon.max_clients && !d->make_room()) {
+    if (d->clients.size() >= d->cfg.daemon.max_clients &&
+        !d->make_room(known ? static_cast<long long>(cred.uid) : -1)) {
       const std::string msg =
           "{\"ok\":false,\"error\":\"too many control connections (" +
           std::to_string(d->cfg.daemon.max_clients) +

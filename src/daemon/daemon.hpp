@@ -237,7 +237,7 @@ class Daemon {
   void handle_request(Client& c, const std::string& line);
   void broadcast_watch();
   void reap_clients();
-  bool make_room();
+  bool make_room(long long newcomer_uid);
 
   // ---- sd-event callbacks (daemon.cpp, clients.cpp) ----
   static int on_can_io(sd_event_source*, int, uint32_t revents, void* u);

@@ -135,11 +135,18 @@ TEST_SUITE("faults") {
     std::vector<int> held;
     for (int k = 0; k < 300; ++k) held.push_back(connect_control(sock));
     std::this_thread::sleep_for(1200ms);  // accepted, and no longer new
-    std::string last;                     // the last client's one line: refused in the flood
-    for (char c; ::recv(held.back(), &c, 1, 0) == 1 && c != '\n';) last += c;
-    CHECK_MESSAGE(
-        last.find("too many control connections (16), none to close now") != std::string::npos,
-        last);
+    // refused in the flood: some of those that came while the 16 were new
+    // (how many, the guest's speed decides), each told why
+    int refused = 0;
+    for (std::size_t k = 16; k < held.size(); ++k) {
+      char buf[512];
+      const ssize_t n = ::recv(held[k], buf, sizeof buf, MSG_DONTWAIT);
+      if (n > 0 && std::string(buf, static_cast<std::size_t>(n))
+                           .find("too many control connections (16), none to close now") !=
+                       std::string::npos)
+        ++refused;
+    }
+    CHECK(refused >= 1);
     REQUIRE(ctl(dir.path, {"--json", "status"}, "st.json") == 0);
     std::string first;  // the first client's one line: why it was closed
     for (char c; ::recv(held[0], &c, 1, 0) == 1 && c != '\n';) first += c;

@@ -2912,6 +2912,40 @@ TEST_SUITE("cia402") {
   }
 
   TEST_CASE(
+      "a relative move during a halt goes from where the table is, not the abandoned target") {
+    cia402::MasterSettings ms = master_settings();
+    ms.change_set_immediately = true;
+    Loop l(ms, drive_setup());
+    REQUIRE(l.turning(3.0));  // 360 deg at 30 deg/s, cruising
+    REQUIRE(l.command(TableCommandCode::ControlledStop, 3));
+    l.run_for(0.1);
+    REQUIRE(l.drive.moving(l.t));  // still braking
+    const std::int64_t at = l.drive.position_counts(l.t);
+    REQUIRE(l.command(TableCommandCode::MoveRelative, 4, 10 * kDeg, 30 * kDeg));
+    REQUIRE(l.in_position(4, 10));
+    // 10 deg is 27778 counts at 1e6 counts per turn, from the master's last
+    // position (a TPDO up to 10 ms old: 3000 counts at the most, braking)
+    CHECK(std::llabs(l.drive.position_counts(l.t) - (at + 27778)) < 3000);
+    CHECK(std::fabs(l.drive.angle(l.t)) < M_PI);  // nowhere near the 360 deg abandoned
+  }
+
+  TEST_CASE("relative moves in a row go from the target each reached: no settling carried") {
+    stand::Drive402Faults df;
+    df.position_dither_counts = 3;  // position actual on the edge of counts at rest
+    Loop l(master_settings(), drive_setup(), df);
+    l.start();
+    REQUIRE(l.running());
+    REQUIRE(l.enabled(1));
+    for (int k = 0; k < 4; ++k) {
+      const auto seq = static_cast<std::uint8_t>(2 + k);
+      REQUIRE(l.command(TableCommandCode::MoveRelative, seq, 90 * kDeg, 30 * kDeg));
+      REQUIRE(l.in_position(seq, 10));
+    }
+    // four quarter turns: 4 x 250000 counts exactly, whatever the dither read
+    CHECK(*l.drive.value(0x607A, 0) == 1000000);
+  }
+
+  TEST_CASE(
       "0x60F2 optional: a drive without it runs, told; one that would not turn as planned "
       "is refused") {
     stand::Drive402Setup ds = drive_setup();

@@ -17,9 +17,9 @@
 // * a set-point while moving with "change set immediately" brakes at the
 //   profile deceleration and then sets off to the new target (a real drive
 //   blends); without it the set-point waits for the move under way;
-// * a relative target counts per 0x60F2 bits 0-1: 00 (the default, as on
-//   many drives) from the last target, 01 from where the drive is (at
-//   rest), or from the target of the move under way;
+// * a relative target counts per 0x60F2 bits 0-1 (CiA 402-2): 00 (the
+//   default, as on many drives) from the last target, 01 from the position
+//   demand value, 10 from position actual;
 // * 0x6061 shows a mode written to 0x6060 mode_switch_s later; until then
 //   set-points are ignored;
 // * releasing halt does not resume the move: a new set-point is needed;
@@ -77,7 +77,8 @@ struct Drive402Setup {
   /// (a set-point before then is ignored).
   double mode_switch_s = 0.003;
   /// 0x60F2 after a reset; bits 0-1 = 00 (the default of many drives): a
-  /// relative target counts from the last target; 01: from position actual.
+  /// relative target counts from the last target; 01: from the position
+  /// demand value; 10: from position actual.
   std::uint16_t positioning_option = 0;
   /// With its power stage off (Disable voltage, or an option code of 0 on
   /// shutdown, disable operation or quick stop) the drive no longer brakes:

@@ -852,10 +852,14 @@ void VirtualDrive402::take_set_point(double t, std::uint16_t c) {
   const auto target = static_cast<std::int32_t>(u32(obj::kTargetPosition));
   const bool relative = (c & facts::cw::kRelative) != 0;
   const bool in_motion = motion_kind_ == Motion::Move && t < rest_at_;
-  // 0x60F2 bits 0-1: 00 from the last target (also after a halt or a quick
-  // stop), 01 from position actual (the demand while moving)
-  const bool from_actual = (u32(obj::kPositioningOption) & 0x3) == 1;
-  const std::int64_t base = from_actual ? (in_motion ? demand_ : position_counts(t)) : last_target_;
+  // 0x60F2 bits 0-1 (CiA 402-2): 00 from the last target (also after a
+  // halt or a quick stop), 01 from the position demand value (the
+  // trajectory's own position while it moves, where it holds at rest), 10
+  // from position actual; 11 is reserved (taken as 00)
+  const std::uint32_t rel = u32(obj::kPositioningOption) & 0x3;
+  const std::int64_t base = rel == 1   ? (in_motion ? position_counts(t) : demand_)
+                            : rel == 2 ? position_counts(t)
+                                       : last_target_;
   const std::int64_t abs = relative ? base + target : target;
   last_target_ = abs;
   set_point_ack_ = true;

@@ -873,6 +873,7 @@ class Master final : private ModeHost {
   int warning_reads_left_ = 0;
   double warning_read_at_ = INFINITY;
   bool warning_in_flight_ = false;
+  bool warning_again_ = false;  // another warning came while a read was under way
   std::uint64_t warning_gen_ = 0;
   std::vector<std::string> notices_;
   MasterCounts counts_;
