@@ -2212,10 +2212,7 @@ TEST_SUITE("cia402") {
       ms.emcy_warnings = {{0x4200, 0x42FF}};
     }
     Loop l(ms, drive_setup(), df);
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
+    REQUIRE(l.turning(0));  // started, enabled, a turn of 360 deg at 30 deg/s asked
     const auto from = l.sent.size();
     REQUIRE(l.t < 1.0);
     l.run_for(1.5);  // the warning at 1 s
@@ -2250,10 +2247,7 @@ TEST_SUITE("cia402") {
     cia402::MasterSettings ms = master_settings();
     ms.emcy_warnings = {{0x4000, 0x4FFF}};
     Loop l(ms, drive_setup(), df);
-    l.start();
-    REQUIRE(l.running());
-    REQUIRE(l.enabled(1));
-    REQUIRE(l.command(TableCommandCode::MoveRelative, 2, 360 * kDeg, 30 * kDeg));
+    REQUIRE(l.turning(0));  // started, enabled, a turn of 360 deg at 30 deg/s asked
     const auto from = l.sent.size();
     REQUIRE(l.run_until([&] { return l.master.status().fault != FaultCode::None; }, 1.0));
     CHECK(l.t > 1.0 + cia402::Master::kWarningRecheckS - 0.01);
